@@ -86,9 +86,12 @@ class ShapeConfig:
 
 @dataclass(kw_only=True)
 class SurfaceConfig:
-    """Ashikhmin–Shirley surface parameters of the true object (paper Table surface_para)."""
+    """Ashikhmin–Shirley surface parameters shared by every rendering (paper Table surface_para).
 
-    rho: float = _spec(lo=0.0, hi=1.0, doc="diffuse reflectance")
+    The diffuse reflectance ρ is not here: it is what varies (``data.rho_grid``, ``scenario.rho_true``,
+    ``filter.rho_assumed``).
+    """
+
     f0: float = _spec(lo=0.0, hi=1.0, doc="Fresnel reflectance at normal incidence")
     n_u: float = _spec(lo=0.0, doc="specular lobe exponent along u")
     n_v: float = _spec(lo=0.0, doc="specular lobe exponent along v")
@@ -295,11 +298,11 @@ def _cross_check(cfg: Config) -> None:
         raise ConfigError("shape.mesh_path: required when shape.kind is 'mesh'")
     lo, hi = cfg.evaluation.rmse_window_s
     if not lo < hi:
-        raise ConfigError(f"evaluation.rmse_window_s: start {lo} must be before end {hi}")
+        raise ConfigError(f"evaluation.rmse_window_s: start {lo:g} must be before end {hi:g}")
     if hi > cfg.scenario.duration_s:
-        raise ConfigError(f"evaluation.rmse_window_s: end {hi} is after scenario.duration_s {cfg.scenario.duration_s}")
+        raise ConfigError(f"evaluation.rmse_window_s: end {hi:g} is after scenario.duration_s {cfg.scenario.duration_s:g}")
     if cfg.data.t_span_past < cfg.data.dt_s:
-        raise ConfigError(f"data.t_span_past: {cfg.data.t_span_past} is shorter than data.dt_s {cfg.data.dt_s}")
+        raise ConfigError(f"data.t_span_past: {cfg.data.t_span_past:g} is shorter than data.dt_s {cfg.data.dt_s:g}")
     if not (cfg.device == "cpu" or cfg.device == "cuda" or cfg.device.startswith("cuda:")):
         raise ConfigError(f"device: {cfg.device!r} is not cpu, cuda or cuda:N")
     if all(v == 0 for v in cfg.scenario.q0):
