@@ -48,6 +48,7 @@ def quat_mul(q: Tensor, p: Tensor) -> Tensor:
     """Paper's quaternion product ``q ⊗ p`` (eq. quaternion_product); shapes broadcast, ``(..., 4)``."""
     qv, q4 = q[..., :3], q[..., 3:]
     pv, p4 = p[..., :3], p[..., 3:]
+    qv, pv = torch.broadcast_tensors(qv, pv)  # linalg.cross needs operands of equal ndim
     vec = q4 * pv + p4 * qv - torch.linalg.cross(qv, pv, dim=-1)
     sca = q4 * p4 - (qv * pv).sum(-1, keepdim=True)
     return torch.cat([vec, sca], dim=-1)
