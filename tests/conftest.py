@@ -1,0 +1,5 @@
+"""Shared test settings: small tensors run fastest on one thread (dispatch overhead dominates, DESIGN.md)."""
+
+import torch
+
+torch.set_num_threads(1)
