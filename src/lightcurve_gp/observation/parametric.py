@@ -1,0 +1,45 @@
+"""The conventional UKF's observation model: the renderer itself with assumed surface parameters (paper eq. mApp)."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from ..render import Scene
+from .base import ObservationModel, Prediction
+
+__all__ = ["Parametric"]
+
+
+class Parametric(ObservationModel):
+    """``m_app = −26.7 − 2.5 log10(f_obs(q; ρ) / r_obs²)`` with an assumed ρ; ignores ``m_past``.
+
+    The renderer is exact given its parameters, so the predictive variance is zero. Magnitudes of attitudes
+    with zero flux are NaN (the renderer's policy); the filter refuses such an update and counts it.
+
+    Args:
+        scene: renderer holding the facets (material ``f0``, ``n_u``, ``n_v``) and the Sun/observer geometry.
+        rho: the diffuse reflectance the estimator assumes.
+    """
+
+    uses_m_past = False
+
+    def __init__(self, scene: Scene, rho: float) -> None:
+        super().__init__()
+        if not 0.0 <= float(rho) <= 1.0:
+            raise ValueError(f"rho: {float(rho):g} is outside [0, 1]")
+        self.scene = scene
+        self.rho = float(rho)
+
+    def _apply(self, fn, recurse=True):
+        # nn.Module.to() reaches tensors through _apply: move the scene with a probe tensor
+        probe = fn(self.scene.sun)
+        self.scene = self.scene.to(device=probe.device, dtype=probe.dtype)
+        return super()._apply(fn, recurse)
+
+    def _predict(self, q: Tensor, m_past: Tensor, with_variance: bool) -> Prediction:
+        mean = self.scene.magnitude(q.to(self.scene.sun.dtype), rho=self.rho)
+        return mean, (torch.zeros_like(mean) if with_variance else None)
+
+    def extra_repr(self) -> str:
+        return f"rho={self.rho:g}, facets={len(self.scene.facets)}"

@@ -1,0 +1,315 @@
+"""GP observation models: exactness against closed forms and GPyTorch, fast variance, SGPR limit, model files."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+
+import pytest
+import torch
+
+from lightcurve_gp.config import ModelConfig
+from lightcurve_gp.observation.exact_gp import (ExactGP, fast_variance_error, gpytorch_exact_model,
+                                                lengthscale_to_theta2, theta2_to_lengthscale)
+from lightcurve_gp.observation.inputs import InputMap
+from lightcurve_gp.observation.serialization import (FORMAT_VERSION, ModelFileError, build_model, load_model,
+                                                     save_model)
+from lightcurve_gp.observation.sparse_gp import SparseGP, kmeans
+
+F64 = torch.float64
+PAPER = dict(theta1=1.0, theta2=0.25, noise_std=0.1)
+
+
+def _cfg(**kw) -> ModelConfig:
+    base = dict(kind="exact", **PAPER, variance="fast", fast_variance_neighbors=64, num_inducing=50)
+    base.update(kw)
+    return ModelConfig(**base)
+
+
+def _data(n: int, seed: int = 0):
+    """Unit quaternions, m_past around 13 mag and y a smooth function of both plus a little noise."""
+    g = torch.Generator().manual_seed(seed)
+    q = torch.randn(n, 4, generator=g, dtype=F64)
+    q = q / q.norm(dim=-1, keepdim=True)
+    m_past = 13.0 + 0.5 * torch.randn(n, generator=g, dtype=F64)
+    y = (13.0 + torch.sin(2 * q[:, 0]) + 0.5 * q[:, 1] * q[:, 2] + 0.8 * (m_past - 13.0)
+         + 0.05 * torch.randn(n, generator=g, dtype=F64))
+    return q, m_past, y
+
+
+def _closed_form(q, m_past, y, qt, mt, theta1=1.0, theta2=0.25, noise_std=0.1):
+    """Textbook GP posterior with the paper's kernel, by a plain Cholesky."""
+    x = torch.cat([q, m_past[:, None]], 1)
+    xt = torch.cat([qt, mt[:, None]], 1)
+    k = theta1 * torch.exp(-torch.cdist(x, x) ** 2 / theta2) + noise_std**2 * torch.eye(len(x), dtype=F64)
+    ks = theta1 * torch.exp(-torch.cdist(xt, x) ** 2 / theta2)
+    chol = torch.linalg.cholesky(k)
+    mu = y.mean()
+    mean = mu + ks @ torch.cholesky_solve((y - mu)[:, None], chol)[:, 0]
+    v = torch.linalg.solve_triangular(chol, ks.T, upper=False)
+    return mean, theta1 - (v * v).sum(0)
+
+
+@pytest.fixture(scope="module")
+def train():
+    return _data(200)
+
+
+@pytest.fixture(scope="module")
+def test_pts():
+    q, m, _ = _data(30, seed=1)
+    return q, m
+
+
+@pytest.fixture(scope="module")
+def exact(train):
+    return ExactGP.from_data(*train, _cfg())
+
+
+@pytest.fixture(scope="module")
+def sparse(train):
+    return SparseGP.from_data(*train, _cfg(kind="sparse"))
+
+
+# ----------------------------------------------------------------------------------------------- interface
+
+@pytest.mark.parametrize("which", ["exact", "sparse"])
+@pytest.mark.parametrize("batch", [(), (7,), (2, 3)])
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_shapes_and_dtypes(which, batch, dtype, exact, sparse):
+    # a copy: a float64 -> float32 -> float64 round trip would round the shared fixture's caches
+    model = copy.deepcopy(exact if which == "exact" else sparse).to(dtype)
+    g = torch.Generator().manual_seed(3)
+    q = torch.randn(*batch, 4, generator=g, dtype=dtype)
+    m = 13.0 + torch.randn(batch, generator=g, dtype=dtype)
+    mean, var = model(q=q, m_past=m)
+    assert mean.shape == batch and var.shape == batch
+    assert mean.dtype == dtype and var.dtype == dtype
+    assert bool((var >= 0).all()) and bool(torch.isfinite(mean).all())
+    mean2, none = model.predict(q, m, with_variance=False)
+    assert none is None
+    torch.testing.assert_close(mean2, mean)
+    # m_past broadcasts against q's batch shape
+    mean3, _ = model.predict(q, torch.tensor(13.0, dtype=dtype))
+    assert mean3.shape == batch
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+@pytest.mark.parametrize("which", ["exact", "sparse"])
+def test_cuda_matches_cpu(which, exact, sparse, test_pts):
+    model = exact if which == "exact" else sparse
+    q, m = test_pts
+    mean, var = model.predict(q, m)
+    try:
+        model.to("cuda")
+        mean_c, var_c = model.predict(q.cuda(), m.cuda())
+        torch.testing.assert_close(mean_c.cpu(), mean, rtol=1e-9, atol=1e-9)
+        torch.testing.assert_close(var_c.cpu(), var, rtol=1e-7, atol=1e-9)
+    finally:
+        model.to("cpu")
+
+
+@pytest.mark.parametrize("which", ["exact", "sparse"])
+def test_bad_inputs_raise(which, exact, sparse):
+    model = exact if which == "exact" else sparse
+    q = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=F64)
+    m = torch.tensor(13.0, dtype=F64)
+    with pytest.raises(ValueError):
+        model.predict(torch.tensor([0.0, 0.0, 1.0], dtype=F64), m)
+    with pytest.raises(ValueError):
+        model.predict(torch.tensor([0.0, float("nan"), 0.0, 1.0], dtype=F64), m)
+    with pytest.raises(ValueError):
+        model.predict(q, torch.tensor(float("inf"), dtype=F64))
+    with pytest.raises(ValueError):
+        model.predict(q.expand(3, 4), torch.zeros(2, dtype=F64))
+
+
+def test_training_data_checked():
+    q, m, y = _data(20)
+    y = y.clone()
+    y[3] = float("nan")
+    with pytest.raises(ValueError, match="non-finite"):
+        ExactGP.from_data(q, m, y, _cfg())
+    with pytest.raises(ValueError, match="q \\(N, 4\\)"):
+        ExactGP.from_data(q[:, :3], m, y, _cfg())
+
+
+# ----------------------------------------------------------------------------------------------- exact GP
+
+def test_exact_matches_closed_form(exact, train, test_pts):
+    mean_ref, var_ref = _closed_form(*train, *test_pts)
+    mean = exact.predict(*test_pts, with_variance=False)[0]
+    var = exact.predict_variance(*test_pts, "exact")
+    torch.testing.assert_close(mean, mean_ref, rtol=0, atol=1e-8)
+    torch.testing.assert_close(var, var_ref, rtol=0, atol=1e-8)
+    # training points too (small variance, near the data)
+    var_tr = exact.predict_variance(train[0][:10], train[1][:10], "exact")
+    torch.testing.assert_close(var_tr, _closed_form(*train, train[0][:10], train[1][:10])[1], rtol=0, atol=1e-8)
+
+
+def test_kernel_mapping_matches_gpytorch(exact, train, test_pts):
+    """θ2 = 2ℓ² exactly, and GPyTorch's own posterior (latent and with likelihood) agrees with ours."""
+    import gpytorch
+
+    assert lengthscale_to_theta2(theta2_to_lengthscale(0.25)) == pytest.approx(0.25, rel=1e-15)
+    assert theta2_to_lengthscale(0.25) == pytest.approx(math.sqrt(0.125), rel=1e-15)
+    torch.testing.assert_close(exact.theta2, torch.full((5,), 0.25, dtype=F64), rtol=1e-14, atol=0)
+    q, m, y = train
+    x = torch.cat([q, m[:, None]], 1)
+    model, lik = gpytorch_exact_model(x, y - y.mean(), 1.0, theta2_to_lengthscale(0.25), 0.01)
+    model.eval()
+    lik.eval()
+    xt = torch.cat([test_pts[0], test_pts[1][:, None]], 1)
+    with torch.no_grad(), gpytorch.settings.max_cholesky_size(10**6), gpytorch.settings.fast_pred_var(False):
+        latent = model(xt)
+        noisy = lik(model(xt))
+    mean, var = exact.predict(*test_pts)
+    var = exact.predict_variance(*test_pts, "exact")
+    torch.testing.assert_close(latent.mean + y.mean(), mean, rtol=0, atol=1e-7)
+    torch.testing.assert_close(latent.variance, var, rtol=0, atol=1e-7)
+    torch.testing.assert_close(noisy.variance, var + 0.01, rtol=0, atol=1e-7)
+
+
+def test_fast_variance_close_to_exact_and_an_upper_bound(train):
+    """Documented tolerance: with k = 64 of N = 200 neighbours, fast ≥ exact and within 5% (measured ≲ 1%)."""
+    model = ExactGP.from_data(*train, _cfg(fast_variance_neighbors=64))
+    q, m, _ = _data(40, seed=2)
+    # single points and sigma-point-like clusters (13 points within ~3 degrees) sharing one neighbour set
+    err = fast_variance_error(model, q, m)
+    assert err["n"] == 40 and err["max_rel"] < 0.05, err
+    g = torch.Generator().manual_seed(5)
+    qc = (q[:4, None, :] + 0.02 * torch.randn(4, 13, 4, generator=g, dtype=F64))
+    mc = m[:4, None].expand(4, 13)
+    err_c = fast_variance_error(model, qc, mc)
+    assert err_c["max_rel"] < 0.05, err_c
+    fast = model.predict_variance(qc, mc, "fast")
+    ex = model.predict_variance(qc, mc, "exact")
+    assert bool((fast >= ex - 1e-12).all())
+    # all training points as neighbours: the fast variance is the exact one
+    model.neighbors = 200
+    torch.testing.assert_close(model.predict_variance(q, m, "fast"), model.predict_variance(q, m, "exact"),
+                               rtol=0, atol=1e-9)
+
+
+def test_variance_none_and_exact_modes(train, test_pts):
+    none = ExactGP.from_data(*train, _cfg(variance="none"))
+    assert none.predict(*test_pts)[1] is None
+    ex = ExactGP.from_data(*train, _cfg(variance="exact"))
+    torch.testing.assert_close(ex.predict(*test_pts)[1], _closed_form(*train, *test_pts)[1], rtol=0, atol=1e-8)
+    ex.drop_cholesky()  # recomputed lazily
+    torch.testing.assert_close(ex.predict(*test_pts)[1], _closed_form(*train, *test_pts)[1], rtol=0, atol=1e-8)
+
+
+def test_standardised_inputs(train, test_pts):
+    model = ExactGP.from_data(*train, _cfg(standardize_inputs=True))
+    x = model.inputs.raw(*train[:2])
+    torch.testing.assert_close(model.x_train.mean(0), torch.zeros(5, dtype=F64), rtol=0, atol=1e-12)
+    torch.testing.assert_close(model.x_train.std(0), torch.ones(5, dtype=F64), rtol=0, atol=1e-12)
+    torch.testing.assert_close(model.inputs.shift, x.mean(0))
+    mean, var = model.predict(*test_pts)
+    assert bool(torch.isfinite(mean).all()) and bool((var > 0).all())
+
+
+def test_input_registry():
+    with pytest.raises(ValueError, match="unknown input kind"):
+        InputMap("nope")
+    with pytest.raises(ValueError, match="already registered"):
+        from lightcurve_gp.observation.inputs import register_input_kind, quaternion_features
+
+        register_input_kind("quaternion", 5, quaternion_features)
+    q = torch.tensor([[0.1, 0.2, 0.3, 0.9]], dtype=F64)
+    torch.testing.assert_close(InputMap()(q, torch.tensor([13.0], dtype=F64)),
+                               torch.tensor([[0.1, 0.2, 0.3, 0.9, 13.0]], dtype=F64))
+
+
+def test_marginal_likelihood_fit_increases_mll(train):
+    cfg = _cfg(fit_hyperparameters=True, fit_iterations=30, fit_lr=0.05, fit_subset=150, ard=True)
+    model = ExactGP.from_data(*train, cfg)
+    hist = model.fit_history
+    assert len(hist) == 31 and hist[-1] > hist[0] + 1e-3
+    assert model.lengthscale.shape == (5,) and not torch.allclose(model.lengthscale, model.lengthscale[0])
+
+
+# ----------------------------------------------------------------------------------------------- sparse GP
+
+def test_sparse_with_training_inputs_as_inducing_equals_exact(train, test_pts):
+    q, m, y = train
+    x = torch.cat([q, m[:, None]], 1)
+    sparse = SparseGP.from_data(q, m, y, _cfg(kind="sparse"), inducing_points=x, jitter=1e-10)
+    mean_ref, var_ref = _closed_form(*train, *test_pts)
+    mean, var = sparse.predict(*test_pts)
+    torch.testing.assert_close(mean, mean_ref, rtol=0, atol=1e-6)
+    torch.testing.assert_close(var, var_ref, rtol=0, atol=1e-6)
+
+
+def test_sparse_error_decreases_with_m(train, test_pts):
+    mean_ref, var_ref = _closed_form(*train, *test_pts)
+    errors = []
+    for m_ind in (10, 50, 150):
+        sp = SparseGP.from_data(*train, _cfg(kind="sparse", num_inducing=m_ind))
+        mean, var = sp.predict(*test_pts)
+        errors.append(float((mean - mean_ref).abs().max() + (var - var_ref).abs().max()))
+    assert errors[0] > errors[1] > errors[2], errors
+
+
+def test_sparse_optimisation_increases_bound(train):
+    cfg = _cfg(kind="sparse", num_inducing=15, optimize_inducing=True, sparse_iterations=20, fit_lr=0.02)
+    sp = SparseGP.from_data(*train, cfg, init="random")
+    assert len(sp.fit_history) == 21 and sp.fit_history[-1] > sp.fit_history[0]
+
+
+def test_kmeans_is_seeded_and_reduces_inertia():
+    x = _data(200)[0]
+    c1, c2 = kmeans(x, 8, seed=1), kmeans(x, 8, seed=1)
+    torch.testing.assert_close(c1, c2)
+    inertia = lambda c: float(torch.cdist(x, c).min(1).values.pow(2).sum())  # noqa: E731
+    assert inertia(c1) < inertia(kmeans(x, 8, iterations=0, seed=1))
+
+
+# ----------------------------------------------------------------------------------------------- model files
+
+@pytest.mark.parametrize("which", ["exact", "sparse"])
+def test_save_load_roundtrip(which, exact, sparse, test_pts, tmp_path):
+    model = exact if which == "exact" else sparse
+    path = save_model(model, tmp_path / f"{which}.pt", extra={"note": "test", "n": 3})
+    loaded = load_model(path)
+    assert type(loaded) is type(model) and loaded.extra == {"note": "test", "n": 3}
+    assert loaded.config == model.config
+    m1, v1 = model.predict(*test_pts)
+    m2, v2 = loaded.predict(*test_pts)
+    assert torch.equal(m1, m2) and torch.equal(v1, v2)
+    if which == "exact":  # lazily recomputed Cholesky gives the same exact variance
+        torch.testing.assert_close(loaded.predict_variance(*test_pts, "exact"),
+                                   model.predict_variance(*test_pts, "exact"), rtol=0, atol=1e-12)
+
+
+def test_model_file_errors(exact, tmp_path):
+    with pytest.raises(ModelFileError, match="no such model file"):
+        load_model(tmp_path / "missing.pt")
+    path = save_model(exact, tmp_path / "m.pt")
+    raw = path.read_bytes()
+    (tmp_path / "trunc.pt").write_bytes(raw[: len(raw) // 2])
+    with pytest.raises(ModelFileError, match="not a readable model file"):
+        load_model(tmp_path / "trunc.pt")
+    (tmp_path / "junk.pt").write_bytes(b"not a model at all")
+    with pytest.raises(ModelFileError):
+        load_model(tmp_path / "junk.pt")
+    payload = torch.load(path, weights_only=True)
+    torch.save(dict(payload, format_version=FORMAT_VERSION + 1), tmp_path / "v2.pt")
+    with pytest.raises(ModelFileError, match="format version"):
+        load_model(tmp_path / "v2.pt")
+    torch.save({"something": "else"}, tmp_path / "foreign.pt")
+    with pytest.raises(ModelFileError, match="not a lightcurve-gp-model"):
+        load_model(tmp_path / "foreign.pt")
+    state = dict(payload["state"], alpha=payload["state"]["alpha"][:-1])
+    torch.save(dict(payload, state=state), tmp_path / "bad_shape.pt")
+    with pytest.raises(ModelFileError, match="inconsistent"):
+        load_model(tmp_path / "bad_shape.pt")
+    assert issubclass(ModelFileError, ValueError)
+
+
+def test_config_dict_is_stored_and_build_model_dispatches(exact, train):
+    assert exact.config == dataclasses.asdict(_cfg())
+    assert isinstance(build_model(*train, _cfg(kind="sparse", num_inducing=10)), SparseGP)
+    assert isinstance(build_model(*train, _cfg(variance="none")), ExactGP)
