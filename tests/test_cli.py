@@ -1,0 +1,95 @@
+"""The train and estimate commands on a tiny config: outputs, metrics and clear errors."""
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+
+from lightcurve_gp import estimate, train
+from lightcurve_gp.observation import load_model
+
+BOXWING = str(Path(__file__).resolve().parents[1] / "configs" / "boxwing.yaml")
+TINY = ["data.icosphere_subdivisions=0", "data.phi_step_deg=120", "data.heldout_size=40", "scenario.duration_s=60",
+        "evaluation.rmse_window_s=[30, 60]", "model.fast_variance_neighbors=32", "name=tiny"]
+
+
+def sets(overrides):
+    return [arg for o in overrides for arg in ("--set", o)]
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs")
+    assert train.main([BOXWING, "--out", str(out), "--no-progress", *sets(TINY)]) == 0
+    return out
+
+
+def test_train_writes_model_metrics_and_figures(trained, capsys):
+    run = trained / "tiny"
+    for name in ("model.pt", "metrics.json", "config.yaml", "heldout_scatter.png", "heldout_residuals.png"):
+        assert (run / name).is_file(), name
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["train_points"] == 12 * 3 * 5
+    held = metrics["heldout"]
+    assert held["n"] == 40 and 0 <= held["within_2sigma"] <= 1 and held["rmse"] > 0
+    fv = metrics["fast_variance_vs_exact"]
+    assert fv["n"] == 40 and fv["median_rel"] >= 0
+    # the saved model predicts the held-out RMSE it reported
+    model = load_model(run / "model.pt")
+    assert model.num_train == 180
+
+
+def test_train_recomputes_rmse_from_the_saved_model(trained):
+    from lightcurve_gp.config import load_config
+    from lightcurve_gp.data import generate_heldout_set
+
+    cfg = load_config(BOXWING, TINY)
+    held = generate_heldout_set(cfg)
+    model = load_model(trained / "tiny" / "model.pt")
+    mean, _ = model(q=held.q, m_past=held.m_past, with_variance=False)
+    rmse = float((mean - held.y).pow(2).mean().sqrt())
+    reported = json.loads((trained / "tiny" / "metrics.json").read_text())["heldout"]["rmse"]
+    assert rmse == pytest.approx(reported, rel=1e-9)
+
+
+def test_sparse_model_trains_from_the_command_line(tmp_path):
+    assert train.main([BOXWING, "--out", str(tmp_path), "--no-progress",
+                       *sets(TINY + ["model.kind=sparse", "model.num_inducing=20", "model.sparse_iterations=0"])]) == 0
+    metrics = json.loads((tmp_path / "tiny" / "metrics.json").read_text())
+    assert metrics["model"] == "sparse" and metrics["fast_variance_vs_exact"] is None
+
+
+def test_bad_config_value_is_reported_with_its_key(tmp_path, capsys):
+    assert train.main([BOXWING, "--out", str(tmp_path), "--set", "model.noise_std=-1"]) == 2
+    assert "model.noise_std: -1 must be > 0" in capsys.readouterr().err
+    assert not (tmp_path / "boxwing").exists()
+
+
+def test_estimate_prints_the_table_and_writes_results(trained, tmp_path, capsys):
+    code = estimate.main([BOXWING, "--model", str(trained / "tiny" / "model.pt"), "--seeds", "3", "--rho-true", "0.7",
+                          "--out", str(tmp_path), *sets(TINY)])
+    assert code == 0
+    printed = capsys.readouterr().out
+    for name in ("gpukf", "ukf", "matched_ukf", "no_update", "rho_true = 0.7"):
+        assert name in printed
+    folder = tmp_path / "tiny" / "estimate_rho0.7"
+    results = json.loads((folder / "results.json").read_text())
+    assert set(results["estimators"]) == {"gpukf", "ukf", "matched_ukf", "no_update"}
+    assert len(results["per_seed_rmse_deg"]["gpukf"]) == 3
+    assert all(len(row) == 3 for row in results["per_seed_rmse_deg"]["ukf"])
+    for png in ("euler_errors.png", "light_curves.png", "rmse_boxplot.png"):
+        assert (folder / png).stat().st_size > 1000
+
+
+def test_estimate_errors_are_clear(tmp_path, capsys):
+    bad = tmp_path / "model.pt"
+    bad.write_bytes(b"garbage")
+    assert estimate.main([BOXWING, "--model", str(bad), *sets(TINY)]) == 2
+    assert "not a readable model file" in capsys.readouterr().err
+    assert estimate.main([BOXWING, "--rho-true", "1.5", *sets(TINY)]) == 2
+    assert "--rho-true: 1.5 is outside [0, 1]" in capsys.readouterr().err
+    assert estimate.main([BOXWING, "--estimators", "ukf,kalman", "--seeds", "1", "--out", str(tmp_path),
+                          *sets(TINY)]) == 2
+    assert "unknown estimator 'kalman'" in capsys.readouterr().err
+    torch.set_num_threads(1)  # estimate.main sets the thread count; keep the suite's setting

@@ -1,0 +1,113 @@
+"""Scenario simulation, the parametric model, and the estimators on the paper's scenario (short runs)."""
+
+import math
+from pathlib import Path
+
+import pytest
+import torch
+
+from lightcurve_gp.config import load_config
+from lightcurve_gp.estimation import propagate_only, run_estimators
+from lightcurve_gp.metrics import total_angle_deg
+from lightcurve_gp.observation.parametric import Parametric
+from lightcurve_gp.render import Scene
+from lightcurve_gp.rotations import euler321_to_quat, quat_mul
+from lightcurve_gp.scenario import simulate_scenario
+
+BOXWING = Path(__file__).resolve().parents[1] / "configs" / "boxwing.yaml"
+
+
+def test_noise_of_a_seed_does_not_depend_on_its_neighbours():
+    cfg = load_config(BOXWING, ["scenario.duration_s=50", "evaluation.rmse_window_s=[10, 50]"])
+    alone = simulate_scenario(cfg, seeds=[3])
+    together = simulate_scenario(cfg, seeds=[1, 3, 5])
+    assert torch.equal(alone.observations[0], together.observations[1])
+    assert not torch.equal(together.observations[0], together.observations[1])
+
+
+def test_noise_has_the_configured_variance():
+    cfg = load_config(BOXWING)
+    sc = simulate_scenario(cfg, seeds=range(40))
+    noise = sc.observations - sc.m_clean
+    assert float(noise.mean()) == pytest.approx(0.0, abs=0.02)
+    assert float(noise.var()) == pytest.approx(cfg.scenario.noise_var, rel=0.03)
+
+
+def test_initial_estimate_carries_the_configured_euler_error():
+    cfg = load_config(BOXWING)
+    sc = simulate_scenario(cfg, seeds=[0])
+    error = euler321_to_quat(torch.deg2rad(torch.tensor(cfg.scenario.initial_error_deg, dtype=torch.float64)))
+    assert torch.allclose(quat_mul(error, sc.q_true[0]), sc.q_est0, atol=1e-15)
+    expected = math.degrees(2 * math.acos(abs(float(error[3]))))
+    assert float(total_angle_deg(sc.q_true[0], sc.q_est0)) == pytest.approx(expected, abs=1e-9)
+
+
+def test_parametric_model_is_the_renderer_and_ignores_m_past():
+    cfg = load_config(BOXWING)
+    scene = Scene.from_config(cfg)
+    model = Parametric(scene, rho=0.3)
+    q = torch.nn.functional.normalize(torch.randn(2, 5, 4, dtype=torch.float64, generator=torch.Generator().manual_seed(0)), dim=-1)
+    mean, var = model(q=q, m_past=torch.full((2, 5), 11.0, dtype=torch.float64))
+    assert torch.equal(mean, scene.magnitude(q, rho=0.3))
+    assert torch.equal(var, torch.zeros_like(mean))
+    mean2, none = model.predict(q, torch.zeros(2, 5, dtype=torch.float64), with_variance=False)
+    assert none is None and torch.equal(mean, mean2)
+    m32, _ = model.to(torch.float32)(q=q.float(), m_past=torch.zeros(2, 5))
+    assert m32.dtype == torch.float32 and float((m32.double() - mean).abs().max()) < 1e-4
+    with pytest.raises(ValueError, match="rho: 1.5 is outside"):
+        Parametric(scene, rho=1.5)
+    with pytest.raises(ValueError, match=r"q must have shape \(..., 4\)"):
+        model(q=torch.zeros(3, 3, dtype=torch.float64), m_past=torch.zeros(3, dtype=torch.float64))
+
+
+def test_no_update_baseline_reproduces_the_propagated_initial_error():
+    cfg = load_config(BOXWING)
+    sc = simulate_scenario(cfg, seeds=[0])
+    q = propagate_only(sc.q_est0, sc.increments)
+    # A(q_est) = A(err) A(q_true) at t0 and the dynamics act on the left: the error attitude is conjugated by the
+    # motion, so its rotation angle is constant along the whole run
+    angles = total_angle_deg(sc.q_true, q)
+    assert float(angles.max() - angles.min()) < 1e-9
+
+
+def test_matched_ukf_converges_with_noise_free_observations():
+    """Locally (2 deg initial error, the paper's light curve without noise) the matched filter locks on below 1 deg.
+
+    From the paper's 15 deg initial error it does not within 600 s: the light curve's sensitivity to the weakest
+    attitude direction is 1.8 mag/rad summed over the whole run (see README).
+    """
+    cfg = load_config(BOXWING, ["scenario.noise_var=0", "filter.measurement_noise=1e-3", "filter.process_noise=0",
+                                "scenario.initial_error_deg=[-2, 1, -2]", "filter.p0_deg=3"])
+    res = run_estimators(cfg, seeds=[0], estimators=("matched_ukf",))
+    final = total_angle_deg(res.scenario.q_true[-1], res.results["matched_ukf"].q_est[0, -1])
+    assert float(final) < 1.0
+
+
+def test_conventional_ukf_suffers_from_a_rho_mismatch_that_the_matched_one_does_not_have():
+    """The paper's Fig. ukf_doesNotWork without noise: ρ_ukf = 0.5 on ρ_true = 0.7 loses the attitude."""
+    cfg = load_config(BOXWING, ["scenario.noise_var=0", "filter.measurement_noise=0.02"])
+    res = run_estimators(cfg, seeds=[0], rho_true=0.7, estimators=("ukf", "matched_ukf"))
+    summary = res.summary()["estimators"]
+    ukf, matched = summary["ukf"], summary["matched_ukf"]
+    assert max(ukf["rmse_deg_median"]) > 3 * max(matched["rmse_deg_median"])
+    assert ukf["lc_rmse_clean_median"] > 10 * matched["lc_rmse_clean_median"]
+
+
+def test_rho_is_a_pure_offset_for_the_matched_filter():
+    """Diffuse-dominated light curve: the matched filter at ρ = 0.7 behaves as the one at ρ = 0.5 on the same noise.
+
+    Not bit-identical: sigma points ~17° off the truth see a specular share of order 1e-6.
+    """
+    cfg = load_config(BOXWING, ["scenario.seeds=4"])
+    a = run_estimators(cfg, rho_true=0.7, estimators=("matched_ukf",)).results["matched_ukf"]
+    b = run_estimators(cfg, rho_true=0.5, estimators=("matched_ukf",)).results["matched_ukf"]
+    assert float((a.q_est - b.q_est).abs().max()) < 1e-3
+    assert float((a.rmse_deg - b.rmse_deg).abs().max()) < 0.02
+
+
+def test_unknown_estimator_and_missing_model_are_reported():
+    cfg = load_config(BOXWING)
+    with pytest.raises(ValueError, match="unknown estimator 'kalman'"):
+        run_estimators(cfg, seeds=[0], estimators=("kalman",))
+    with pytest.raises(ValueError, match="needs a trained GP model"):
+        run_estimators(cfg, seeds=[0], estimators=("gpukf",))
