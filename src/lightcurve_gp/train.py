@@ -161,7 +161,6 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    torch.set_default_dtype(torch.float64)
     result = train(cfg, args.out, args.cache or args.out / "cache", progress=not args.no_progress)
     print(_summary(result))
     return 0
