@@ -32,6 +32,8 @@ from typing import Callable, NamedTuple
 import torch
 from torch import Tensor
 
+from .rotations import grp_to_quat, quat_to_grp
+
 
 __all__ = [
     "UnscentedWeights",
@@ -392,23 +394,6 @@ def _right_matrix_conj(p: Tensor) -> Tensor:
     return (p[..., _consts("R_idx", p)] * _consts("Rc_sgn", p)).unflatten(-1, (4, 4))
 
 
-def _grp_to_quat(p: Tensor, a: float, f: float) -> Tensor:
-    """:func:`~lightcurve_gp.rotations.grp_to_quat` with fewer operations (same formula)."""
-    p2 = (p * p).sum(-1, keepdim=True)
-    den = f * f + p2
-    if a == 1.0:  # q4 = (f² − |p|²)/(f² + |p|²), (1 + q4)/f = 2f/(f² + |p|²)
-        q4 = (f * f - p2) / den
-        return torch.cat([p * ((2.0 * f) / den), q4], dim=-1)
-    q4 = (f * torch.sqrt(f * f + (1.0 - a * a) * p2) - a * p2) / den
-    return torch.cat([p * ((a + q4) / f), q4], dim=-1)
-
-
-def _quat_to_grp(q: Tensor, a: float, f: float) -> Tensor:
-    """:func:`~lightcurve_gp.rotations.quat_to_grp` (sign chosen so that ``q4 ≥ 0``)."""
-    q4 = q[..., 3:]
-    return (f * torch.where(q4 < 0, -q[..., :3], q[..., :3])) / (a + q4.abs())
-
-
 def _sqrt_psd(a: Tensor) -> tuple[Tensor, Tensor]:
     """:func:`matrix_sqrt` for matrices already symmetric (the common path costs one Cholesky and one sync)."""
     s, info = torch.linalg.cholesky_ex(a)
@@ -502,7 +487,7 @@ def run_usque(model, q_est0: Tensor, P0: Tensor, observations: Tensor, m_past0: 
             cols = s.transpose(-1, -2)
             chi = torch.cat([zero_s, cols, -cols], dim=1)  # (B, S, 3)
             # 2-3. q_i⁻ = δ_{k-1} ⊗ δq_i ⊗ q̂ = [L(δ) R(q̂)] δq_i; the central point δq_0 = 1 gives q_0⁻ = M[:, :, 3]
-            dq = _grp_to_quat(chi, a, f)
+            dq = grp_to_quat(chi, a, f)
             M = L_inc[:, k - 1] @ _right_matrix(q_hat)  # (B, 4, 4)
             q0m = M[:, :, 3]
             # 4. δq_i⁻ = q_i⁻ ⊗ (q_0⁻)⁻¹ = [R(q_0⁻*) M] δq_i; one product gives both
@@ -510,7 +495,7 @@ def run_usque(model, q_est0: Tensor, P0: Tensor, observations: Tensor, m_past0: 
             both = torch.bmm(dq, torch.cat([M, N], dim=1).transpose(1, 2))  # (B, S, 8)
             q_sig = both[..., :4]
             q_sig = q_sig / torch.linalg.vector_norm(q_sig, dim=-1, keepdim=True)
-            chi_m = _quat_to_grp(both[..., 4:], a, f)
+            chi_m = quat_to_grp(both[..., 4:], a, f)
             chi_m[:, 0] = 0.0
             # 5. a priori mean and covariance of the GRP error
             x_m = torch.bmm(wm_row, chi_m)  # (B, 1, 3)
@@ -541,7 +526,7 @@ def run_usque(model, q_est0: Tensor, P0: Tensor, observations: Tensor, m_past0: 
             P = P_m - (yy_used * K).unsqueeze(-1) * K.unsqueeze(-2)
             P = _symmetrise(P)
             # 8. reset the reference attitude q̂ ← δq(x̂⁺) ⊗ q_0⁻; the error state returns to zero
-            q_hat = torch.bmm(_right_matrix(q0m), _grp_to_quat(x_p, a, f).unsqueeze(-1)).squeeze(-1)
+            q_hat = torch.bmm(_right_matrix(q0m), grp_to_quat(x_p, a, f).unsqueeze(-1)).squeeze(-1)
             q_hat = q_hat / torch.linalg.vector_norm(q_hat, dim=-1, keepdim=True)
             # record (m_past as used for this prediction), then 9. fold the observation into m_past
             h_q.append(q_hat)
