@@ -19,6 +19,8 @@ __all__ = ["prediction_scatter", "residual_histogram", "euler_errors", "light_cu
 #: paper colours: GPUKF blue, conventional UKF red, truth black; the extra baselines get their own
 ESTIMATOR_COLORS = {"gpukf": "tab:blue", "ukf": "tab:red", "truth": "black", "matched_ukf": "tab:green",
                     "no_update": "tab:gray", "joint_ukf": "tab:purple"}
+#: the reference estimators are dashed so that an estimator they coincide with stays visible
+ESTIMATOR_STYLES = {"matched_ukf": "--", "no_update": ":"}
 AXES = ("yaw", "pitch", "roll")
 
 
@@ -74,7 +76,8 @@ def euler_errors(times, errors: Mapping[str, object], path: str | Path, title: s
     for name, err in errors.items():
         e = _np(err)
         for i, ax in enumerate(axes):
-            ax.plot(t, e[:, i], color=ESTIMATOR_COLORS.get(name), lw=1, label=name)
+            ax.plot(t, e[:, i], color=ESTIMATOR_COLORS.get(name), ls=ESTIMATOR_STYLES.get(name, "-"), lw=1,
+                    label=name)
     for i, ax in enumerate(axes):
         ax.set_ylabel(f"{AXES[i]} error [deg]")
         ax.axhline(0, color="black", lw=0.5)
@@ -94,7 +97,8 @@ def light_curves(times, observed, predictions: Mapping[str, object], path: str |
     fig, ax = plt.subplots(figsize=(6.4, 3.6))
     ax.plot(t, _np(observed), color="black", lw=0.6, label="observed (noisy truth)")
     for name, pred in predictions.items():
-        ax.plot(t, _np(pred), color=ESTIMATOR_COLORS.get(name), lw=1, label=name)
+        ax.plot(t, _np(pred), color=ESTIMATOR_COLORS.get(name), ls=ESTIMATOR_STYLES.get(name, "-"), lw=1,
+                label=name)
     ax.invert_yaxis()
     ax.set_xlabel("time [s]")
     ax.set_ylabel("$m_{app}$ [mag]")
