@@ -1,0 +1,214 @@
+"""Benchmark of batched USQUE filtering (paper scenario) with each observation model.
+
+Time per filter step: median of ``--repeats`` short runs (``--steps`` steps of the paper's scenario, after one
+2-step warm-up run) of ``B`` filters advancing together (``lightcurve_gp.ukf.run_usque``), for B in ``--batches``,
+with the ExactGP (N = 19260; fast variance, and mean only), the SparseGP (M = 512) and the parametric renderer.
+Reported as ms per step and µs per filter-step. Beside the batched B = 100 run, a Python loop over 100
+single-filter runs (what a one-filter library offers) and the ratio. Then one whole 600 s run of one filter per
+model. On CUDA (when available) also B = 100 000 with the SparseGP and the renderer.
+
+Cases too slow for ``--budget`` seconds (projected from the previous batch size) are skipped with the reason
+printed; ExactGP calls are split into chunks of filters so that one chunk's kernel block stays under
+``--chunk-values`` kernel values (B = 10 000 × 7 sigma points × 19260 training points would be 1.3e9, 10 GB).
+
+    python benchmarks/bench_filter.py                  # paper size, 1 thread
+    python benchmarks/bench_filter.py --quick          # 1260 training points, 20 steps, B up to 1000
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import _common as C
+
+PAPER = {"GPUKF": 0.85, "UKF": 0.005}  # seconds per observation step, paper section 4
+TARGETS = {  # (model label, B) -> seconds per filter-step; "whole" -> seconds per 600 s run
+    ("ExactGP fast var", 1): 2e-3,
+    ("SparseGP M=512", 1): 0.5e-3,
+    ("SparseGP M=512", 10_000): 20e-6,
+}
+WHOLE_TARGET = 1.0
+N_SIGMA = 7
+
+
+def chunked(model, max_values: int):
+    """``model`` wrapped so that one call sees at most ``max_values // (7 · N)`` filters (ExactGP only)."""
+    import torch
+
+    from lightcurve_gp.observation.base import ObservationModel
+
+    n_train = getattr(model, "num_train", None)
+    if n_train is None:
+        return model
+    per_call = max(1, max_values // (N_SIGMA * n_train))
+
+    class Chunked(ObservationModel):
+        def forward(self, *, q, m_past, with_variance=True):
+            if q.shape[0] <= per_call:
+                return model(q=q, m_past=m_past, with_variance=with_variance)
+            parts = [model(q=q[i:i + per_call], m_past=m_past[i:i + per_call], with_variance=with_variance)
+                     for i in range(0, q.shape[0], per_call)]
+            var = None if parts[0][1] is None else torch.cat([p[1] for p in parts])
+            return torch.cat([p[0] for p in parts]), var
+
+    wrapper = Chunked()
+    wrapper.per_call = per_call
+    return wrapper
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true", help="1260 training points, 20 steps, B up to 1000")
+    parser.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1; 0 = torch's default)")
+    parser.add_argument("--batches", default=None, help="comma-separated B (default 1,100,1000,10000)")
+    parser.add_argument("--steps", type=int, default=None, help="filter steps per timed run (default 50)")
+    parser.add_argument("--repeats", type=int, default=5, help="timed runs per case (median reported)")
+    parser.add_argument("--budget", type=float, default=60.0, help="seconds allowed per case before skipping")
+    parser.add_argument("--chunk-values", type=float, default=2**24, help="max kernel values per ExactGP call")
+    parser.add_argument("--skip-loop", action="store_true", help="skip the loop over 100 single-filter runs")
+    parser.add_argument("--skip-whole", action="store_true", help="skip the whole 600 s runs")
+    parser.add_argument("--refit", action="store_true", help="retrain the models even when cached")
+    parser.add_argument("--cache-dir", default=str(C.ROOT / "runs" / "bench"), help="trained-model cache")
+    parser.add_argument("--out", help="also write the tables to this file (.json: JSON, else markdown)")
+    args = parser.parse_args()
+    batches = [int(b) for b in (args.batches or ("1,100,1000" if args.quick else "1,100,1000,10000")).split(",")]
+    steps = args.steps or (20 if args.quick else 50)
+
+    import torch
+
+    from lightcurve_gp.data import load_or_generate
+    from lightcurve_gp.observation.parametric import Parametric
+    from lightcurve_gp.render import Scene
+    from lightcurve_gp.scenario import simulate_scenario
+    from lightcurve_gp.ukf import UsqueParams, initial_covariance, run_usque
+
+    C.set_threads(args.threads)
+    cfg = C.load_cfg(C.quick_overrides(args.quick))
+    dtype = cfg.torch_dtype
+    info = C.machine_info(dtype, cfg.device)
+    print(C.machine_line(info))
+
+    data, _, _ = load_or_generate(cfg, C.ROOT / "runs" / "cache", progress=False)
+    exact, ex_extra, ex_cached = C.cached_gp(cfg, data, "exact", cache_dir=args.cache_dir, refit=args.refit,
+                                             after_fit=C.exact_variance_check(data))
+    sparse, sp_extra, _ = C.cached_gp(cfg, data, "sparse", num_inducing=512, cache_dir=args.cache_dir,
+                                      refit=args.refit)
+    scene = Scene.from_config(cfg)
+    print(f"training set N = {len(data)}; ExactGP {'loaded' if ex_cached else 'trained'} "
+          f"(conditioning {ex_extra['fit_s']:.1f} s), SparseGP M = {sparse.num_inducing}", flush=True)
+
+    cuda = torch.cuda.is_available()
+    seeds = max(batches + ([100] if not args.skip_loop else []))
+    sc = simulate_scenario(cfg, seeds=range(seeds), scene=scene)
+    params = UsqueParams.from_config(cfg.filter, cfg.data.t_span_past)
+
+    def setup(device):
+        dev = torch.device(device)
+        return {"P0": initial_covariance(cfg.filter.p0_deg, dtype=dtype, device=dev),
+                "obs": sc.observations.to(dev), "inc": sc.increments.to(dev), "q0": sc.q_est0.to(dev)}
+
+    tensors = {"cpu": setup("cpu")}
+
+    def run(model, B, n_steps, device="cpu", start=0):
+        t = tensors[device]
+        rows = torch.arange(start, start + B, device=t["obs"].device) % t["obs"].shape[0]
+        obs = t["obs"][rows, :n_steps + 1]
+        return run_usque(model, t["q0"].expand(B, 4), t["P0"], obs, obs[:, 0], t["inc"][:n_steps], params)
+
+    def exact_mode(mode):
+        def prepare():
+            exact.variance_mode = mode
+            return exact
+        return prepare
+
+    models = [("ExactGP fast var", exact_mode("fast"), f"N = {exact.num_train}, {exact.neighbors} neighbours"),
+              ("ExactGP mean only", exact_mode("none"), f"N = {exact.num_train}, no model variance in Pyy"),
+              ("SparseGP M=512", lambda: sparse, f"M = {sparse.num_inducing}"),
+              ("Parametric", lambda: Parametric(scene, cfg.filter.rho_assumed), "renderer (the paper's UKF)")]
+
+    step_tab = C.Table(f"Filter step time (median of up to {args.repeats} runs of {steps} steps; "
+                       f"{info['torch_threads']} thread(s), {info['dtype']})",
+                       ["model", "device", "B", "steps x runs", "ms / step", "µs / filter-step", "target", "status"])
+    loop_tab = C.Table("Batched vs a Python loop of single-filter runs (B = 100)",
+                       ["model", "batched ms/step", "loop ms/step", "loop / batched"])
+    whole_tab = C.Table("One whole 600 s run of one filter", ["model", "seconds", "ms / step", "target", "status"])
+
+    def time_case(label, model, B, device):
+        """Median seconds per step of ``B`` filters, or a skip reason."""
+        sync = C.synchronizer(device)
+        _, warm = C.timed(lambda: (run(model, B, 2, device), sync()))
+        per_step = warm / 2
+        n_steps = max(5, min(steps, int(args.budget / (per_step * (args.repeats + 1)))))
+        runs = max(1, min(args.repeats, int(args.budget / (per_step * n_steps))))
+        res = C.time_call(lambda: run(model, B, n_steps, device), repeats=runs, warmup=0, sync=sync)
+        return res["median"] / n_steps, n_steps, runs
+
+    for label, prepare, desc in models:
+        model = prepare()
+        last_pfs = None  # seconds per filter-step at the previous B
+        for B in batches:
+            projected = last_pfs * B if last_pfs is not None else 0.0
+            if projected * 2 > args.budget:
+                step_tab.add([label, "cpu", B, "—", "—", "—", "", "skipped"],
+                             {"model": label, "B": B, "skipped": f"projected {projected:.2g} s per step"})
+                step_tab.note(f"{label} at B = {B} skipped: projected {projected:.3g} s per step from "
+                              f"B = {prev_B} (> --budget {args.budget:g} s for a warm-up and one run)")
+                continue
+            m = chunked(model, int(args.chunk_values))
+            per_step, n_steps, runs = time_case(label, m, B, "cpu")
+            last_pfs, prev_B = per_step / B, B
+            t = TARGETS.get((label, B))
+            status = "" if t is None else ("ok" if per_step / B <= t else "MISS")
+            step_tab.add([label, "cpu", B, f"{n_steps} x {runs}", f"{per_step * 1e3:.3g}",
+                          f"{per_step / B * 1e6:.3g}", "" if t is None else f"≤ {C.fmt_seconds(t)}", status],
+                         {"model": label, "device": "cpu", "B": B, "steps": n_steps, "runs": runs,
+                          "s_per_step": per_step, "s_per_filter_step": per_step / B, "target": t, "status": status})
+            if getattr(m, "per_call", B) < B:
+                step_tab.note(f"{label} at B = {B}: model called in chunks of {m.per_call} filters")
+            if B == 100 and not args.skip_loop:
+                n_loop = min(n_steps, 20)
+                _, loop_s = C.timed(lambda: [run(model, 1, n_loop, start=b) for b in range(100)])
+                loop_step = loop_s / n_loop
+                loop_tab.add([label, f"{per_step * 1e3:.3g}", f"{loop_step * 1e3:.3g}", f"{loop_step / per_step:.3g}x"],
+                             {"model": label, "batched_s_per_step": per_step, "loop_s_per_step": loop_step,
+                              "ratio": loop_step / per_step, "loop_steps": n_loop})
+            print(f"  {label} B = {B}: {per_step * 1e3:.3g} ms per step", flush=True)
+        if not args.skip_whole:
+            T = sc.increments.shape[0]
+            res = C.time_call(lambda: run(model, 1, T), repeats=3 if not args.quick else 1, warmup=0)
+            s = res["median"]
+            whole_tab.add([label, f"{s:.3g}", f"{s / T * 1e3:.3g}", f"≤ {WHOLE_TARGET:g} s",
+                           "ok" if s <= WHOLE_TARGET else "MISS"],
+                          {"model": label, "seconds": s, "steps": T, "runs": res["repeats"]})
+            print(f"  {label} whole run: {s:.3g} s", flush=True)
+
+    if cuda:
+        tensors["cuda"] = setup("cuda")
+        for label, prepare, desc in models[2:]:
+            model = prepare().to("cuda")
+            for B in (10_000, 100_000):
+                per_step, n_steps, runs = time_case(label, model, B, "cuda")
+                step_tab.add([label, "cuda", B, f"{n_steps} x {runs}", f"{per_step * 1e3:.3g}",
+                              f"{per_step / B * 1e6:.3g}", "", f"{B / per_step:.3g} filter-steps/s"],
+                             {"model": label, "device": "cuda", "B": B, "steps": n_steps, "runs": runs,
+                              "s_per_step": per_step, "filter_steps_per_s": B / per_step})
+    else:
+        step_tab.note("no CUDA device: the B = 100 000 cases (SparseGP, Parametric) need one")
+
+    step_tab.note(f"paper (MATLAB/Python, one filter): GPUKF {PAPER['GPUKF']} s per step, UKF {PAPER['UKF']} s per step")
+    step_tab.note(f"observations of B filters cycle through {sc.observations.shape[0]} noise seeds; "
+                  f"load average at start {info['loadavg']}, now {C.load_average()}")
+    tables = [step_tab] + ([loop_tab] if loop_tab.rows else []) + ([whole_tab] if whole_tab.rows else [])
+    for t in tables:
+        t.print()
+    b1 = {r["model"]: r["s_per_step"] for r in step_tab.records if r.get("B") == 1 and "s_per_step" in r}
+    for label, paper in (("ExactGP fast var", "GPUKF"), ("Parametric", "UKF")):
+        if label in b1:
+            print(f"{label}, one filter: {b1[label] * 1e3:.3g} ms per step = paper's {paper} "
+                  f"({PAPER[paper]} s) / {PAPER[paper] / b1[label]:.3g}")
+    if args.out:
+        print(f"wrote {C.write_report(args.out, C.machine_info(dtype, cfg.device), tables)}")
+
+
+if __name__ == "__main__":
+    main()
