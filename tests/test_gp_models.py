@@ -5,11 +5,12 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+from pathlib import Path
 
 import pytest
 import torch
 
-from lightcurve_gp.config import ModelConfig
+from lightcurve_gp.config import ModelConfig, load_config
 from lightcurve_gp.observation.exact_gp import (ExactGP, fast_variance_error, gpytorch_exact_model,
                                                 lengthscale_to_theta2, theta2_to_lengthscale)
 from lightcurve_gp.observation.inputs import InputMap
@@ -313,3 +314,17 @@ def test_config_dict_is_stored_and_build_model_dispatches(exact, train):
     assert exact.config == dataclasses.asdict(_cfg())
     assert isinstance(build_model(*train, _cfg(kind="sparse", num_inducing=10)), SparseGP)
     assert isinstance(build_model(*train, _cfg(variance="none")), ExactGP)
+
+
+def test_shared_lengthscale_fit_runs_from_the_config_start():
+    """fit_hyperparameters with ard = false starts from the paper's θ2 and fits one shared lengthscale."""
+    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "boxwing.yaml",
+                      ["model.fit_hyperparameters=true", "model.ard=false", "model.fit_iterations=5"]).model
+    gen = torch.Generator().manual_seed(0)
+    q = torch.nn.functional.normalize(torch.randn(60, 4, generator=gen, dtype=torch.float64), dim=-1)
+    m_past = 12 + torch.rand(60, generator=gen, dtype=torch.float64)
+    y = m_past + 0.3 * q[:, 0]
+    model = ExactGP.from_data(q, m_past, y, cfg)
+    ls = model.lengthscale
+    assert torch.allclose(ls, ls[:1].expand_as(ls))  # one shared value
+    assert model.fit_history[-1] > model.fit_history[0]

@@ -143,7 +143,9 @@ def gpytorch_exact_model(x: Tensor, y_centred: Tensor, outputscale: float, lengt
     likelihood.noise = torch.as_tensor(noise, dtype=x.dtype)
     model.covar_module.outputscale = torch.as_tensor(outputscale, dtype=x.dtype)
     ls = torch.as_tensor(lengthscale, dtype=x.dtype, device=x.device)
-    model.covar_module.base_kernel.lengthscale = ls.expand(dim) if ard else ls.reshape(()).expand(1)
+    if not ard and ls.numel() > 1 and not bool((ls == ls.reshape(-1)[0]).all()):
+        raise ValueError("a shared (non-ARD) lengthscale needs equal per-dimension start values")
+    model.covar_module.base_kernel.lengthscale = ls.expand(dim) if ard else ls.reshape(-1)[:1]
     return model, likelihood
 
 
