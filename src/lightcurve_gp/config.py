@@ -120,7 +120,12 @@ class ModelConfig:
     """Observation model: the paper's GP (exact or inducing-point) and its prediction options."""
 
     kind: str = _spec(choices=("exact", "sparse"))
-    inputs: str = _spec("quaternion", choices=("quaternion",))
+    inputs: str = _spec("quaternion", choices=("quaternion", "attitude_matrix"),
+                        doc="GP input map: quaternion = [q, m_past] (paper); attitude_matrix = A(q), sign-invariant")
+    target: str = _spec("magnitude", choices=("magnitude", "rho_normalised"),
+                        doc="GP output: m_app as rendered (paper) or m_app + 2.5 log10(rho / rho_reference)")
+    rho_reference: float = _spec(0.5, lo=0.0, lo_open=True, hi=1.0,
+                                 doc="reflectance the rho_normalised target refers to")
     theta1: float = _spec(lo=0.0, lo_open=True)
     theta2: float = _spec(lo=0.0, lo_open=True)
     noise_std: float = _spec(lo=0.0, lo_open=True)
@@ -166,6 +171,9 @@ class FilterConfig:
     p0_deg: float = _spec(lo=0.0, lo_open=True)
     add_model_variance: bool = _spec(True)
     rho_assumed: float = _spec(lo=0.0, hi=1.0)
+    estimate_offset: bool = _spec(False, doc="carry a magnitude offset b in the state: y = h(q) + b")
+    offset_prior_std: float = _spec(1.0, lo=0.0, lo_open=True, doc="prior std of b around y_0 - h(q_0) (mag)")
+    offset_process_noise: float = _spec(0.0, lo=0.0, doc="random-walk variance of b per step (mag^2)")
 
 
 @dataclass(kw_only=True)

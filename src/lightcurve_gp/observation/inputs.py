@@ -15,7 +15,10 @@ from typing import Callable
 import torch
 from torch import Tensor, nn
 
-__all__ = ["InputKind", "InputMap", "INPUT_KINDS", "register_input_kind", "quaternion_features"]
+from ..rotations import attitude_matrix, quat_normalize
+
+__all__ = ["InputKind", "InputMap", "INPUT_KINDS", "register_input_kind", "quaternion_features",
+           "attitude_matrix_features"]
 
 
 @dataclass(frozen=True)
@@ -43,6 +46,20 @@ def quaternion_features(q: Tensor, m_past: Tensor) -> Tensor:
 
 
 register_input_kind("quaternion", 5, quaternion_features)
+
+
+def attitude_matrix_features(q: Tensor, m_past: Tensor) -> Tensor:
+    """The attitude matrix ``A(q)`` (inertial → body) flattened row-major ``(..., 9)``; ``m_past`` is not used.
+
+    Sign-invariant (``A(q) = A(−q)``) and attitude-only: the body-frame Sun and observer directions ``A(q) s`` and
+    ``A(q) v`` that the light curve depends on (paper eq. mApp) are linear in these features for any geometry, and
+    ``‖A(q) − A(q')‖_F² = 4 (1 − cos θ)`` with ``θ`` the angle between the attitudes, so an isotropic kernel on them
+    is a kernel on the rotation angle. ``q`` need not be normalised.
+    """
+    return attitude_matrix(quat_normalize(q)).flatten(-2)
+
+
+register_input_kind("attitude_matrix", 9, attitude_matrix_features)
 
 
 class InputMap(nn.Module):
