@@ -30,7 +30,7 @@ from .rotations import quat_mul, quat_normalize
 from .scenario import Scenario, simulate_scenario
 from .ukf import FilterHistory, UsqueParams, initial_covariance, run_usque
 
-__all__ = ["ESTIMATORS", "EstimatorResult", "ScenarioResult", "propagate_only", "run_estimators"]
+__all__ = ["ESTIMATORS", "EstimatorResult", "ScenarioResult", "propagate_only", "run_estimators", "score_estimator"]
 
 ESTIMATORS = ("gpukf", "ukf", "matched_ukf", "no_update")
 
@@ -117,7 +117,9 @@ def propagate_only(q_est0: Tensor, increments: Tensor) -> Tensor:
     return torch.stack(out, dim=-2)
 
 
-def _score(sc: Scenario, q_est: Tensor, window, history: FilterHistory | None, seconds: float) -> EstimatorResult:
+def score_estimator(sc: Scenario, q_est: Tensor, window, history: FilterHistory | None,
+                    seconds: float) -> EstimatorResult:
+    """Errors, windowed RMSE, light-curve RMSE and NEES of estimates ``q_est (S, T+1, 4)`` on scenario ``sc``."""
     S = len(sc.seeds)
     q_true = sc.q_true.expand(S, -1, -1)
     errors = attitude_errors_deg(q_true, q_est)
@@ -170,5 +172,5 @@ def run_estimators(cfg: Config, gp_model: ObservationModel | None = None, *, see
             model = models[name].to(device=device, dtype=dtype) if name != "gpukf" else models[name].to(device)
             history = run_usque(model, q_est0, P0, sc.observations, sc.observations[:, 0], sc.increments, params)
             q_est = history.q_est
-        out.results[name] = _score(sc, q_est, window, history, time.perf_counter() - start)
+        out.results[name] = score_estimator(sc, q_est, window, history, time.perf_counter() - start)
     return out

@@ -21,7 +21,7 @@ from torch import Tensor
 
 from .config import Config, ModelConfig
 from .data import TrainingSet
-from .estimation import ScenarioResult, _score, run_estimators
+from .estimation import ScenarioResult, score_estimator, run_estimators
 from .observation.base import ObservationModel
 from .observation.parametric import Parametric
 from .render import Scene
@@ -104,5 +104,5 @@ def run_offset_estimators(cfg: Config, gp_model: ObservationModel | None = None,
                  else gp_model.to(device))
         start = time.perf_counter()
         history = run_offset_filter(cfg, model, sc.observations, q_est0, sc.increments)
-        out.results[name] = _score(sc, history.q_est, out.window, history, time.perf_counter() - start)
+        out.results[name] = score_estimator(sc, history.q_est, out.window, history, time.perf_counter() - start)
     return out
