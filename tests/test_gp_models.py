@@ -187,6 +187,9 @@ def test_fast_variance_close_to_exact_and_an_upper_bound(train):
     fast = model.predict_variance(qc, mc, "fast")
     ex = model.predict_variance(qc, mc, "exact")
     assert bool((fast >= ex - 1e-12).all())
+    # a set wider than cluster_radius does not share neighbours: each point as if predicted alone
+    wide = model.predict_variance(q[:12].reshape(3, 4, 4), m[:12].reshape(3, 4), "fast")
+    torch.testing.assert_close(wide.reshape(-1), model.predict_variance(q[:12], m[:12], "fast"), rtol=0, atol=1e-12)
     # all training points as neighbours: the fast variance is the exact one
     model.neighbors = 200
     torch.testing.assert_close(model.predict_variance(q, m, "fast"), model.predict_variance(q, m, "exact"),

@@ -13,9 +13,9 @@ Predictive variance (of the latent function) — ``model.variance_mode``:
 * ``"exact"``: ``k** − k*ᵀ (K + σ²I)⁻¹ k*`` with the full Cholesky factor (kept after fitting, recomputed lazily
   after loading; reading it costs ≳ 0.17 s per call at N = 19260).
 * ``"fast"``: the same formula conditioned only on the ``fast_variance_neighbors`` training points nearest (in
-  kernel-scaled distance) to the test point. Nearby test points (within ``cluster_radius`` in scaled distance of a
-  cluster's first point, e.g. a filter's sigma points) share one neighbour set chosen by their minimum distance,
-  so a cluster costs one ``k × k`` Cholesky. Conditioning on a subset never lowers a GP's posterior variance, so
+  kernel-scaled distance) to the test point. The points along the last batch dimension of a ``(..., S, 4)`` input
+  (a filter's sigma points) share one neighbour set when the set's diameter is within ``cluster_radius``
+  lengthscales, so such a set costs one ``k × k`` Cholesky. Conditioning on a subset never lowers a GP's posterior variance, so
   the fast variance is an upper bound of the exact one (conservative for a filter); :func:`fast_variance_error`
   measures the gap.
 * ``"none"``: mean only; ``variance`` is returned as ``None``.
@@ -199,7 +199,7 @@ class ExactGP(ObservationModel):
         variance_mode: ``"fast"``, ``"exact"`` or ``"none"``.
         neighbors: neighbour count of the fast variance.
         config: the model config section it came from (plain dict, saved with the model).
-        cluster_radius: scaled distance within which test points share one neighbour set.
+        cluster_radius: largest diameter (in lengthscales) of a point set that shares one neighbour set.
     """
 
     kind = "exact"
@@ -207,7 +207,7 @@ class ExactGP(ObservationModel):
     def __init__(self, inputs: InputMap, x_train: Tensor, alpha: Tensor, y_mean: float | Tensor,
                  outputscale: float | Tensor, lengthscale: Tensor, noise: float | Tensor, *,
                  variance_mode: str = "fast", neighbors: int = 256, config: dict | None = None,
-                 cluster_radius: float = 0.25, chol: Tensor | None = None):
+                 cluster_radius: float = 1.0, chol: Tensor | None = None):
         super().__init__()
         if variance_mode not in ("fast", "exact", "none"):
             raise ValueError(f"variance_mode must be fast, exact or none, got {variance_mode!r}")
@@ -292,19 +292,32 @@ class ExactGP(ObservationModel):
     # ------------------------------------------------------------------ prediction
 
     def _predict(self, q: Tensor, m_past: Tensor, with_variance: bool) -> Prediction:
+        """Mean ``k*ᵀα + μ`` (paper eq. GP_mu) and the chosen variance, in chunks of about ``2**22`` kernel values.
+
+        Points along the last batch dimension of a ``(..., S, 4)`` input form a set (a filter's sigma points);
+        the fast variance shares one neighbour set among the points of a set whose diameter is within
+        :attr:`cluster_radius` (in lengthscales). A 1-D batch ``(P, 4)`` has sets of one point.
+        """
         batch = q.shape[:-1]
-        dt = self.alpha.dtype
-        x = self.inputs(q.to(dt), m_past.to(dt)).reshape(-1, self.inputs.dim)
-        xs = _scaled(x, self.lengthscale)
-        ks = _sqdist(xs, self.xs_train, sq2=self.xs_sq).neg_().exp_().mul_(self.outputscale)  # (P, N)
-        mean = torch.mv(ks, self.alpha).add_(self.y_mean)
-        if not with_variance or self.variance_mode == "none":
-            return mean.reshape(batch), None
-        if self.variance_mode == "exact":
-            var = self._exact_variance(ks)
-        else:
-            var = self._fast_variance(xs, ks)
-        return mean.reshape(batch), var.reshape(batch)
+        dt, d, n_train = self.alpha.dtype, self.inputs.dim, self.x_train.shape[0]
+        set_size = q.shape[-2] if q.ndim >= 3 else 1
+        x = self.inputs(q.to(dt), m_past.to(dt)).reshape(-1, set_size, d)
+        xs_sets = _scaled(x, self.lengthscale)
+        want_var = with_variance and self.variance_mode != "none"
+        sets_per_chunk = max(1, (1 << 22) // (set_size * n_train))
+        means, variances = [], []
+        for start in range(0, xs_sets.shape[0], sets_per_chunk):
+            xs_chunk = xs_sets[start:start + sets_per_chunk]
+            xs = xs_chunk.reshape(-1, d)
+            ks = _sqdist(xs, self.xs_train, sq2=self.xs_sq).neg_().exp_().mul_(self.outputscale)  # (P, N)
+            means.append(torch.mv(ks, self.alpha).add_(self.y_mean))
+            if want_var:
+                if self.variance_mode == "exact":
+                    variances.append(self._exact_variance(ks))
+                else:
+                    variances.append(self._fast_variance(ks, _set_clusters(xs_chunk, self.cluster_radius)))
+        mean = torch.cat(means).reshape(batch)
+        return mean, (torch.cat(variances).reshape(batch) if want_var else None)
 
     def predict_variance(self, q: Tensor, m_past: Tensor, mode: str) -> Tensor:
         """Latent variance by a given mode (``"fast"`` or ``"exact"``), whatever :attr:`variance_mode` is."""
@@ -335,10 +348,16 @@ class ExactGP(ObservationModel):
         var = float(self.outputscale) - (v * v).sum(0)
         return var.clamp_min(0.0).to(ks.dtype)
 
-    def _fast_variance(self, xs: Tensor, ks_all: Tensor) -> Tensor:
+    def _fast_variance(self, ks_all: Tensor, cluster: Tensor) -> Tensor:
+        """Local exact variance: each cluster of test points is conditioned on its ``neighbors`` training points
+        of largest covariance (an upper bound of the exact variance: conditioning on fewer points never lowers it).
+
+        Args:
+            ks_all: covariances of the test points with all training points ``(P, N)``.
+            cluster: cluster id of each test point ``(P,)``, numbered from 0.
+        """
         n_pts, n_train = ks_all.shape
         k = min(self.neighbors, n_train)
-        cluster = _leader_clusters(xs, self.cluster_radius)
         n_cl = int(cluster.max()) + 1 if n_pts else 0
         # per cluster, each training point's covariance with its nearest member (the kernel decreases with
         # distance, so the largest covariances are the nearest points): (C, N)
@@ -413,25 +432,16 @@ def _subset(n: int, size: int, seed: int, device: torch.device) -> Tensor:
     return torch.randperm(n, generator=gen)[:size].to(device)
 
 
-def _leader_clusters(xs: Tensor, radius: float) -> Tensor:
-    """Greedy leader clustering: each unassigned point opens a cluster holding the unassigned points within
-    ``radius`` of it. Returns cluster ids ``(P,)`` numbered from 0 in order of the leaders."""
-    n = xs.shape[0]
-    if n == 0 or radius <= 0:
-        return torch.arange(n, device=xs.device)
-    near = (torch.cdist(xs, xs) <= radius).cpu()  # (P, P)
-    assigned = torch.zeros(n, dtype=torch.bool)
-    ids = torch.empty(n, dtype=torch.long)
-    c = 0
-    while True:
-        rest = (~assigned).nonzero()
-        if rest.numel() == 0:
-            break
-        members = near[int(rest[0])] & ~assigned
-        ids[members] = c
-        assigned |= members
-        c += 1
-    return ids.to(xs.device)
+def _set_clusters(xs_sets: Tensor, radius: float) -> Tensor:
+    """Cluster ids ``(C·S,)`` of scaled test points ``(C, S, d)``: a set whose diameter is within ``radius`` is
+    one cluster, the points of a wider set are clusters of their own; ids are numbered from 0."""
+    n_sets, size, _ = xs_sets.shape
+    point_ids = torch.arange(n_sets * size, device=xs_sets.device).view(n_sets, size)
+    if size == 1:
+        return point_ids.reshape(-1)
+    shared = torch.cdist(xs_sets, xs_sets).amax((-2, -1)) <= radius
+    ids = torch.where(shared.unsqueeze(-1), point_ids[:, :1].expand(n_sets, size), point_ids).reshape(-1)
+    return torch.unique(ids, return_inverse=True)[1]
 
 
 # ----------------------------------------------------------------------------------------------- validation
