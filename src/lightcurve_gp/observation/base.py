@@ -34,12 +34,15 @@ def check_inputs(q: Tensor, m_past: Tensor) -> tuple[Tensor, Tensor]:
         raise TypeError("q and m_past must be torch tensors")
     if q.ndim == 0 or q.shape[-1] != 4:
         raise ValueError(f"q must have shape (..., 4), got {tuple(q.shape)}")
-    if not bool(torch.isfinite(q).all()):
-        raise ValueError("q contains non-finite values")
-    if not bool(torch.isfinite(m_past).all()):
-        raise ValueError("m_past contains non-finite values")
+    # one device sync for both checks on the hot path; the message is worked out only on failure
+    if not bool(torch.isfinite(q).all() & torch.isfinite(m_past).all()):
+        name = "q" if not bool(torch.isfinite(q).all()) else "m_past"
+        raise ValueError(f"{name} contains non-finite values")
+    batch = q.shape[:-1]
+    if m_past.shape == batch:
+        return q, m_past
     try:
-        batch = torch.broadcast_shapes(q.shape[:-1], m_past.shape)
+        batch = torch.broadcast_shapes(batch, m_past.shape)
     except RuntimeError:
         raise ValueError(
             f"m_past of shape {tuple(m_past.shape)} does not broadcast against q of shape {tuple(q.shape)}"
