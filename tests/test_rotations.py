@@ -84,6 +84,18 @@ def test_inverse_and_conjugate_give_the_identity():
     torch.testing.assert_close(attitude_matrix(identity_quat(dtype=F64)), torch.eye(3, dtype=F64))
 
 
+def test_conjugation_keeps_the_scalar_part_and_rotates_the_vector_part_by_the_attitude_matrix():
+    """δ ⊗ [v; s] ⊗ δ⁻¹ = [A(δ) v; s]: why a USQUE error GRP propagates as A(δ) p under a known rotation δ."""
+    delta = random_quats(40, seed=11)
+    x = torch.randn(40, 4, generator=torch.Generator().manual_seed(12), dtype=F64)  # any quaternion
+    conj = quat_mul(quat_mul(delta, x), quat_conj(delta))
+    torch.testing.assert_close(conj[:, 3], x[:, 3], rtol=0, atol=1e-14)
+    torch.testing.assert_close(conj[:, :3], (attitude_matrix(delta) @ x[:, :3, None])[..., 0], rtol=0, atol=1e-14)
+    p = quat_to_grp(quat_normalize(x))
+    torch.testing.assert_close(quat_to_grp(quat_normalize(conj)), (attitude_matrix(delta) @ p[..., None])[..., 0],
+                               rtol=0, atol=1e-13)
+
+
 def test_normalize_rejects_a_zero_quaternion():
     with pytest.raises(ValueError, match="zero quaternion"):
         quat_normalize(torch.zeros(2, 4))

@@ -8,7 +8,8 @@ import torch
 
 from lightcurve_gp.config import FilterConfig
 from lightcurve_gp.observation.base import ObservationModel
-from lightcurve_gp.rotations import attitude_matrix, euler321_to_quat, quat_mul, quat_to_rotvec, quat_conj
+from lightcurve_gp.rotations import (attitude_matrix, euler321_to_quat, grp_to_quat, quat_conj, quat_mul, quat_to_grp,
+                                     quat_to_rotvec)
 from lightcurve_gp.ukf import (
     SqrtFallbackWarning,
     UsqueParams,
@@ -17,6 +18,7 @@ from lightcurve_gp.ukf import (
     run_usque,
     sigma_points,
     ukf_predict,
+    unscented_mean_cov,
     ukf_update,
     unscented_weights,
 )
@@ -230,6 +232,44 @@ def test_usque_converges_from_ten_degrees_on_noise_free_observations():
     assert torch.isnan(h.y_pred[:, 0]).all() and torch.isfinite(h.y_pred[:, 1:]).all()
     # the posterior spread shrank with the error
     assert (torch.diagonal(h.P[:, -1], dim1=-2, dim2=-1) < torch.diagonal(h.P[:, 0], dim1=-2, dim2=-1)).all()
+
+
+def textbook_usque(model, q_est0, P0, y, increments, params):
+    """USQUE as Crassidis & Markley (2003) write it, one filter at a time: every sigma quaternion is propagated
+    and re-expressed as a GRP error about the propagated centre; generic UKF pieces for the moments."""
+    lam, wm, wc = params.weights(dtype=DT)
+    q_hat, P, out = q_est0, P0, [q_est0]
+    Q = params.Q * torch.eye(3, dtype=DT)
+    for k in range(1, y.shape[0]):
+        chi, _ = sigma_points(torch.zeros(1, 3, dtype=DT), (P + Q)[None], lam)
+        q_sig = quat_mul(increments[k - 1], quat_mul(grp_to_quat(chi[0]), q_hat))
+        q_sig = q_sig / q_sig.norm(dim=-1, keepdim=True)
+        chi_m = quat_to_grp(quat_mul(q_sig, quat_conj(q_sig[0])))
+        x_m, P_m = unscented_mean_cov(chi_m, wm, wc, Q)
+        ys = model(q=q_sig, m_past=torch.zeros(7, dtype=DT), with_variance=False)[0]
+        y_hat, P_yy = unscented_mean_cov(ys[:, None], wm, wc, torch.tensor([[params.R]], dtype=DT))
+        P_xy = ((chi_m - x_m).T * wc) @ (ys[:, None] - y_hat)
+        K = P_xy / P_yy
+        x_p = x_m + (K * (y[k] - y_hat)).squeeze(-1)
+        P = P_m - K @ P_yy @ K.T
+        q_hat = quat_mul(grp_to_quat(x_p), q_sig[0])
+        q_hat = q_hat / q_hat.norm()
+        out.append(q_hat)
+    return torch.stack(out), P
+
+
+def test_usque_equals_the_textbook_recursion_that_propagates_every_sigma_quaternion():
+    """run_usque propagates the sigma points as the rotation A(δ) of their GRP errors: the same filter."""
+    q_true, y, q_est0, inc = scenario(B=3, T=40, noise=0.02)
+    g = torch.Generator().manual_seed(2)
+    A = torch.randn(3, 3, 3, generator=g, dtype=DT) * 0.05
+    P0 = A @ A.transpose(-1, -2) + initial_covariance(8.0, dtype=DT)
+    params = UsqueParams(Q=1e-5, R=4e-4, add_model_variance=False)
+    h = run_usque(ToyModel(), q_est0, P0, y, torch.zeros(3, dtype=DT), inc, params)
+    for b in range(3):
+        q_ref, P_ref = textbook_usque(ToyModel(), q_est0[b], P0[b], y[b], inc[b], params)
+        torch.testing.assert_close(h.q_est[b], q_ref, rtol=0, atol=1e-12)
+        torch.testing.assert_close(h.P[b, -1], P_ref, rtol=0, atol=1e-14)
 
 
 def test_usque_batch_equals_separate_runs():

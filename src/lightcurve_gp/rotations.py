@@ -185,8 +185,8 @@ def grp_to_quat(p: Tensor, a: float = 1.0, f: float | None = None) -> Tensor:
     """
     f = 2.0 * (a + 1.0) if f is None else f
     p2 = (p * p).sum(-1, keepdim=True)
+    if a == 1.0:  # q = [2 f p, f² − |p|²] / (f² + |p|²): no square root
+        return torch.cat([p * (2.0 * f), f * f - p2], dim=-1).div_(p2 + f * f)
     den = f * f + p2
-    if a == 1.0:  # q4 = (f² − |p|²) / (f² + |p|²) and (1 + q4) / f = 2 f / (f² + |p|²): no square root
-        return torch.cat([p * (2.0 * f / den), (f * f - p2) / den], dim=-1)
     q4 = (-a * p2 + f * torch.sqrt(f * f + (1.0 - a * a) * p2)) / den
     return torch.cat([(a + q4) * p / f, q4], dim=-1)

@@ -32,7 +32,7 @@ from typing import Callable, NamedTuple
 import torch
 from torch import Tensor
 
-from .rotations import grp_to_quat, quat_to_grp
+from .rotations import attitude_matrix, grp_to_quat
 
 
 __all__ = [
@@ -333,8 +333,9 @@ class FilterHistory:
         return self.innovation ** 2 / self.y_var
 
 
-def _check_run_inputs(q_est0: Tensor, P0: Tensor, observations: Tensor, m_past0: Tensor,
+def _check_run_inputs(q_est0: Tensor, P0: Tensor, b0: Tensor | None, observations: Tensor, m_past0: Tensor,
                       increments: Tensor) -> tuple[int, int]:
+    """Shapes and finiteness of a run's inputs; ``b0`` is ``None`` for the attitude-only filter."""
     if q_est0.ndim != 2 or q_est0.shape[-1] != 4:
         raise ValueError(f"q_est0 must have shape (B, 4), got {tuple(q_est0.shape)}")
     B = q_est0.shape[0]
@@ -343,14 +344,19 @@ def _check_run_inputs(q_est0: Tensor, P0: Tensor, observations: Tensor, m_past0:
     T = observations.shape[1] - 1
     if T < 0:
         raise ValueError("observations must hold at least t_0")
-    if P0.shape not in ((3, 3), (B, 3, 3)):
-        raise ValueError(f"P0 must have shape (3, 3) or (B={B}, 3, 3), got {tuple(P0.shape)}")
+    n = 3 if b0 is None else 4
+    if P0.shape not in ((n, n), (B, n, n)):
+        state = "" if b0 is None else " for the state [dp, b]"
+        raise ValueError(f"P0 must have shape ({n}, {n}) or (B={B}, {n}, {n}){state}, got {tuple(P0.shape)}")
+    if b0 is not None and b0.shape not in ((B,), ()):
+        raise ValueError(f"b0 must have shape (B={B},) or (), got {tuple(b0.shape)}")
     if m_past0.shape not in ((B,), ()):
         raise ValueError(f"m_past0 must have shape (B={B},), got {tuple(m_past0.shape)}")
     if increments.shape not in ((T, 4), (B, T, 4)):
         raise ValueError(f"increments must have shape (T={T}, 4) or (B={B}, T={T}, 4), got {tuple(increments.shape)}")
-    for name, t in (("q_est0", q_est0), ("P0", P0), ("m_past0", m_past0), ("increments", increments)):
-        if not bool(torch.isfinite(t).all()):
+    named = [("q_est0", q_est0), ("P0", P0), ("b0", b0), ("m_past0", m_past0), ("increments", increments)]
+    for name, t in named:
+        if t is not None and not bool(torch.isfinite(t).all()):
             raise ValueError(f"{name} contains non-finite values")
     return B, T
 
@@ -361,7 +367,6 @@ _L_IDX = [3, 2, 1, 0, 2, 3, 0, 1, 1, 0, 3, 2, 0, 1, 2, 3]
 _L_SGN = [1, 1, -1, 1, -1, 1, 1, 1, 1, -1, 1, 1, -1, -1, -1, 1]
 _R_IDX = [3, 2, 1, 0, 2, 3, 0, 1, 1, 0, 3, 2, 0, 1, 2, 3]
 _R_SGN = [1, -1, 1, 1, 1, 1, -1, 1, -1, 1, 1, 1, -1, -1, -1, 1]
-_CONJ = [-1, -1, -1, 1]
 _CONST_CACHE: dict = {}
 
 
@@ -371,8 +376,6 @@ def _consts(name: str, like: Tensor) -> Tensor:
     if c is None:
         if name == "L_idx" or name == "R_idx":
             c = torch.tensor(_L_IDX if name == "L_idx" else _R_IDX, device=like.device)
-        elif name == "Rc_sgn":  # R(p*) as a gather of p: fold the conjugation signs into R's signs
-            c = torch.tensor([s * _CONJ[i] for s, i in zip(_R_SGN, _R_IDX)], dtype=like.dtype, device=like.device)
         else:
             c = torch.tensor(_L_SGN if name == "L_sgn" else _R_SGN, dtype=like.dtype, device=like.device)
         _CONST_CACHE[key] = c
@@ -381,17 +384,12 @@ def _consts(name: str, like: Tensor) -> Tensor:
 
 def _left_matrix(q: Tensor) -> Tensor:
     """``L(q)`` with ``q ⊗ p = L(q) p``, ``(..., 4, 4)``."""
-    return (q[..., _consts("L_idx", q)] * _consts("L_sgn", q)).unflatten(-1, (4, 4))
+    return (q.index_select(-1, _consts("L_idx", q)) * _consts("L_sgn", q)).unflatten(-1, (4, 4))
 
 
 def _right_matrix(p: Tensor) -> Tensor:
     """``R(p)`` with ``q ⊗ p = R(p) q``, ``(..., 4, 4)``."""
-    return (p[..., _consts("R_idx", p)] * _consts("R_sgn", p)).unflatten(-1, (4, 4))
-
-
-def _right_matrix_conj(p: Tensor) -> Tensor:
-    """``R(p*)`` with ``q ⊗ p* = R(p*) q`` (``p*`` the conjugate = inverse of a unit quaternion)."""
-    return (p[..., _consts("R_idx", p)] * _consts("Rc_sgn", p)).unflatten(-1, (4, 4))
+    return (p.index_select(-1, _consts("R_idx", p)) * _consts("R_sgn", p)).unflatten(-1, (4, 4))
 
 
 def _sqrt_psd(a: Tensor) -> tuple[Tensor, Tensor]:
@@ -401,6 +399,131 @@ def _sqrt_psd(a: Tensor) -> tuple[Tensor, Tensor]:
     if bool(failed.any()):
         s, failed = matrix_sqrt(a)
     return s, failed
+
+
+def _usque_loop(model, q_est0: Tensor, P0: Tensor, b0: Tensor | None, observations: Tensor, m_past0: Tensor,
+                increments: Tensor, params: UsqueParams, offset_process_noise: float = 0.0) -> dict[str, Tensor]:
+    """The batched USQUE recursion shared by :func:`run_usque` (``b0 is None``, state ``δp``) and
+    :func:`lightcurve_gp.ukf_offset.run_usque_offset` (state ``[δp, b]``, ``y = h(q, m_past) + b``).
+
+    Returns the stacked history (``q_est, P, y_pred, y_var, model_var, innovation, m_past, updated``, and
+    ``offset`` when ``b0`` is given) and the counters ``fallbacks, rejected, m_past_final``. Inputs are checked.
+    """
+    B, T = _check_run_inputs(q_est0, P0, b0, observations, m_past0, increments)
+    dtype, device = q_est0.dtype, q_est0.device
+    n = 3 if b0 is None else 4
+    n_sig = 2 * n + 1
+    a, f = float(params.grp_a), float(params.grp_f)
+    with torch.no_grad():
+        lam, wm, wc = unscented_weights(n, params.alpha, params.beta, params.kappa, params.lam, dtype=dtype,
+                                        device=device)
+        scale = n + lam
+        w_pair = float(wc[1])  # weight of each of the 2n outer sigma points, 1 / (2 (n + λ))
+        Q_att = _as_cov(params.Q if isinstance(params.Q, Tensor) else float(params.Q), 3, q_est0)
+        if Q_att.shape not in ((3, 3), (B, 3, 3)):
+            raise ValueError(f"Q must be a scalar, (3, 3) or (B={B}, 3, 3), got {tuple(Q_att.shape)}")
+        Q = torch.zeros(B, n, n, dtype=dtype, device=device)
+        Q[:, :3, :3] = _symmetrise(Q_att)
+        if b0 is not None:
+            Q[:, 3, 3] = float(offset_process_noise)
+        R = torch.as_tensor(params.R, dtype=dtype, device=device)
+        if R.shape not in ((), (B,)):
+            raise ValueError(f"R must be a scalar or (B={B},), got {tuple(R.shape)}")
+        R = R.expand(B)
+        tsp = float(params.t_span_past)
+        if not tsp >= 0:
+            raise ValueError(f"t_span_past must be >= 0, got {tsp}")
+
+        obs = observations.to(dtype=dtype, device=device)
+        obs_ok = torch.isfinite(obs)
+        obs_filled = torch.where(obs_ok, obs, torch.zeros_like(obs))
+        # normalise(δ ⊗ q) = (δ/|δ|) ⊗ q: normalise the increments once; keep their left-product matrices L(δ)
+        # and √(n+λ) G(δ), G = A(δ) on the attitude block (identity on b), which carries the sigma offsets
+        inc = increments.to(dtype=dtype, device=device)
+        inc = inc / torch.linalg.vector_norm(inc, dim=-1, keepdim=True)
+        inc = inc.unsqueeze(0) if inc.ndim == 2 else inc  # (1 | B, T, 4)
+        G = torch.zeros(*inc.shape[:-1], n, n, dtype=dtype, device=device)
+        G[..., :3, :3] = attitude_matrix(inc)
+        if b0 is not None:
+            G[..., 3, 3] = 1.0
+        # per-step views, batch dimension B (stride 0 when shared)
+        L_steps = _left_matrix(inc).expand(B, -1, -1, -1).unbind(1)
+        G_steps = (G * math.sqrt(scale)).expand(B, -1, -1, -1).unbind(1)
+        ok_steps, obs_steps = obs_ok.unbind(1), obs_filled.unbind(1)
+
+        q_hat = q_est0.to(dtype=dtype).clone()
+        q_hat = q_hat / torch.linalg.vector_norm(q_hat, dim=-1, keepdim=True)
+        b_hat = None if b0 is None else b0.to(dtype=dtype, device=device).expand(B).clone()
+        P = _symmetrise(P0.to(dtype=dtype, device=device).expand(B, n, n)).clone()
+        m_past = m_past0.to(dtype=dtype, device=device).expand(B).clone()
+        fallbacks = torch.zeros(B, dtype=torch.int64, device=device)
+        rejected = torch.zeros(B, dtype=torch.int64, device=device)
+        want_var = bool(params.add_model_variance)
+        nan_b = torch.full((B,), math.nan, dtype=dtype, device=device)
+        zero_row = torch.zeros(B, 1, n, dtype=dtype, device=device)
+        zero = torch.zeros((), dtype=dtype, device=device)
+
+        hist = {name: [] for name in ("q_est", "P", "y_pred", "y_var", "model_var", "innovation", "m_past",
+                                      "updated", "offset")}
+
+        def record(q, cov, y, yv, mv, nu, mp, up, b):
+            for name, value in zip(hist, (q, cov, y, yv, mv, nu, mp, up, b)):
+                hist[name].append(value)
+
+        record(q_hat, P, nan_b, nan_b, nan_b, nan_b, m_past, torch.zeros(B, dtype=torch.bool, device=device), b_hat)
+        for k in range(1, T + 1):
+            # 1-5. sigma offsets ±√(n+λ) cols √(P⁺ + Q) about x̂⁺ = [0, b̂]; propagating q_i = δq(χ_i) ⊗ q̂ to
+            # δ ⊗ q_i and re-expressing it about the propagated centre δ ⊗ q̂ conjugates δq(χ_i) by δ, which keeps
+            # its scalar part and rotates its vector part by A(δ), so the GRP becomes A(δ) χ_i (b is unchanged):
+            # the propagated offsets are the columns of S⁻ = √(n+λ) G S, x̂⁻ = x̂⁺ and P⁻ = S⁻ S⁻ᵀ/(n+λ) + Q
+            # exactly (Crassidis & Markley 2003, Q in both places)
+            s, failed = _sqrt_psd(P + Q)
+            fallbacks += failed
+            S_m = torch.bmm(G_steps[k - 1], s)  # (B, n, n): column j = propagated sigma offset j
+            P_m = torch.baddbmm(Q, S_m, S_m.mT, alpha=1.0 / scale)
+            offsets = S_m.mT
+            chi = torch.cat([zero_row, offsets, -offsets], dim=1)  # (B, 2n+1, n)
+            # 6. sigma attitudes q_i⁻ = δq(χ_i⁻) ⊗ q_0⁻, q_0⁻ = δ ⊗ q̂; one model call for all of them
+            q_m = torch.bmm(L_steps[k - 1], q_hat.unsqueeze(-1)).squeeze(-1)
+            R_qm = _right_matrix(q_m)
+            q_sig = torch.bmm(grp_to_quat(chi[..., :3], a, f), R_qm.mT)  # (B, 2n+1, 4)
+            y_sig, var_sig = model(q=q_sig, m_past=m_past.unsqueeze(1).expand(B, n_sig), with_variance=want_var)
+            if b_hat is not None:
+                y_sig = y_sig + (b_hat.unsqueeze(1) + chi[..., 3])
+            y_hat = y_sig @ wm
+            dy = y_sig - y_hat.unsqueeze(1)
+            P_yy = (dy * dy) @ wc + R
+            if want_var and var_sig is not None:
+                m_var = var_sig @ wm
+                P_yy = P_yy + m_var
+            else:
+                m_var = nan_b
+            # Pxy = Σ wc (χ_i⁻ − x̂⁻)(Y_i − ŷ): the centre contributes nothing, pair j gives col_j (dy₊ⱼ − dy₋ⱼ)
+            P_xy = torch.bmm(S_m, (dy[:, 1:n + 1] - dy[:, n + 1:]).unsqueeze(-1)).squeeze(-1).mul_(w_pair)
+            # 7. update where the observation exists and the prediction is usable
+            ok_k = ok_steps[k]
+            good = ((P_xy.sum(-1) + y_hat + P_yy).abs() < math.inf) & (P_yy > 0)  # finite, usable
+            upd = ok_k & good
+            rejected += ok_k & ~good
+            nu = obs_steps[k] - y_hat
+            K = P_xy / P_yy.unsqueeze(-1)
+            # where() keeps inf/NaN of refused steps out of the state: the prior becomes the posterior
+            dx = torch.where(upd.unsqueeze(-1), K * nu.unsqueeze(-1), zero)
+            P = torch.where(upd.view(B, 1, 1), _symmetrise(P_m - P_yy.view(B, 1, 1) * (K.unsqueeze(-1) * K.unsqueeze(-2))),
+                            P_m)
+            # 8. reset q̂ ← δq(δp⁺) ⊗ q_0⁻ (the attitude error returns to zero); b̂ keeps its estimate
+            q_hat = torch.bmm(R_qm, grp_to_quat(dx[:, :3], a, f).unsqueeze(-1)).squeeze(-1)
+            q_hat = q_hat / torch.linalg.vector_norm(q_hat, dim=-1, keepdim=True)
+            if b_hat is not None:
+                b_hat = b_hat + dx[:, 3]
+            # record (m_past as used for this prediction), then 9. fold the observation into m_past
+            record(q_hat, P, y_hat, P_yy, m_var, nu, m_past, upd, b_hat)
+            m_past = torch.where(ok_k, (tsp * m_past + obs_steps[k]) / (tsp + 1.0), m_past)
+
+        out = {name: torch.stack(values, 1) for name, values in hist.items() if values[0] is not None}
+        out["innovation"] = torch.where(obs_ok, out["innovation"], math.nan)
+        out.update(fallbacks=fallbacks, rejected=rejected, m_past_final=m_past)
+    return out
 
 
 def run_usque(model, q_est0: Tensor, P0: Tensor, observations: Tensor, m_past0: Tensor, increments: Tensor,
@@ -417,9 +540,13 @@ def run_usque(model, q_est0: Tensor, P0: Tensor, observations: Tensor, m_past0: 
     7. ``K = Pxy / Pyy``, ``x̂⁺ = x̂⁻ + K (ỹ_k − ŷ)``, ``P⁺ = P⁻ − K Pyy Kᵀ``;
     8. reset ``q̂ ← grp_to_quat(x̂⁺) ⊗ q_0⁻``; 9. ``m_past ← (T m_past + ỹ_k) / (T + 1)``.
 
-    A NaN observation skips steps 7 and 9 for that filter only (the prior becomes the posterior, the reset still
-    applies ``x̂⁻``). A finite observation whose prediction is not finite or whose ``Pyy ≤ 0`` is refused the same
-    way and counted in ``rejected``; its ``m_past`` recursion still happens (the observation is real).
+    With ω known, steps 2–5 are a rotation: ``q_i⁻ ⊗ (q_0⁻)⁻¹ = δ ⊗ δq(χ_i) ⊗ δ⁻¹`` has the GRP ``A(δ) χ_i``
+    (conjugation by ``δ`` rotates a quaternion's vector part by ``A(δ)``), so ``χ_i⁻ = A(δ) χ_i``, ``x̂⁻ = 0`` and
+    ``P⁻ = A (P⁺ + Q) Aᵀ + Q``. The loop computes them that way: the same filter with a fraction of the work.
+
+    A NaN observation skips steps 7 and 9 for that filter only (the prior becomes the posterior). A finite
+    observation whose prediction is not finite or whose ``Pyy ≤ 0`` is refused the same way and counted in
+    ``rejected``; its ``m_past`` recursion still happens (the observation is real).
 
     Args:
         model: an :class:`~lightcurve_gp.observation.base.ObservationModel` (called once per step with
@@ -435,117 +562,8 @@ def run_usque(model, q_est0: Tensor, P0: Tensor, observations: Tensor, m_past0: 
         :class:`FilterHistory`. Emits :class:`SqrtFallbackWarning` once when any filter needed the square-root
         fallback (counts in ``fallbacks``).
     """
-    params = params or UsqueParams()
-    B, T = _check_run_inputs(q_est0, P0, observations, m_past0, increments)
-    dtype, device = q_est0.dtype, q_est0.device
-    n = 3
-    a, f = float(params.grp_a), float(params.grp_f)
-    with torch.no_grad():
-        lam, wm, wc = params.weights(dtype=dtype, device=device)
-        scale = n + lam
-        wc_col = wc.unsqueeze(-1)  # (S, 1)
-        Q = _as_cov(params.Q if isinstance(params.Q, Tensor) else float(params.Q), n, q_est0)
-        if Q.shape not in ((n, n), (B, n, n)):
-            raise ValueError(f"Q must be a scalar, (3, 3) or (B={B}, 3, 3), got {tuple(Q.shape)}")
-        Q = _symmetrise(Q).expand(B, n, n)
-        R = torch.as_tensor(params.R, dtype=dtype, device=device)
-        if R.shape not in ((), (B,)):
-            raise ValueError(f"R must be a scalar or (B={B},), got {tuple(R.shape)}")
-        R = R.expand(B)
-        tsp = float(params.t_span_past)
-        if not tsp >= 0:
-            raise ValueError(f"t_span_past must be >= 0, got {tsp}")
-
-        obs = observations.to(dtype=dtype, device=device)
-        obs_ok = torch.isfinite(obs)
-        obs_filled = torch.where(obs_ok, obs, torch.zeros_like(obs))
-        # normalise(δ ⊗ q) = (δ/|δ|) ⊗ q: normalise the increments once and keep their left-product matrices
-        inc = increments.to(dtype=dtype, device=device)
-        inc = inc / torch.linalg.vector_norm(inc, dim=-1, keepdim=True)
-        L_inc = _left_matrix(inc.unsqueeze(0) if inc.ndim == 2 else inc)  # (1|B, T, 4, 4)
-
-        q_hat = q_est0.to(dtype=dtype).clone()
-        q_hat = q_hat / torch.linalg.vector_norm(q_hat, dim=-1, keepdim=True)
-        P = _symmetrise(P0.to(dtype=dtype, device=device).expand(B, n, n)).clone()
-        m_past = m_past0.to(dtype=dtype, device=device).expand(B).clone()
-        fallbacks = torch.zeros(B, dtype=torch.int64, device=device)
-        rejected = torch.zeros(B, dtype=torch.int64, device=device)
-        want_var = bool(params.add_model_variance)
-        nan_b = torch.full((B,), math.nan, dtype=dtype, device=device)
-        zero_s = torch.zeros(B, 1, n, dtype=dtype, device=device)
-        zero = torch.zeros((), dtype=dtype, device=device)
-        n_sig = 2 * n + 1
-        wm_row = wm.view(1, 1, n_sig).expand(B, 1, n_sig)  # for bmm: (B, 1, S)
-
-        h_q, h_P, h_y, h_yv, h_mv, h_nu, h_mp = [q_hat], [P], [nan_b], [nan_b], [nan_b], [nan_b], [m_past]
-        h_up = [torch.zeros(B, dtype=torch.bool, device=device)]
-
-        for k in range(1, T + 1):
-            # 1. sigma GRPs χ_i = 0 ± columns of √((n+λ)(P⁺ + Q)) (both symmetric: no re-symmetrisation)
-            s, failed = _sqrt_psd(scale * (P + Q))
-            fallbacks += failed
-            cols = s.transpose(-1, -2)
-            chi = torch.cat([zero_s, cols, -cols], dim=1)  # (B, S, 3)
-            # 2-3. q_i⁻ = δ_{k-1} ⊗ δq_i ⊗ q̂ = [L(δ) R(q̂)] δq_i; the central point δq_0 = 1 gives q_0⁻ = M[:, :, 3]
-            dq = grp_to_quat(chi, a, f)
-            M = L_inc[:, k - 1] @ _right_matrix(q_hat)  # (B, 4, 4)
-            q0m = M[:, :, 3]
-            # 4. δq_i⁻ = q_i⁻ ⊗ (q_0⁻)⁻¹ = [R(q_0⁻*) M] δq_i; one product gives both
-            N = torch.bmm(_right_matrix_conj(q0m), M)
-            both = torch.bmm(dq, torch.cat([M, N], dim=1).transpose(1, 2))  # (B, S, 8)
-            q_sig = both[..., :4]
-            q_sig = q_sig / torch.linalg.vector_norm(q_sig, dim=-1, keepdim=True)
-            chi_m = quat_to_grp(both[..., 4:], a, f)
-            chi_m[:, 0] = 0.0
-            # 5. a priori mean and covariance of the GRP error
-            x_m = torch.bmm(wm_row, chi_m)  # (B, 1, 3)
-            dx = chi_m - x_m
-            dxw = dx * wc_col
-            dxw_t = dxw.transpose(1, 2)
-            P_m = torch.baddbmm(Q, dxw_t, dx)
-            # 6. one model call for all B × (2n+1) sigma attitudes
-            y_sig, var_sig = model(q=q_sig, m_past=m_past.unsqueeze(1).expand(B, n_sig), with_variance=want_var)
-            y_hat = y_sig @ wm
-            dy = y_sig - y_hat.unsqueeze(1)
-            P_yy = (dy * dy) @ wc + R
-            if want_var and var_sig is not None:
-                m_var = var_sig @ wm
-                P_yy = P_yy + m_var
-            else:
-                m_var = nan_b
-            P_xy = torch.bmm(dxw_t, dy.unsqueeze(-1)).squeeze(-1)  # (B, 3)
-            # 7. update where the observation exists and the prediction is usable
-            ok_k = obs_ok[:, k]
-            good = torch.isfinite(P_xy.sum(-1) + y_hat + P_yy) & (P_yy > 0)
-            upd = ok_k & good
-            rejected += ok_k & ~good
-            nu = obs_filled[:, k] - y_hat
-            yy_used = torch.where(upd, P_yy, zero).unsqueeze(-1)  # 0 also keeps inf/NaN out of P
-            K = torch.where(upd.unsqueeze(-1), P_xy / P_yy.unsqueeze(-1), zero)  # K = Pxy / Pyy, else 0
-            x_p = x_m.squeeze(1) + K * torch.where(upd, nu, zero).unsqueeze(-1)
-            P = P_m - (yy_used * K).unsqueeze(-1) * K.unsqueeze(-2)
-            P = _symmetrise(P)
-            # 8. reset the reference attitude q̂ ← δq(x̂⁺) ⊗ q_0⁻; the error state returns to zero
-            q_hat = torch.bmm(_right_matrix(q0m), grp_to_quat(x_p, a, f).unsqueeze(-1)).squeeze(-1)
-            q_hat = q_hat / torch.linalg.vector_norm(q_hat, dim=-1, keepdim=True)
-            # record (m_past as used for this prediction), then 9. fold the observation into m_past
-            h_q.append(q_hat)
-            h_P.append(P)
-            h_y.append(y_hat)
-            h_yv.append(P_yy)
-            h_mv.append(m_var)
-            h_nu.append(nu)
-            h_mp.append(m_past)
-            h_up.append(upd)
-            m_past = torch.where(ok_k, (tsp * m_past + obs_filled[:, k]) / (tsp + 1.0), m_past)
-
-        hist = FilterHistory(
-            q_est=torch.stack(h_q, 1), P=torch.stack(h_P, 1), y_pred=torch.stack(h_y, 1),
-            y_var=torch.stack(h_yv, 1), model_var=torch.stack(h_mv, 1), innovation=torch.where(obs_ok, torch.stack(h_nu, 1), math.nan),
-            m_past=torch.stack(h_mp, 1), updated=torch.stack(h_up, 1), fallbacks=fallbacks, rejected=rejected,
-            m_past_final=m_past,
-        )
-    n_fb = int((fallbacks > 0).sum())
+    out = _usque_loop(model, q_est0, P0, None, observations, m_past0, increments, params or UsqueParams())
+    n_fb = int((out["fallbacks"] > 0).sum())
     if n_fb:
-        _warn_fallbacks(n_fb, B, "run_usque")
-    return hist
+        _warn_fallbacks(n_fb, q_est0.shape[0], "run_usque")
+    return FilterHistory(**out)
