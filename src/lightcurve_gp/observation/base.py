@@ -8,6 +8,8 @@ an exact GP, an inducing-point GP and the parametric renderer are interchangeabl
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import Tensor, nn
 
@@ -34,10 +36,12 @@ def check_inputs(q: Tensor, m_past: Tensor) -> tuple[Tensor, Tensor]:
         raise TypeError("q and m_past must be torch tensors")
     if q.ndim == 0 or q.shape[-1] != 4:
         raise ValueError(f"q must have shape (..., 4), got {tuple(q.shape)}")
-    # one device sync for both checks on the hot path; the message is worked out only on failure
-    if not bool(torch.isfinite(q).all() & torch.isfinite(m_past).all()):
-        name = "q" if not bool(torch.isfinite(q).all()) else "m_past"
-        raise ValueError(f"{name} contains non-finite values")
+    # hot path: one reduction and one device sync; a non-finite value makes the sum non-finite (a sum of finite
+    # values can overflow too, which the exact check below then clears)
+    if not math.isfinite(float(q.sum() + m_past.sum())):
+        for name, t in (("q", q), ("m_past", m_past)):
+            if not bool(torch.isfinite(t).all()):
+                raise ValueError(f"{name} contains non-finite values")
     batch = q.shape[:-1]
     if m_past.shape == batch:
         return q, m_past
