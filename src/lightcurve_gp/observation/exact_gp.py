@@ -74,6 +74,18 @@ def _sqdist(xs1: Tensor, xs2: Tensor, sq1: Tensor | None = None, sq2: Tensor | N
     return d2.clamp_(0.0, EXP_CLAMP)
 
 
+def cross_kernel_cache(xs_ref: Tensor) -> tuple[Tensor, Tensor]:
+    """``(2 xs_refᵀ (d, R), −‖xs_ref‖² (R,))``: what :func:`exp_neg_sqdist` needs of fixed scaled inputs."""
+    return (2.0 * xs_ref).T.contiguous(), -(xs_ref * xs_ref).sum(-1)
+
+
+def exp_neg_sqdist(xs: Tensor, ref_t2: Tensor, ref_sq_neg: Tensor) -> Tensor:
+    """``exp(−‖xs_i − r_j‖²)`` ``(P, R)`` of scaled inputs ``xs (P, d)`` against cached references
+    (:func:`cross_kernel_cache`): one matrix product ``2 xs·r − ‖r‖²`` and three in-place passes."""
+    e = torch.addmm(ref_sq_neg, xs, ref_t2)
+    return e.sub_((xs * xs).sum(-1, keepdim=True)).clamp_(-EXP_CLAMP, 0.0).exp_()
+
+
 def kernel_matrix(xs1: Tensor, xs2: Tensor, outputscale: float | Tensor) -> Tensor:
     """``θ1 exp(−‖xs1 − xs2‖²)`` of scaled inputs (see :func:`_scaled`), batched over leading dims."""
     return _sqdist(xs1, xs2).neg_().exp_().mul_(outputscale)
@@ -203,6 +215,8 @@ class ExactGP(ObservationModel):
     """
 
     kind = "exact"
+    #: largest kernel block ``(points × N)`` computed at once by a prediction (8 MB in float64)
+    chunk_values: int = 1 << 20
 
     def __init__(self, inputs: InputMap, x_train: Tensor, alpha: Tensor, y_mean: float | Tensor,
                  outputscale: float | Tensor, lengthscale: Tensor, noise: float | Tensor, *,
@@ -229,7 +243,10 @@ class ExactGP(ObservationModel):
         self.register_buffer("noise", torch.as_tensor(noise, **f64))
         xs = _scaled(self.x_train, self.lengthscale)
         self.register_buffer("xs_train", xs, persistent=False)
-        self.register_buffer("xs_sq", (xs * xs).sum(-1), persistent=False)
+        ref_t2, ref_sq_neg = cross_kernel_cache(xs)
+        self.register_buffer("xs_train_t2", ref_t2, persistent=False)
+        self.register_buffer("xs_sq_neg", ref_sq_neg, persistent=False)
+        self.register_buffer("alpha_scaled", self.alpha * self.outputscale, persistent=False)  # θ1 α
         self._chol = chol  # float64 lower factor of K + σ²I (not a buffer: 3 GB at N = 19260, never saved)
 
     # ------------------------------------------------------------------ construction
@@ -292,7 +309,8 @@ class ExactGP(ObservationModel):
     # ------------------------------------------------------------------ prediction
 
     def _predict(self, q: Tensor, m_past: Tensor, with_variance: bool) -> Prediction:
-        """Mean ``k*ᵀα + μ`` (paper eq. GP_mu) and the chosen variance, in chunks of about ``2**22`` kernel values.
+        """Mean ``k*ᵀα + μ`` (paper eq. GP_mu) and the chosen variance, in chunks of at most :attr:`chunk_values`
+        kernel values (a chunk's kernel block stays in the CPU cache between its passes).
 
         Points along the last batch dimension of a ``(..., S, 4)`` input form a set (a filter's sigma points);
         the fast variance shares one neighbour set among the points of a set whose diameter is within
@@ -304,18 +322,17 @@ class ExactGP(ObservationModel):
         x = self.inputs(q.to(dt), m_past.to(dt)).reshape(-1, set_size, d)
         xs_sets = _scaled(x, self.lengthscale)
         want_var = with_variance and self.variance_mode != "none"
-        sets_per_chunk = max(1, (1 << 22) // (set_size * n_train))
+        sets_per_chunk = max(1, self.chunk_values // (set_size * n_train))
         means, variances = [], []
         for start in range(0, xs_sets.shape[0], sets_per_chunk):
             xs_chunk = xs_sets[start:start + sets_per_chunk]
-            xs = xs_chunk.reshape(-1, d)
-            ks = _sqdist(xs, self.xs_train, sq2=self.xs_sq).neg_().exp_().mul_(self.outputscale)  # (P, N)
-            means.append(torch.mv(ks, self.alpha).add_(self.y_mean))
+            e = exp_neg_sqdist(xs_chunk.reshape(-1, d), self.xs_train_t2, self.xs_sq_neg)  # k*/θ1 (P, N)
+            means.append(torch.mv(e, self.alpha_scaled).add_(self.y_mean))
             if want_var:
                 if self.variance_mode == "exact":
-                    variances.append(self._exact_variance(ks))
+                    variances.append(self._exact_variance(e))
                 else:
-                    variances.append(self._fast_variance(ks, _set_clusters(xs_chunk, self.cluster_radius)))
+                    variances.append(self._fast_variance(e, _set_clusters(xs_chunk, self.cluster_radius)))
         mean = torch.cat(means).reshape(batch)
         return mean, (torch.cat(variances).reshape(batch) if want_var else None)
 
@@ -342,30 +359,32 @@ class ExactGP(ObservationModel):
         """Free the cached full Cholesky factor (it is recomputed if the exact variance is asked for)."""
         self._chol = None
 
-    def _exact_variance(self, ks: Tensor) -> Tensor:
+    def _exact_variance(self, e: Tensor) -> Tensor:
+        """``θ1 − θ1² eᵀ (K + σ²I)⁻¹ e`` for ``e = k*/θ1`` ``(P, N)`` with the full Cholesky factor."""
         chol = self.cholesky()
-        v = torch.linalg.solve_triangular(chol, ks.T.to(chol.dtype), upper=False)
-        var = float(self.outputscale) - (v * v).sum(0)
-        return var.clamp_min(0.0).to(ks.dtype)
+        v = torch.linalg.solve_triangular(chol, e.T.to(chol.dtype), upper=False)
+        theta1 = float(self.outputscale)
+        var = theta1 - theta1 * theta1 * (v * v).sum(0)
+        return var.clamp_min(0.0).to(e.dtype)
 
-    def _fast_variance(self, ks_all: Tensor, cluster: Tensor) -> Tensor:
+    def _fast_variance(self, e_all: Tensor, cluster: Tensor) -> Tensor:
         """Local exact variance: each cluster of test points is conditioned on its ``neighbors`` training points
         of largest covariance (an upper bound of the exact variance: conditioning on fewer points never lowers it).
 
         Args:
-            ks_all: covariances of the test points with all training points ``(P, N)``.
+            e_all: covariances of the test points with all training points, divided by ``θ1``, ``(P, N)``.
             cluster: cluster id of each test point ``(P,)``, numbered from 0.
         """
-        n_pts, n_train = ks_all.shape
+        n_pts, n_train = e_all.shape
         k = min(self.neighbors, n_train)
         n_cl = int(cluster.max()) + 1 if n_pts else 0
         # per cluster, each training point's covariance with its nearest member (the kernel decreases with
         # distance, so the largest covariances are the nearest points): (C, N)
         if n_cl == n_pts:
-            kmax = ks_all
+            kmax = e_all
         else:
-            kmax = torch.zeros((n_cl, n_train), dtype=ks_all.dtype, device=ks_all.device)
-            kmax.scatter_reduce_(0, cluster.unsqueeze(1).expand(-1, n_train), ks_all, reduce="amax")
+            kmax = torch.zeros((n_cl, n_train), dtype=e_all.dtype, device=e_all.device)
+            kmax.scatter_reduce_(0, cluster.unsqueeze(1).expand(-1, n_train), e_all, reduce="amax")
         nbr = torch.topk(kmax, k, dim=1, largest=True, sorted=False).indices  # (C, k)
         xn = self.xs_train[nbr]  # (C, k, d)
         kmat = kernel_matrix(xn, xn, self.outputscale)
@@ -375,7 +394,7 @@ class ExactGP(ObservationModel):
             jit = 1e-6 * self.outputscale
             chol = torch.linalg.cholesky(kmat + jit * torch.eye(k, dtype=kmat.dtype, device=kmat.device))
         # cross-covariances of each point with its cluster's neighbours, padded into (C, k, m_max)
-        ks = ks_all.gather(1, nbr[cluster])  # (P, k)
+        ks = e_all.gather(1, nbr[cluster]).mul_(self.outputscale)  # (P, k)
         if n_cl == n_pts:
             rhs = ks.unsqueeze(-1)
             v = torch.linalg.solve_triangular(chol, rhs, upper=False)

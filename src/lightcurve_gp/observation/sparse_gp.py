@@ -23,7 +23,8 @@ from torch import Tensor
 
 from ..config import ModelConfig, config_to_dict
 from .base import ObservationModel, Prediction
-from .exact_gp import EXP_CLAMP, _check_training, _hyper_start, _scaled, _subset, kernel_matrix
+from .exact_gp import (_check_training, _hyper_start, _scaled, _subset, cross_kernel_cache, exp_neg_sqdist,
+                       kernel_matrix)
 from .inputs import InputMap
 
 __all__ = ["SparseGP", "kmeans", "sgpr_cache"]
@@ -141,6 +142,8 @@ class SparseGP(ObservationModel):
     """
 
     kind = "sparse"
+    #: largest kernel block ``(points × M)`` computed at once by a prediction (8 MB in float64)
+    chunk_values: int = 1 << 20
 
     def __init__(self, inputs: InputMap, z: Tensor, w: Tensor, p: Tensor, y_mean: float | Tensor,
                  outputscale: float | Tensor, lengthscale: Tensor, noise: float | Tensor, *,
@@ -162,14 +165,14 @@ class SparseGP(ObservationModel):
         self.register_buffer("outputscale", torch.as_tensor(outputscale, **f64))
         self.register_buffer("lengthscale", lengthscale.to(**f64))
         self.register_buffer("noise", torch.as_tensor(noise, **f64))
-        # derived prediction buffers (not saved): input scale 1/(ℓ√2), scaled Z, and [θ1 w | θ1² P] so that one
-        # matmul of e = exp(−‖xs − zs‖²) gives both the mean and the variance's quadratic form
-        self.register_buffer("in_scale", _scaled(torch.ones_like(self.lengthscale), self.lengthscale), persistent=False)
-        zs = self.z * self.in_scale
-        self.register_buffer("zs_t", zs.T.contiguous(), persistent=False)
-        self.register_buffer("zs_sq", (zs * zs).sum(-1), persistent=False)
-        self.register_buffer("wp", torch.cat([self.w.unsqueeze(1) * self.outputscale,
-                                              self.p * self.outputscale**2], 1), persistent=False)
+        # derived prediction buffers (not saved): the scaled inducing inputs as exp_neg_sqdist needs them, θ1 w and
+        # θ1² P, so that e = exp(−‖xs − zs‖²) = k*u / θ1 gives the mean e·(θ1 w) and the quadratic form eᵀ(θ1² P)e
+        zs = _scaled(self.z, self.lengthscale)
+        zs_t2, zs_sq_neg = cross_kernel_cache(zs)
+        self.register_buffer("zs_t2", zs_t2, persistent=False)
+        self.register_buffer("zs_sq_neg", zs_sq_neg, persistent=False)
+        self.register_buffer("w_scaled", self.w * self.outputscale, persistent=False)
+        self.register_buffer("p_scaled", self.p * self.outputscale**2, persistent=False)
 
     @classmethod
     def from_data(cls, q: Tensor, m_past: Tensor, y: Tensor, cfg: ModelConfig, *, seed: int = 0,
@@ -216,18 +219,24 @@ class SparseGP(ObservationModel):
         return self.z.shape[0]
 
     def _predict(self, q: Tensor, m_past: Tensor, with_variance: bool) -> Prediction:
+        """Mean and variance (module docstring) in chunks of at most :attr:`chunk_values` kernel values."""
         batch = q.shape[:-1]
         dt = self.w.dtype
         x = self.inputs(q.to(dt), m_past.to(dt)).reshape(-1, self.inputs.dim)
-        xs = x * self.in_scale
-        e = torch.addmm(self.zs_sq, xs, self.zs_t, alpha=-2.0).add_((xs * xs).sum(-1, keepdim=True))
-        e = e.clamp_(0.0, EXP_CLAMP).neg_().exp_()  # k_*u / θ1
-        if not with_variance or not self.variance_enabled:
-            return torch.mv(e, self.wp[:, 0]).add_(self.y_mean).reshape(batch), None
-        r = e @ self.wp
-        mean = r[:, 0].add(self.y_mean)
-        var = torch.sub(self.outputscale, (r[:, 1:] * e).sum(-1)).clamp_min_(0.0)
-        return mean.reshape(batch), var.reshape(batch)
+        xs = _scaled(x, self.lengthscale)
+        want_var = with_variance and self.variance_enabled
+        rows = max(1, self.chunk_values // self.num_inducing)
+        means, variances = [], []
+        for start in range(0, xs.shape[0], rows):
+            e = exp_neg_sqdist(xs[start:start + rows], self.zs_t2, self.zs_sq_neg)  # k*u / θ1 (P, M)
+            means.append(torch.mv(e, self.w_scaled))
+            if want_var:
+                quad = (torch.mm(e, self.p_scaled).mul_(e)).sum(-1)
+                variances.append(quad.neg_().add_(self.outputscale).clamp_min_(0.0))
+        mean = (means[0] if len(means) == 1 else torch.cat(means)).add_(self.y_mean).reshape(batch)
+        if not want_var:
+            return mean, None
+        return mean, (variances[0] if len(variances) == 1 else torch.cat(variances)).reshape(batch)
 
     def file_state(self) -> dict[str, Any]:
         """Plain tensors/python values for :func:`lightcurve_gp.observation.serialization.save_model`."""
