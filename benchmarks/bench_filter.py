@@ -2,14 +2,15 @@
 
 Time per filter step: median of ``--repeats`` short runs (``--steps`` steps of the paper's scenario, after one
 2-step warm-up run) of ``B`` filters advancing together (``lightcurve_gp.ukf.run_usque``), for B in ``--batches``,
-with the ExactGP (N = 19260; fast variance, and mean only), the SparseGP (M = 512) and the parametric renderer.
+with the ExactGP (N = 19260) and the SparseGP (M = 512), each with its predictive variance in ``Pyy`` and mean only
+(the paper's GPUKF), and the parametric renderer.
 Reported as ms per step and µs per filter-step. Beside the batched B = 100 run, a Python loop over 100
 single-filter runs (what a one-filter library offers) and the ratio. Then one whole 600 s run of one filter per
 model. On CUDA (when available) also B = 100 000 with the SparseGP and the renderer.
 
 Cases too slow for ``--budget`` seconds (projected from the previous batch size) are skipped with the reason
-printed; ExactGP calls are split into chunks of filters so that one chunk's kernel block stays under
-``--chunk-values`` kernel values (B = 10 000 × 7 sigma points × 19260 training points would be 1.3e9, 10 GB).
+printed. The GP models bound their own kernel blocks (``chunk_values``), so B = 10 000 filters of the ExactGP
+(10 000 × 7 sigma points × 19260 training points) never hold more than one block in memory.
 
     python benchmarks/bench_filter.py                  # paper size, 1 thread
     python benchmarks/bench_filter.py --quick          # 1260 training points, 20 steps, B up to 1000
@@ -18,42 +19,19 @@ printed; ExactGP calls are split into chunks of filters so that one chunk's kern
 from __future__ import annotations
 
 import argparse
+import copy
+import dataclasses
 
 import _common as C
 
 PAPER = {"GPUKF": 0.85, "UKF": 0.005}  # seconds per observation step, paper section 4
-TARGETS = {  # (model label, B) -> seconds per filter-step; "whole" -> seconds per 600 s run
-    ("ExactGP fast var", 1): 2e-3,
-    ("SparseGP M=512", 1): 0.5e-3,
-    ("SparseGP M=512", 10_000): 20e-6,
+TARGETS = {  # (model, B) -> seconds per filter-step, for every row of that model (with and without its variance)
+    ("ExactGP", 1): 2e-3,
+    ("SparseGP", 1): 0.5e-3,
+    ("SparseGP", 10_000): 20e-6,
 }
 WHOLE_TARGET = 1.0
 N_SIGMA = 7
-
-
-def chunked(model, max_values: int):
-    """``model`` wrapped so that one call sees at most ``max_values // (7 · N)`` filters (ExactGP only)."""
-    import torch
-
-    from lightcurve_gp.observation.base import ObservationModel
-
-    n_train = getattr(model, "num_train", None)
-    if n_train is None:
-        return model
-    per_call = max(1, max_values // (N_SIGMA * n_train))
-
-    class Chunked(ObservationModel):
-        def forward(self, *, q, m_past, with_variance=True):
-            if q.shape[0] <= per_call:
-                return model(q=q, m_past=m_past, with_variance=with_variance)
-            parts = [model(q=q[i:i + per_call], m_past=m_past[i:i + per_call], with_variance=with_variance)
-                     for i in range(0, q.shape[0], per_call)]
-            var = None if parts[0][1] is None else torch.cat([p[1] for p in parts])
-            return torch.cat([p[0] for p in parts]), var
-
-    wrapper = Chunked()
-    wrapper.per_call = per_call
-    return wrapper
 
 
 def main() -> None:
@@ -64,7 +42,6 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=None, help="filter steps per timed run (default 50)")
     parser.add_argument("--repeats", type=int, default=5, help="timed runs per case (median reported)")
     parser.add_argument("--budget", type=float, default=60.0, help="seconds allowed per case before skipping")
-    parser.add_argument("--chunk-values", type=float, default=2**24, help="max kernel values per ExactGP call")
     parser.add_argument("--skip-loop", action="store_true", help="skip the loop over 100 single-filter runs")
     parser.add_argument("--skip-whole", action="store_true", help="skip the whole 600 s runs")
     parser.add_argument("--refit", action="store_true", help="retrain the models even when cached")
@@ -100,7 +77,8 @@ def main() -> None:
     cuda = torch.cuda.is_available()
     seeds = max(batches + ([100] if not args.skip_loop else []))
     sc = simulate_scenario(cfg, seeds=range(seeds), scene=scene)
-    params = UsqueParams.from_config(cfg.filter, cfg.data.t_span_past)
+    with_var = UsqueParams.from_config(cfg.filter, cfg.data.t_span_past)
+    mean_only = dataclasses.replace(with_var, add_model_variance=False)
 
     def setup(device):
         dev = torch.device(device)
@@ -109,22 +87,20 @@ def main() -> None:
 
     tensors = {"cpu": setup("cpu")}
 
-    def run(model, B, n_steps, device="cpu", start=0):
+    def run(model, params, B, n_steps, device="cpu", start=0):
         t = tensors[device]
         rows = torch.arange(start, start + B, device=t["obs"].device) % t["obs"].shape[0]
         obs = t["obs"][rows, :n_steps + 1]
         return run_usque(model, t["q0"].expand(B, 4), t["P0"], obs, obs[:, 0], t["inc"][:n_steps], params)
 
-    def exact_mode(mode):
-        def prepare():
-            exact.variance_mode = mode
-            return exact
-        return prepare
-
-    models = [("ExactGP fast var", exact_mode("fast"), f"N = {exact.num_train}, {exact.neighbors} neighbours"),
-              ("ExactGP mean only", exact_mode("none"), f"N = {exact.num_train}, no model variance in Pyy"),
-              ("SparseGP M=512", lambda: sparse, f"M = {sparse.num_inducing}"),
-              ("Parametric", lambda: Parametric(scene, cfg.filter.rho_assumed), "renderer (the paper's UKF)")]
+    exact.variance_mode = "fast"
+    # (label, target key, model, filter parameters): "mean only" is the paper's GPUKF (GP mean in the filter);
+    # the other GP rows add the model's predictive variance to Pyy (filter.add_model_variance)
+    models = [("ExactGP fast var", "ExactGP", exact, with_var),
+              ("ExactGP mean only", "ExactGP", exact, mean_only),
+              ("SparseGP M=512", "SparseGP", sparse, with_var),
+              ("SparseGP M=512 mean only", "SparseGP", sparse, mean_only),
+              ("Parametric", "Parametric", Parametric(scene, cfg.filter.rho_assumed), with_var)]
 
     step_tab = C.Table(f"Filter step time (median of up to {args.repeats} runs of {steps} steps; "
                        f"{info['torch_threads']} thread(s), {info['dtype']})",
@@ -133,18 +109,17 @@ def main() -> None:
                        ["model", "batched ms/step", "loop ms/step", "loop / batched"])
     whole_tab = C.Table("One whole 600 s run of one filter", ["model", "seconds", "ms / step", "target", "status"])
 
-    def time_case(label, model, B, device):
-        """Median seconds per step of ``B`` filters, or a skip reason."""
+    def time_case(model, params, B, device):
+        """Median seconds per step of ``B`` filters, steps and runs timed."""
         sync = C.synchronizer(device)
-        _, warm = C.timed(lambda: (run(model, B, 2, device), sync()))
+        _, warm = C.timed(lambda: (run(model, params, B, 2, device), sync()))
         per_step = warm / 2
         n_steps = max(5, min(steps, int(args.budget / (per_step * (args.repeats + 1)))))
         runs = max(1, min(args.repeats, int(args.budget / (per_step * n_steps))))
-        res = C.time_call(lambda: run(model, B, n_steps, device), repeats=runs, warmup=0, sync=sync)
+        res = C.time_call(lambda: run(model, params, B, n_steps, device), repeats=runs, warmup=0, sync=sync)
         return res["median"] / n_steps, n_steps, runs
 
-    for label, prepare, desc in models:
-        model = prepare()
+    for label, target_key, model, params in models:
         last_pfs = None  # seconds per filter-step at the previous B
         for B in batches:
             projected = last_pfs * B if last_pfs is not None else 0.0
@@ -154,20 +129,17 @@ def main() -> None:
                 step_tab.note(f"{label} at B = {B} skipped: projected {projected:.3g} s per step from "
                               f"B = {prev_B} (> --budget {args.budget:g} s for a warm-up and one run)")
                 continue
-            m = chunked(model, int(args.chunk_values))
-            per_step, n_steps, runs = time_case(label, m, B, "cpu")
+            per_step, n_steps, runs = time_case(model, params, B, "cpu")
             last_pfs, prev_B = per_step / B, B
-            t = TARGETS.get((label, B))
+            t = TARGETS.get((target_key, B))
             status = "" if t is None else ("ok" if per_step / B <= t else "MISS")
             step_tab.add([label, "cpu", B, f"{n_steps} x {runs}", f"{per_step * 1e3:.3g}",
                           f"{per_step / B * 1e6:.3g}", "" if t is None else f"≤ {C.fmt_seconds(t)}", status],
                          {"model": label, "device": "cpu", "B": B, "steps": n_steps, "runs": runs,
                           "s_per_step": per_step, "s_per_filter_step": per_step / B, "target": t, "status": status})
-            if getattr(m, "per_call", B) < B:
-                step_tab.note(f"{label} at B = {B}: model called in chunks of {m.per_call} filters")
             if B == 100 and not args.skip_loop:
                 n_loop = min(n_steps, 20)
-                _, loop_s = C.timed(lambda: [run(model, 1, n_loop, start=b) for b in range(100)])
+                _, loop_s = C.timed(lambda: [run(model, params, 1, n_loop, start=b) for b in range(100)])
                 loop_step = loop_s / n_loop
                 loop_tab.add([label, f"{per_step * 1e3:.3g}", f"{loop_step * 1e3:.3g}", f"{loop_step / per_step:.3g}x"],
                              {"model": label, "batched_s_per_step": per_step, "loop_s_per_step": loop_step,
@@ -175,7 +147,7 @@ def main() -> None:
             print(f"  {label} B = {B}: {per_step * 1e3:.3g} ms per step", flush=True)
         if not args.skip_whole:
             T = sc.increments.shape[0]
-            res = C.time_call(lambda: run(model, 1, T), repeats=3 if not args.quick else 1, warmup=0)
+            res = C.time_call(lambda: run(model, params, 1, T), repeats=3 if not args.quick else 1, warmup=0)
             s = res["median"]
             whole_tab.add([label, f"{s:.3g}", f"{s / T * 1e3:.3g}", f"≤ {WHOLE_TARGET:g} s",
                            "ok" if s <= WHOLE_TARGET else "MISS"],
@@ -184,10 +156,10 @@ def main() -> None:
 
     if cuda:
         tensors["cuda"] = setup("cuda")
-        for label, prepare, desc in models[2:]:
-            model = prepare().to("cuda")
+        for label, _, model, params in models[2:]:
+            model = copy.deepcopy(model).to("cuda")
             for B in (10_000, 100_000):
-                per_step, n_steps, runs = time_case(label, model, B, "cuda")
+                per_step, n_steps, runs = time_case(model, params, B, "cuda")
                 step_tab.add([label, "cuda", B, f"{n_steps} x {runs}", f"{per_step * 1e3:.3g}",
                               f"{per_step / B * 1e6:.3g}", "", f"{B / per_step:.3g} filter-steps/s"],
                              {"model": label, "device": "cuda", "B": B, "steps": n_steps, "runs": runs,
