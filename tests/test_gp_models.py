@@ -271,6 +271,14 @@ def test_kmeans_is_seeded_and_reduces_inertia():
     assert inertia(c1) < inertia(kmeans(x, 8, iterations=0, seed=1))
 
 
+def test_kmeans_centres_are_distinct_when_the_data_repeat_points():
+    x = _data(60)[0].repeat(5, 1)  # every row five times, like the paper grid's repeated identity attitude
+    for seed in range(5):
+        c = kmeans(x, 40, seed=seed)
+        assert torch.unique(c, dim=0).shape[0] == 40
+    torch.testing.assert_close(kmeans(x, 100), torch.unique(x, dim=0))  # fewer distinct rows than centres
+
+
 # ----------------------------------------------------------------------------------------------- model files
 
 @pytest.mark.parametrize("which", ["exact", "sparse"])

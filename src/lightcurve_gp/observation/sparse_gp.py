@@ -33,12 +33,18 @@ _JITTERS = (1e-10, 1e-8, 1e-6, 1e-4)
 
 
 def kmeans(x: Tensor, m: int, *, iterations: int = 10, seed: int = 0) -> Tensor:
-    """``m`` k-means centres of ``x (N, d)``: a seeded random subset, then Lloyd iterations (an emptied cluster
-    keeps its centre). ``m ≥ N`` returns a copy of ``x``."""
-    n = x.shape[0]
+    """``m`` k-means centres of ``x (N, d)``: a seeded random subset of the distinct rows, then Lloyd iterations
+    (an emptied cluster keeps its centre). ``m`` at least the number of distinct rows returns those rows.
+
+    Starting from distinct rows matters for data with repeated inputs (the paper's grid repeats the identity
+    attitude 642 times): two equal centres never separate, and an inducing set with repeats wastes inducing points
+    and makes ``K_uu`` singular.
+    """
+    distinct = torch.unique(x, dim=0)
+    n = distinct.shape[0]
     if m >= n:
-        return x.clone()
-    centres = x[_subset(n, m, seed, x.device)].clone()
+        return distinct
+    centres = distinct[_subset(n, m, seed, x.device)].clone()
     for _ in range(iterations):
         d2 = (centres * centres).sum(-1) - 2.0 * x @ centres.T  # ‖x‖² is the same for every centre
         assign = d2.argmin(dim=1)
