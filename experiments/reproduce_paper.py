@@ -34,7 +34,7 @@ import torch
 import yaml
 
 from lightcurve_gp.config import ConfigError, apply_overrides, config_from_dict
-from lightcurve_gp.estimation import ESTIMATORS
+from lightcurve_gp.estimation import DEFAULT_ESTIMATORS
 from lightcurve_gp.io import write_json_atomic, write_text_atomic
 from lightcurve_gp.plots import euler_errors, light_curves, rmse_boxplot
 from lightcurve_gp.sweep import SweepResult, run_sweep
@@ -128,7 +128,7 @@ def _traces(record: dict) -> dict:
 
 # ----------------------------------------------------------------------------------------------- experiments
 
-def _sweep(raw: dict, sweep_id: str, axes, seeds: Sequence[int], args, estimators=ESTIMATORS) -> SweepResult:
+def _sweep(raw: dict, sweep_id: str, axes, seeds: Sequence[int], args, estimators=DEFAULT_ESTIMATORS) -> SweepResult:
     print(f"== {sweep_id}: {', '.join(f'{k} in {list(v)}' for k, v in axes)}, {len(seeds)} seeds",
           file=sys.stderr, flush=True)
     result = run_sweep(raw, axes, seeds, out=args.out, sweep_id=sweep_id, estimators=estimators,
@@ -176,7 +176,7 @@ def variance_table(res: SweepResult, results: Path) -> tuple[str, dict]:
 
 
 def _estimator_table(records: dict[Any, dict], label: str, stem: str, results: Path, note: str,
-                     estimators: Sequence[str] = ESTIMATORS) -> str:
+                     estimators: Sequence[str] = DEFAULT_ESTIMATORS) -> str:
     """Median [IQR] RMSE per axis, LC RMSE and NEES for each case (key: label value) and estimator."""
     header = [label, "estimator", "yaw", "pitch", "roll", "LC RMSE noisy (mag)", "LC RMSE clean (mag)", "NEES"]
     rows, csv_rows = [], []
@@ -207,7 +207,7 @@ def robustness_tables(recs: dict[float, dict], results: Path, seeds: int) -> str
               "roll: paper"]
     rows, csv_rows = [], []
     for rho, rec in recs.items():
-        for est in ESTIMATORS:
+        for est in DEFAULT_ESTIMATORS:
             paper = PAPER_ATTITUDE[rho].get(est)
             st = [_stats(_rmse_array(rec, est)[:, i]) for i in range(3)] if _ok(rec) else [(math.nan,) * 3] * 3
             cells = []
@@ -253,7 +253,7 @@ def cost_table(recs: dict[float, dict], results: Path, variance: dict, steps: in
         if not _ok(rec):
             continue
         S = len(rec["seeds"])
-        for est in ESTIMATORS:
+        for est in DEFAULT_ESTIMATORS:
             s = rec["summary"]["estimators"][est]
             paper = PAPER_STEP_S[rho].get(est)
             rows.append([rho, est, S, f"{s['seconds_per_step']:.4g}", f"{s['seconds_per_filter_step']:.3g}",
@@ -325,7 +325,7 @@ def figures(mismatch: dict[float, dict], tspan: dict[float, dict], robust: dict[
              title=f"rho_true = {rho:g}, rho_ukf = 0.5 (seed 0)", window=window)
         save(light_curves, times, _arr(t["observed"]), {n: _arr(t["y_pred"][n]) for n in ("gpukf", "ukf")},
              results / f"robustness_light_curves_rho{rho:g}.png", title=f"rho_true = {rho:g} (seed 0)")
-        save(rmse_boxplot, {n: _rmse_array(rec, n) for n in ESTIMATORS},
+        save(rmse_boxplot, {n: _rmse_array(rec, n) for n in DEFAULT_ESTIMATORS},
              results / f"robustness_boxplot_rho{rho:g}.png", title=f"rho_true = {rho:g}: RMSE over seeds")
     return names
 

@@ -93,3 +93,42 @@ def test_estimate_errors_are_clear(tmp_path, capsys):
                           *sets(TINY)]) == 2
     assert "unknown estimator 'kalman'" in capsys.readouterr().err
     torch.set_num_threads(1)  # estimate.main sets the thread count; keep the suite's setting
+
+
+ROBUST = str(Path(__file__).resolve().parents[1] / "configs" / "boxwing_robust.yaml")
+ROBUST_TINY = ["data.num_random=100", "data.rho_grid=[0.3, 0.5, 0.7]", "data.heldout_size=40", "model.num_inducing=60",
+               "scenario.duration_s=60", "evaluation.rmse_window_s=[30, 60]", "name=robust_tiny"]
+
+
+def test_offset_config_trains_on_normalised_magnitudes_and_estimates_with_the_offset_filter(tmp_path, capsys):
+    """The robust config end to end from the commands: the GP learns the reference curve (rho_reference) and the
+    estimate command runs the offset filter, whose offset recovers rho_true."""
+    from lightcurve_gp.config import load_config
+    from lightcurve_gp.data import generate_heldout_set
+    from lightcurve_gp.ukf_offset import rho_to_offset
+
+    assert train.main([ROBUST, "--out", str(tmp_path), "--no-progress", *sets(ROBUST_TINY)]) == 0
+    run = tmp_path / "robust_tiny"
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["target"] == "rho_normalised"
+    # held-out metrics are on the normalised targets: recompute them from the model and the raw held-out set
+    cfg = load_config(ROBUST, ROBUST_TINY)
+    held = generate_heldout_set(cfg)
+    model = load_model(run / "model.pt")
+    mean, _ = model(q=held.q, m_past=held.m_past, with_variance=False)
+    reference = held.y + 2.5 * torch.log10(held.rho / cfg.model.rho_reference)
+    assert float((mean - reference).pow(2).mean().sqrt()) == pytest.approx(metrics["heldout"]["rmse"], rel=1e-9)
+    raw_rmse = float((mean - held.y).pow(2).mean().sqrt())
+    assert abs(raw_rmse - metrics["heldout"]["rmse"]) > 1e-3  # the reported metric is not on raw magnitudes
+
+    assert estimate.main([ROBUST, "--model", str(run / "model.pt"), "--seeds", "3", "--rho-true", "0.3",
+                          "--estimators", "gpukf,joint_ukf", "--out", str(tmp_path), *sets(ROBUST_TINY)]) == 0
+    result = json.loads((tmp_path / "robust_tiny" / "estimate_rho0.3" / "results.json").read_text())
+    assert set(result["estimators"]) == {"gpukf", "joint_ukf"}
+    assert "gpukf" in capsys.readouterr().out
+
+
+def test_offset_filter_without_a_normalised_gp_is_a_config_error(tmp_path, capsys):
+    assert train.main([BOXWING, "--out", str(tmp_path), "--no-progress", *sets(TINY),
+                       "--set", "filter.estimate_offset=true"]) == 2
+    assert "filter.estimate_offset: true needs model.target: rho_normalised" in capsys.readouterr().err

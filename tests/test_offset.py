@@ -9,13 +9,13 @@ import torch
 
 from lightcurve_gp.attitudes import random_attitudes
 from lightcurve_gp.config import load_config
-from lightcurve_gp.data import TrainingSet
+from lightcurve_gp.data import TrainingSet, model_targets, normalised_targets
 from lightcurve_gp.observation.inputs import INPUT_KINDS, InputMap, attitude_matrix_features
-from lightcurve_gp.offset_estimation import normalised_targets, offset_covariance, training_arrays
 from lightcurve_gp.render import Scene
 from lightcurve_gp.rotations import attitude_matrix, quat_conj, quat_mul
 from lightcurve_gp.ukf import UsqueParams, run_usque
-from lightcurve_gp.ukf_offset import initial_offset, offset_to_rho, rho_to_offset, run_usque_offset
+from lightcurve_gp.ukf_offset import (initial_offset, offset_covariance, offset_to_rho, rho_to_offset,
+                                      run_usque_offset)
 
 from test_ukf import ToyModel, err_deg, scenario
 
@@ -48,10 +48,10 @@ def test_normalised_targets_collapse_every_rho_onto_the_reference_curve():
     ts = TrainingSet(torch.zeros(3, 4, dtype=DT), y - 0.2, y, rho)
     paper = load_config(CONFIGS / "boxwing.yaml")
     robust = load_config(CONFIGS / "boxwing_robust.yaml")
-    q, m_past, target = training_arrays(ts, paper.model)
-    assert target is ts.y and m_past is ts.m_past  # the paper's GP sees raw magnitudes
-    _, m_past_n, target_n = training_arrays(ts, robust.model)
-    assert torch.allclose(target_n, m_ref, atol=1e-12) and torch.allclose(m_past_n, m_ref - 0.2, atol=1e-12)
+    assert model_targets(ts, paper.model) is ts  # the paper's GP sees raw magnitudes
+    norm = model_targets(ts, robust.model)
+    assert torch.allclose(norm.y, m_ref, atol=1e-12) and torch.allclose(norm.m_past, m_ref - 0.2, atol=1e-12)
+    assert norm.q is ts.q and norm.rho is ts.rho
     with pytest.raises(ValueError, match="rho"):
         normalised_targets(y, torch.tensor([0.1, 0.0, 0.9], dtype=DT), 0.5)
 

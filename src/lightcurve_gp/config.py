@@ -315,6 +315,12 @@ def _cross_check(cfg: Config) -> None:
         raise ConfigError(f"device: {cfg.device!r} is not cpu, cuda or cuda:N")
     if all(v == 0 for v in cfg.scenario.q0):
         raise ConfigError("scenario.q0: the zero quaternion is not an attitude")
+    # a GP of the rho-normalised curve needs the offset in the filter state, and the offset needs that GP: either
+    # alone would count rho twice or not at all
+    if cfg.filter.estimate_offset != (cfg.model.target == "rho_normalised"):
+        raise ConfigError(f"filter.estimate_offset: {str(cfg.filter.estimate_offset).lower()} needs model.target: "
+                          f"{'rho_normalised' if cfg.filter.estimate_offset else 'magnitude'} "
+                          f"(got {cfg.model.target})")
 
 
 def config_from_dict(raw: dict) -> Config:

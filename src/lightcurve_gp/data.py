@@ -22,7 +22,7 @@ from torch import Tensor
 from tqdm.auto import tqdm
 
 from .attitudes import grid_attitudes, icosphere_axes, random_attitudes, sobol_attitudes
-from .config import Config, DataConfig, config_hash
+from .config import Config, DataConfig, ModelConfig, config_hash
 from .dynamics import propagate
 from .io import save_torch_atomic
 from .render import Scene
@@ -30,7 +30,8 @@ from .rotations import quat_canonical
 from .shapes import facets_from_config
 
 __all__ = ["TrainingSet", "initial_attitudes", "drop_duplicate_attitudes", "window_samples",
-           "generate_training_set", "generate_heldout_set", "load_or_generate", "DATA_FORMAT_VERSION"]
+           "generate_training_set", "generate_heldout_set", "load_or_generate", "normalised_targets",
+           "model_targets", "DATA_FORMAT_VERSION"]
 
 DATA_FORMAT_VERSION = 1
 
@@ -184,6 +185,26 @@ def generate_heldout_set(cfg: Config) -> TrainingSet:
     rho = lo + (hi - lo) * torch.rand(n, generator=gen, dtype=dtype)
     data = cfg.data if cfg.data.quaternion_sign != "both" else _replace(cfg.data, quaternion_sign="as_is")
     return window_samples(scene, q0, rho, data, _inertia(cfg))
+
+
+def normalised_targets(m: Tensor, rho: Tensor, rho_reference: float) -> Tensor:
+    """ρ-normalised magnitudes ``m + 2.5 log10(ρ / ρ0)`` ``(N,)``: the magnitude the attitude would have at ``ρ0``.
+
+    Exact for a diffuse-dominated light curve (``c_d ∝ ρ``, paper eq. mApp), where ρ only shifts the magnitude.
+    """
+    if not bool((rho > 0).all()):
+        raise ValueError("rho: every training reflectance must be positive to normalise magnitudes")
+    return m + 2.5 * torch.log10(rho.to(m) / rho_reference)
+
+
+def model_targets(ts: TrainingSet, model: ModelConfig) -> TrainingSet:
+    """The data a GP of ``model`` learns from ``ts``: unchanged for ``model.target = magnitude`` (the paper);
+    for ``rho_normalised``, ``y`` and ``m_past`` (the window mean shifts by the same offset) normalised to
+    ``model.rho_reference`` by :func:`normalised_targets`, so the GP sees the reference curve only."""
+    if model.target == "magnitude":
+        return ts
+    return _replace(ts, m_past=normalised_targets(ts.m_past, ts.rho, model.rho_reference),
+                    y=normalised_targets(ts.y, ts.rho, model.rho_reference))
 
 
 def data_cache_key(cfg: Config) -> str:

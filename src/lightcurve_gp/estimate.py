@@ -16,7 +16,7 @@ from pathlib import Path
 import torch
 
 from .config import ConfigError, load_config
-from .estimation import ESTIMATORS, ScenarioResult, run_estimators
+from .estimation import DEFAULT_ESTIMATORS, ESTIMATORS, ScenarioResult, run_estimators
 from .io import write_json_atomic
 from .observation.serialization import ModelFileError, load_model
 from .plots import euler_errors, light_curves, rmse_boxplot
@@ -73,8 +73,9 @@ def build_parser() -> argparse.ArgumentParser:
                                                    "GPUKF is skipped")
     parser.add_argument("--seeds", type=int, default=None, help="number of noise seeds (default: scenario.seeds)")
     parser.add_argument("--rho-true", type=float, default=None, help="true rho (default: scenario.rho_true)")
-    parser.add_argument("--estimators", default=",".join(ESTIMATORS),
-                        help=f"comma-separated subset of {','.join(ESTIMATORS)}")
+    parser.add_argument("--estimators", default=",".join(DEFAULT_ESTIMATORS),
+                        help=f"comma-separated subset of {','.join(ESTIMATORS)} (default: "
+                             f"{','.join(DEFAULT_ESTIMATORS)})")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY.PATH=VALUE",
                         help="override a config value (repeatable)")
     parser.add_argument("--out", default="runs", type=Path, help="output folder (default: runs)")

@@ -2,13 +2,18 @@
 
 Estimators (names used in tables, figures and JSON):
 
-* ``gpukf`` — USQUE with the GP observation model (paper section 3.3);
+* ``gpukf`` — USQUE with the GP observation model (paper section 3.3); with ``filter.estimate_offset`` the GP
+  models the reference light curve (``model.target: rho_normalised``) and the filter carries the unknown
+  magnitude offset of ρ in its state (:mod:`lightcurve_gp.ukf_offset`);
 * ``ukf`` — the conventional UKF: USQUE with the renderer and the assumed ``filter.rho_assumed``;
 * ``matched_ukf`` — an oracle UKF whose renderer knows ``rho_true`` (a reference the paper does not show);
+* ``joint_ukf`` — the renderer at ``model.rho_reference`` with the offset in the state: a conventional UKF that
+  estimates ρ (it needs every other surface parameter);
 * ``no_update`` — the initial estimate merely propagated with the known ω (a filter that learned nothing).
 
 Every filter starts from ``q_est,0 = q(error) ⊗ q_true,0`` with ``P0 = (p0_deg)² I`` and ``m_past,0 = ỹ_0``
-(the first observation); updates use ``ỹ_1 … ỹ_T``.
+(the first observation); updates use ``ỹ_1 … ỹ_T``. The offset filters start from ``b0 = ỹ_0 − h(q̂_0)`` with
+variance ``filter.offset_prior_std²``; ``b`` is a random walk of variance ``filter.offset_process_noise`` per step.
 """
 
 from __future__ import annotations
@@ -29,10 +34,14 @@ from .render import Scene
 from .rotations import quat_mul, quat_normalize
 from .scenario import Scenario, simulate_scenario
 from .ukf import FilterHistory, UsqueParams, initial_covariance, run_usque
+from .ukf_offset import OffsetFilterHistory, initial_offset, offset_covariance, run_usque_offset
 
-__all__ = ["ESTIMATORS", "EstimatorResult", "ScenarioResult", "propagate_only", "run_estimators", "score_estimator"]
+__all__ = ["ESTIMATORS", "DEFAULT_ESTIMATORS", "EstimatorResult", "ScenarioResult", "propagate_only",
+           "run_offset_filter", "run_estimators", "score_estimator"]
 
-ESTIMATORS = ("gpukf", "ukf", "matched_ukf", "no_update")
+ESTIMATORS = ("gpukf", "ukf", "matched_ukf", "joint_ukf", "no_update")
+#: what the tables and the estimate command run unless told otherwise
+DEFAULT_ESTIMATORS = ("gpukf", "ukf", "matched_ukf", "no_update")
 
 
 @dataclass
@@ -135,8 +144,19 @@ def score_estimator(sc: Scenario, q_est: Tensor, window, history: FilterHistory 
     return EstimatorResult(q_est, errors, rmse, lc_noisy, lc_clean, nees_w, seconds, history)
 
 
+def run_offset_filter(cfg: Config, model: ObservationModel, observations: Tensor, q_est0: Tensor,
+                      increments: Tensor) -> OffsetFilterHistory:
+    """One batched offset-augmented USQUE run with the tuning of ``cfg.filter`` (``b0 = ỹ_0 − h(q̂_0)``)."""
+    params = UsqueParams.from_config(cfg.filter, cfg.data.t_span_past)
+    m_past0 = observations[:, 0]
+    b0 = initial_offset(model, q_est0, observations[:, 0], m_past0)
+    P0 = offset_covariance(cfg.filter.p0_deg, cfg.filter.offset_prior_std, dtype=q_est0.dtype, device=q_est0.device)
+    return run_usque_offset(model, q_est0, P0, b0, observations, m_past0, increments, params,
+                            offset_process_noise=cfg.filter.offset_process_noise)
+
+
 def run_estimators(cfg: Config, gp_model: ObservationModel | None = None, *, seeds: Sequence[int] | None = None,
-                   rho_true: float | None = None, estimators: Sequence[str] = ESTIMATORS,
+                   rho_true: float | None = None, estimators: Sequence[str] = DEFAULT_ESTIMATORS,
                    scene: Scene | None = None) -> ScenarioResult:
     """Simulate ``cfg.scenario`` (optionally with another ``rho_true``) and run the chosen estimators.
 
@@ -162,7 +182,8 @@ def run_estimators(cfg: Config, gp_model: ObservationModel | None = None, *, see
     P0 = initial_covariance(cfg.filter.p0_deg, dtype=dtype, device=device)
     q_est0 = sc.q_est0.expand(S, 4)
     models = {"gpukf": gp_model, "ukf": Parametric(scene, cfg.filter.rho_assumed),
-              "matched_ukf": Parametric(scene, sc.rho_true)}
+              "matched_ukf": Parametric(scene, sc.rho_true), "joint_ukf": Parametric(scene, cfg.model.rho_reference)}
+    with_offset = {"joint_ukf", "gpukf"} if cfg.filter.estimate_offset else {"joint_ukf"}
     out = ScenarioResult(sc, window)
     for name in estimators:
         start = time.perf_counter()
@@ -170,7 +191,11 @@ def run_estimators(cfg: Config, gp_model: ObservationModel | None = None, *, see
             q_est, history = propagate_only(sc.q_est0, sc.increments).expand(S, -1, -1), None
         else:
             model = models[name].to(device=device, dtype=dtype) if name != "gpukf" else models[name].to(device)
-            history = run_usque(model, q_est0, P0, sc.observations, sc.observations[:, 0], sc.increments, params)
+            if name in with_offset:
+                history = run_offset_filter(cfg, model, sc.observations, q_est0, sc.increments)
+            else:
+                history = run_usque(model, q_est0, P0, sc.observations, sc.observations[:, 0], sc.increments,
+                                    params)
             q_est = history.q_est
         out.results[name] = score_estimator(sc, q_est, window, history, time.perf_counter() - start)
     return out

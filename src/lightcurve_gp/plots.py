@@ -18,7 +18,7 @@ __all__ = ["prediction_scatter", "residual_histogram", "euler_errors", "light_cu
 
 #: paper colours: GPUKF blue, conventional UKF red, truth black; the extra baselines get their own
 ESTIMATOR_COLORS = {"gpukf": "tab:blue", "ukf": "tab:red", "truth": "black", "matched_ukf": "tab:green",
-                    "no_update": "tab:gray", "joint_ukf": "tab:purple", "gpukf_offset": "tab:cyan"}
+                    "no_update": "tab:gray", "joint_ukf": "tab:purple"}
 #: the reference estimators are dashed so that an estimator they coincide with stays visible
 ESTIMATOR_STYLES = {"matched_ukf": "--", "no_update": ":"}
 AXES = ("yaw", "pitch", "roll")

@@ -42,7 +42,7 @@ import yaml
 from tqdm.auto import tqdm
 
 from .config import Config, ConfigError, apply_overrides, config_from_dict, config_hash, config_to_dict
-from .estimation import ESTIMATORS, ScenarioResult, run_estimators
+from .estimation import DEFAULT_ESTIMATORS, ESTIMATORS, ScenarioResult, run_estimators
 from .io import write_json_atomic, write_text_atomic
 
 __all__ = ["RESULT_COLUMNS", "SUMMARY_COLUMNS", "MODEL_SECTIONS", "Case", "SweepResult", "parse_grid",
@@ -135,7 +135,7 @@ def _case_key(cfg: Config, seeds: Sequence[int], estimators: Sequence[str]) -> s
 
 
 def make_cases(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Sequence[int],
-               estimators: Sequence[str] = ESTIMATORS) -> list[Case]:
+               estimators: Sequence[str] = DEFAULT_ESTIMATORS) -> list[Case]:
     """Validate every grid point of ``axes`` applied to the raw config mapping ``raw``.
 
     Raises:
@@ -361,7 +361,7 @@ def _sweep_id(raw: dict, axes, seeds, estimators) -> str:
 
 
 def run_sweep(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Sequence[int], *,
-              out: str | Path = "runs", sweep_id: str | None = None, estimators: Sequence[str] = ESTIMATORS,
+              out: str | Path = "runs", sweep_id: str | None = None, estimators: Sequence[str] = DEFAULT_ESTIMATORS,
               workers: int = 1, threads: int = 1, train_threads: int | None = None, cache_dir: str | Path | None = None,
               progress: bool = True, rerun_failed: bool = True,
               case_runner: Callable[[dict[str, Any]], dict[str, Any]] = run_case) -> SweepResult:
@@ -501,8 +501,9 @@ example:
                         help="override a config value for every case (repeatable)")
     parser.add_argument("--seeds", type=int, default=None,
                         help="number of noise seeds 0..N-1 per case (default: scenario.seeds)")
-    parser.add_argument("--estimators", default=",".join(ESTIMATORS),
-                        help=f"comma-separated subset of {','.join(ESTIMATORS)} (default: all)")
+    parser.add_argument("--estimators", default=",".join(DEFAULT_ESTIMATORS),
+                        help=f"comma-separated subset of {','.join(ESTIMATORS)} (default: "
+                             f"{','.join(DEFAULT_ESTIMATORS)})")
     parser.add_argument("--out", default="runs", type=Path, help="output root (default: runs)")
     parser.add_argument("--cache", default=None, type=Path, help="training-data cache (default: OUT/cache)")
     parser.add_argument("--sweep-id", default=None,

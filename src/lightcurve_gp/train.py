@@ -1,5 +1,9 @@
 """``python -m lightcurve_gp.train CONFIG``: generate (or load) the training set, fit the GP, evaluate it.
 
+The GP learns the targets of ``model.target`` (:func:`lightcurve_gp.data.model_targets`): magnitudes as in the
+paper, or magnitudes normalised to ``model.rho_reference`` for the offset filter (``filter.estimate_offset``);
+the held-out metrics are computed on the same targets.
+
 Writes ``<out>/<name>/``: ``model.pt`` (the trained observation model), ``metrics.json`` (held-out RMSE, mean
 negative log predictive density, fraction of residuals within 2σ, timings), ``config.yaml`` (the resolved
 config), ``heldout_scatter.png`` and ``heldout_residuals.png``. Every file is written atomically.
@@ -17,7 +21,7 @@ import torch
 import yaml
 
 from .config import Config, ConfigError, config_to_dict, load_config
-from .data import TrainingSet, generate_heldout_set, load_or_generate
+from .data import TrainingSet, generate_heldout_set, load_or_generate, model_targets
 from .io import write_json_atomic, write_text_atomic
 from .observation.base import ObservationModel
 from .observation.exact_gp import ExactGP, fast_variance_error
@@ -70,13 +74,14 @@ def train(cfg: Config, out_dir: Path, cache_dir: Path, progress: bool = True,
          f"{data.dropped} zero-flux trajectories dropped) in {timings['data_s']:.1f} s")
 
     t0 = time.perf_counter()
-    _say(f"fitting the {cfg.model.kind} GP on {len(data)} points ...")
+    data = model_targets(data, cfg.model)
+    _say(f"fitting the {cfg.model.kind} GP on {len(data)} points ({_TARGETS[cfg.model.target]}) ...")
     model = build_model(data.q, data.m_past, data.y, cfg.model)
     timings["fit_s"] = time.perf_counter() - t0
     _say(f"fitted in {timings['fit_s']:.1f} s")
 
     t0 = time.perf_counter()
-    heldout = generate_heldout_set(cfg)
+    heldout = model_targets(generate_heldout_set(cfg), cfg.model)
     timings["heldout_data_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     metrics = evaluate_model(model, heldout, _noise_var(model))
@@ -102,6 +107,7 @@ def train(cfg: Config, out_dir: Path, cache_dir: Path, progress: bool = True,
     result = {
         "name": cfg.name,
         "model": cfg.model.kind,
+        "target": cfg.model.target,
         "train_points": len(data),
         "heldout": metrics,
         "fast_variance_vs_exact": variance_check,
@@ -113,6 +119,9 @@ def train(cfg: Config, out_dir: Path, cache_dir: Path, progress: bool = True,
     return result
 
 
+_TARGETS = {"magnitude": "target: magnitude", "rho_normalised": "target: magnitude normalised to model.rho_reference"}
+
+
 def _say(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
@@ -120,7 +129,7 @@ def _say(text: str) -> None:
 def _summary(result: dict) -> str:
     h = result["heldout"]
     rows = [
-        ("model", f"{result['model']} GP, {result['train_points']} training points"),
+        ("model", f"{result['model']} GP, {result['train_points']} training points, {_TARGETS[result['target']]}"),
         ("held-out points", f"{h['n']} (random attitudes, rho off the grid)"),
         ("RMSE / MAE", f"{h['rmse']:.4f} / {h['mae']:.4f} mag"),
         ("mean NLPD", f"{h['nlpd']:.3f} nats"),

@@ -26,9 +26,10 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from .ukf import FilterHistory, UsqueParams, _usque_loop, _warn_fallbacks
+from .ukf import FilterHistory, UsqueParams, _usque_loop, _warn_fallbacks, initial_covariance
 
-__all__ = ["OffsetFilterHistory", "offset_to_rho", "rho_to_offset", "initial_offset", "run_usque_offset"]
+__all__ = ["OffsetFilterHistory", "offset_to_rho", "rho_to_offset", "initial_offset", "offset_covariance",
+           "run_usque_offset"]
 
 
 def rho_to_offset(rho: float | Tensor, rho_reference: float) -> float | Tensor:
@@ -54,6 +55,14 @@ def initial_offset(model, q_est0: Tensor, y0: Tensor, m_past0: Tensor) -> Tensor
         pred, _ = model(q=q_est0, m_past=m_past0.expand(q_est0.shape[:-1]), with_variance=False)
     b0 = y0.to(pred) - pred
     return torch.where(torch.isfinite(b0), b0, torch.zeros_like(b0))
+
+
+def offset_covariance(p0_deg: float, offset_prior_std: float, *, dtype=None, device=None) -> Tensor:
+    """``P0 = diag((p0_deg in rad)² I₃, offset_prior_std²)`` ``(4, 4)`` for the state ``[δp, b]``."""
+    P0 = torch.zeros(4, 4, dtype=dtype or torch.get_default_dtype(), device=device)
+    P0[:3, :3] = initial_covariance(p0_deg, dtype=P0.dtype, device=device)
+    P0[3, 3] = offset_prior_std**2
+    return P0
 
 
 @dataclass
