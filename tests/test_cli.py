@@ -128,6 +128,13 @@ def test_offset_config_trains_on_normalised_magnitudes_and_estimates_with_the_of
     assert "gpukf" in capsys.readouterr().out
 
 
+def test_a_model_trained_for_another_target_is_refused(trained, tmp_path, capsys):
+    assert estimate.main([ROBUST, "--model", str(trained / "tiny" / "model.pt"), "--seeds", "2", "--out",
+                          str(tmp_path), *sets(ROBUST_TINY)]) == 2
+    assert "model.target: the GP was trained on target 'magnitude', the config says 'rho_normalised'" in \
+        capsys.readouterr().err
+
+
 def test_offset_filter_without_a_normalised_gp_is_a_config_error(tmp_path, capsys):
     assert train.main([BOXWING, "--out", str(tmp_path), "--no-progress", *sets(TINY),
                        "--set", "filter.estimate_offset=true"]) == 2

@@ -173,6 +173,10 @@ def run_estimators(cfg: Config, gp_model: ObservationModel | None = None, *, see
         raise ValueError(f"unknown estimator {unknown[0]!r}; choose from {', '.join(ESTIMATORS)}")
     if "gpukf" in estimators and gp_model is None:
         raise ValueError("the gpukf estimator needs a trained GP model (train one with python -m lightcurve_gp.train)")
+    trained_on = getattr(gp_model, "config", {}).get("target", "magnitude") if gp_model is not None else None
+    if "gpukf" in estimators and trained_on != cfg.model.target:
+        raise ValueError(f"model.target: the GP was trained on target {trained_on!r}, the config says "
+                         f"{cfg.model.target!r}; train a model with this config")
     dtype, device = cfg.torch_dtype, torch.device(cfg.device)
     scene = (scene or Scene.from_config(cfg)).to(device=device, dtype=dtype)
     sc = simulate_scenario(cfg, seeds=seeds, rho_true=rho_true, scene=scene)
