@@ -77,6 +77,17 @@ def goal_check(summary: dict) -> dict:
     return out
 
 
+def gp_error_on_trajectory(cfg, model, scene: Scene) -> dict:
+    """The GP's error against the renderer along the scenario's true trajectory (ρ0, noise-free), in mag."""
+    from lightcurve_gp.scenario import simulate_scenario
+
+    sc = simulate_scenario(cfg, seeds=[0], rho_true=cfg.model.rho_reference, scene=scene)
+    mean, var = model(q=sc.q_true, m_past=sc.m_clean, with_variance=True)
+    err = mean - sc.m_clean
+    return {"mean_error": float(err.mean()), "rms_about_mean": float((err - err.mean()).pow(2).mean().sqrt()),
+            "rms": float(err.pow(2).mean().sqrt()), "mean_predictive_std": float(var.sqrt().mean())}
+
+
 def row(name: str, e: dict) -> str:
     med = " | ".join(f"{m:.2f}" for m in e["rmse_deg_median"])
     return (f"| {name} | {med} | {100 * e['fraction_all_axes_below_10deg']:.0f} % | {e['nees_mean']:.2f} | "
@@ -105,6 +116,10 @@ def main(argv=None) -> int:
     print(f"models ready in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
 
     results, lines = {"seeds": [seeds.start, seeds.stop], "config": args.config}, []
+    gp_err = results["gp_error_on_trajectory_mag"] = gp_error_on_trajectory(cfg, model, scene)
+    lines.append(f"\nGP of the reference curve along the true trajectory: mean error {gp_err['mean_error']:+.4f} mag, "
+                 f"RMS about it {gp_err['rms_about_mean']:.4f} mag, mean predictive std "
+                 f"{gp_err['mean_predictive_std']:.4f} mag.")
     for rho in [float(r) for r in args.rho.split(",")]:
         robust = run_estimators(cfg, model, seeds=seeds, rho_true=rho, scene=scene,
                                 estimators=("gpukf", "joint_ukf", "matched_ukf", "no_update"))
