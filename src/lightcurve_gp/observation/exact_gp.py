@@ -187,7 +187,7 @@ def fit_hyperparameters(x: Tensor, y_centred: Tensor, outputscale: float, length
             history.append(float(mll(model(x), y_centred)))
     ls = model.covar_module.base_kernel.lengthscale.detach().reshape(-1)
     ls = ls.expand(x.shape[-1]).clone()
-    return (float(model.covar_module.outputscale), ls, float(likelihood.noise), history)
+    return (float(model.covar_module.outputscale.detach()), ls, float(likelihood.noise.detach()), history)
 
 
 def _hyper_start(cfg: ModelConfig, dim: int) -> tuple[float, Tensor, float]:

@@ -136,8 +136,8 @@ def _optimise_sgpr(x: Tensor, r: Tensor, z: Tensor, outputscale: float, lengthsc
             with torch.no_grad():
                 history.append(float(mll(model(x), r)))
     ls_out = model.base_covar.base_kernel.lengthscale.detach().reshape(-1).expand(dim).clone()
-    return (model.covar_module.inducing_points.detach().clone(), float(model.base_covar.outputscale), ls_out,
-            float(likelihood.noise), history)
+    return (model.covar_module.inducing_points.detach().clone(), float(model.base_covar.outputscale.detach()), ls_out,
+            float(likelihood.noise.detach()), history)
 
 
 class SparseGP(ObservationModel):
