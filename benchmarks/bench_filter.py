@@ -124,17 +124,17 @@ def main() -> None:
         return res["median"] / n_steps, n_steps, runs
 
     for label, target_key, model, params in models:
-        last_pfs = None  # seconds per filter-step at the previous B
+        last = None  # (B, seconds per filter-step) of the previous batch size
         for B in batches:
-            projected = last_pfs * B if last_pfs is not None else 0.0
+            projected = last[1] * B if last is not None else 0.0
             if projected * 2 > args.budget:
                 step_tab.add([label, "cpu", B, "—", "—", "—", "", "skipped"],
                              {"model": label, "B": B, "skipped": f"projected {projected:.2g} s per step"})
                 step_tab.note(f"{label} at B = {B} skipped: projected {projected:.3g} s per step from "
-                              f"B = {prev_B} (> --budget {args.budget:g} s for a warm-up and one run)")
+                              f"B = {last[0]} (> --budget {args.budget:g} s for a warm-up and one run)")
                 continue
             per_step, n_steps, runs = time_case(model, params, B, "cpu")
-            last_pfs, prev_B = per_step / B, B
+            last = (B, per_step / B)
             t = TARGETS.get((target_key, B))
             status = "" if t is None else ("ok" if per_step / B <= t else "MISS")
             step_tab.add([label, "cpu", B, f"{n_steps} x {runs}", f"{per_step * 1e3:.3g}",

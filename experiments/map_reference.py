@@ -30,7 +30,7 @@ from lightcurve_gp.io import write_json_atomic, write_text_atomic
 from lightcurve_gp.metrics import attitude_errors_deg
 from lightcurve_gp.observation.parametric import Parametric
 from lightcurve_gp.render import Scene
-from lightcurve_gp.rotations import quat_mul, quat_to_rotvec, rotvec_to_quat
+from lightcurve_gp.rotations import quat_mul, rotvec_to_quat
 from lightcurve_gp.scenario import Scenario, simulate_scenario
 
 from experiments.robust_gpukf import trained_model

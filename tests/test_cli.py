@@ -105,7 +105,6 @@ def test_offset_config_trains_on_normalised_magnitudes_and_estimates_with_the_of
     estimate command runs the offset filter, whose offset recovers rho_true."""
     from lightcurve_gp.config import load_config
     from lightcurve_gp.data import generate_heldout_set
-    from lightcurve_gp.ukf_offset import rho_to_offset
 
     assert train.main([ROBUST, "--out", str(tmp_path), "--no-progress", *sets(ROBUST_TINY)]) == 0
     run = tmp_path / "robust_tiny"

@@ -27,7 +27,6 @@ from .dynamics import propagate
 from .io import save_torch_atomic
 from .render import Scene
 from .rotations import quat_canonical
-from .shapes import facets_from_config
 
 __all__ = ["TrainingSet", "initial_attitudes", "drop_duplicate_attitudes", "window_samples",
            "generate_training_set", "generate_heldout_set", "load_or_generate", "normalised_targets",
