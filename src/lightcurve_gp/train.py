@@ -76,7 +76,7 @@ def train(cfg: Config, out_dir: Path, cache_dir: Path, progress: bool = True,
     t0 = time.perf_counter()
     data = model_targets(data, cfg.model)
     _say(f"fitting the {cfg.model.kind} GP on {len(data)} points ({_TARGETS[cfg.model.target]}) ...")
-    model = build_model(data.q, data.m_past, data.y, cfg.model)
+    model = build_model(data.q, data.m_past, data.y, cfg.model, progress=progress)
     timings["fit_s"] = time.perf_counter() - t0
     _say(f"fitted in {timings['fit_s']:.1f} s")
 

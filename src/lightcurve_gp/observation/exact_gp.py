@@ -161,30 +161,46 @@ def gpytorch_exact_model(x: Tensor, y_centred: Tensor, outputscale: float, lengt
     return model, likelihood
 
 
+def maximise_mll(model, likelihood, x: Tensor, y: Tensor, params: list, *, iterations: int, lr: float,
+                 progress: bool = False, desc: str = "GP hyperparameters") -> list[float]:
+    """Adam on ``params`` of a GPyTorch ``ExactGP`` model (exact Cholesky, any size) against its
+    ``ExactMarginalLogLikelihood`` — the exact evidence, or the collapsed SGPR bound when the model's kernel is an
+    ``InducingPointKernel``. Returns the objective per point before each step and after the last
+    (``iterations + 1`` values); ``progress`` shows a bar with the current value."""
+    import gpytorch
+    from tqdm.auto import tqdm
+
+    model.train()
+    likelihood.train()
+    mll = gpytorch.mlls.ExactMarginalLogLikelihood(likelihood, model)
+    opt = torch.optim.Adam(params, lr=lr)
+    history: list[float] = []
+    with gpytorch.settings.max_cholesky_size(10**9), tqdm(total=iterations, desc=desc, disable=not progress,
+                                                          leave=False) as bar:
+        for _ in range(iterations):
+            opt.zero_grad()
+            loss = -mll(model(x), y)
+            history.append(-loss.item())
+            loss.backward()
+            opt.step()
+            bar.set_postfix(objective=f"{history[-1]:.4f}", refresh=False)
+            bar.update()
+        with torch.no_grad():
+            history.append(float(mll(model(x), y)))
+    return history
+
+
 def fit_hyperparameters(x: Tensor, y_centred: Tensor, outputscale: float, lengthscale: Tensor | float, noise: float,
-                        *, ard: bool, iterations: int, lr: float) -> tuple[float, Tensor, float, list[float]]:
+                        *, ard: bool, iterations: int, lr: float,
+                        progress: bool = False) -> tuple[float, Tensor, float, list[float]]:
     """Maximise the exact log marginal likelihood (GPyTorch, Adam, exact Cholesky) from the given start.
 
     Returns ``(outputscale, lengthscale (d,), noise variance, mll per point history)``; the history has
     ``iterations + 1`` entries (before each step and after the last).
     """
-    import gpytorch
-
     model, likelihood = gpytorch_exact_model(x, y_centred, outputscale, lengthscale, noise, ard)
-    model.train()
-    likelihood.train()
-    mll = gpytorch.mlls.ExactMarginalLogLikelihood(likelihood, model)
-    opt = torch.optim.Adam(model.parameters(), lr=lr)
-    history = []
-    with gpytorch.settings.max_cholesky_size(10**9):
-        for _ in range(iterations):
-            opt.zero_grad()
-            loss = -mll(model(x), y_centred)
-            history.append(-loss.item())
-            loss.backward()
-            opt.step()
-        with torch.no_grad():
-            history.append(float(mll(model(x), y_centred)))
+    history = maximise_mll(model, likelihood, x, y_centred, list(model.parameters()), iterations=iterations, lr=lr,
+                           progress=progress, desc="exact GP hyperparameters")
     ls = model.covar_module.base_kernel.lengthscale.detach().reshape(-1)
     ls = ls.expand(x.shape[-1]).clone()
     return (float(model.covar_module.outputscale.detach()), ls, float(likelihood.noise.detach()), history)
@@ -253,13 +269,15 @@ class ExactGP(ObservationModel):
 
     @classmethod
     def from_data(cls, q: Tensor, m_past: Tensor, y: Tensor, cfg: ModelConfig, *, seed: int = 0,
-                  keep_cholesky: bool = True, device: torch.device | str | None = None) -> "ExactGP":
+                  keep_cholesky: bool = True, device: torch.device | str | None = None,
+                  progress: bool = False) -> "ExactGP":
         """Condition the paper's GP on training data ``q (N, 4)``, ``m_past (N,)``, ``y (N,)``.
 
         Inputs are mapped by ``cfg.inputs`` (standardised if ``cfg.standardize_inputs``); hyperparameters start
         at the paper's ``(θ1, θ2, σ)`` and are fitted by exact marginal likelihood on ``cfg.fit_subset`` random
         points (seeded) when ``cfg.fit_hyperparameters``. Computation is float64 on ``device`` (default: that of
-        ``q``); move the result with ``.to()``. ``fit_history`` holds the fit's log marginal likelihood per point.
+        ``q``); move the result with ``.to()``. ``fit_history`` holds the fit's log marginal likelihood per point;
+        ``progress`` shows a bar during the fit.
         """
         device = torch.device(device) if device is not None else q.device
         f64 = dict(dtype=torch.float64, device=device)
@@ -276,7 +294,7 @@ class ExactGP(ObservationModel):
             idx = _subset(x.shape[0], cfg.fit_subset, seed, device)
             outputscale, lengthscale, noise, history = fit_hyperparameters(
                 x[idx], r[idx], outputscale, lengthscale, noise, ard=cfg.ard, iterations=cfg.fit_iterations,
-                lr=cfg.fit_lr)
+                lr=cfg.fit_lr, progress=progress)
         chol = cholesky_kernel(_scaled(x, lengthscale), outputscale, noise)
         # two triangular solves: torch.cholesky_solve would copy the N x N factor
         v = torch.linalg.solve_triangular(chol, r.unsqueeze(-1), upper=False)

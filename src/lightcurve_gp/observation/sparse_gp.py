@@ -24,7 +24,7 @@ from torch import Tensor
 from ..config import ModelConfig, config_to_dict
 from .base import ObservationModel, Prediction
 from .exact_gp import (_check_training, _hyper_start, _scaled, _subset, cross_kernel_cache, exp_neg_sqdist,
-                       kernel_matrix)
+                       kernel_matrix, maximise_mll)
 from .inputs import InputMap
 
 __all__ = ["SparseGP", "kmeans", "sgpr_cache"]
@@ -89,8 +89,8 @@ def sgpr_cache(x: Tensor, r: Tensor, z: Tensor, outputscale: float, lengthscale:
 
 
 def _optimise_sgpr(x: Tensor, r: Tensor, z: Tensor, outputscale: float, lengthscale: Tensor, noise: float, *,
-                   optimize_inducing: bool, fit_hyper: bool, ard: bool, iterations: int,
-                   lr: float) -> tuple[Tensor, float, Tensor, float, list[float]]:
+                   optimize_inducing: bool, fit_hyper: bool, ard: bool, iterations: int, lr: float,
+                   progress: bool = False) -> tuple[Tensor, float, Tensor, float, list[float]]:
     """Adam on GPyTorch's collapsed SGPR bound; returns ``(Z, θ1, ℓ (d,), σ², bound-per-point history)``."""
     import gpytorch
 
@@ -122,19 +122,8 @@ def _optimise_sgpr(x: Tensor, r: Tensor, z: Tensor, outputscale: float, lengthsc
         params += list(model.base_covar.parameters()) + list(likelihood.parameters())
     history: list[float] = []
     if params and iterations > 0:
-        model.train()
-        likelihood.train()
-        mll = gpytorch.mlls.ExactMarginalLogLikelihood(likelihood, model)
-        opt = torch.optim.Adam(params, lr=lr)
-        with gpytorch.settings.max_cholesky_size(10**9):
-            for _ in range(iterations):
-                opt.zero_grad()
-                loss = -mll(model(x), r)
-                history.append(-loss.item())
-                loss.backward()
-                opt.step()
-            with torch.no_grad():
-                history.append(float(mll(model(x), r)))
+        history = maximise_mll(model, likelihood, x, r, params, iterations=iterations, lr=lr, progress=progress,
+                               desc="SGPR bound")
     ls_out = model.base_covar.base_kernel.lengthscale.detach().reshape(-1).expand(dim).clone()
     return (model.covar_module.inducing_points.detach().clone(), float(model.base_covar.outputscale.detach()), ls_out,
             float(likelihood.noise.detach()), history)
@@ -183,11 +172,13 @@ class SparseGP(ObservationModel):
     @classmethod
     def from_data(cls, q: Tensor, m_past: Tensor, y: Tensor, cfg: ModelConfig, *, seed: int = 0,
                   init: str = "kmeans", kmeans_iterations: int = 10, inducing_points: Tensor | None = None,
-                  jitter: float = 1e-8, device: torch.device | str | None = None) -> "SparseGP":
+                  jitter: float = 1e-8, device: torch.device | str | None = None,
+                  progress: bool = False) -> "SparseGP":
         """Fit the SGPR model to ``q (N, 4)``, ``m_past (N,)``, ``y (N,)`` (float64 on ``device``).
 
         ``inducing_points`` (mapped inputs ``(M, d)``) overrides the ``init`` (``"kmeans"`` or ``"random"``)
-        of ``cfg.num_inducing`` points. ``fit_history`` holds the collapsed bound per point during optimisation.
+        of ``cfg.num_inducing`` points. ``fit_history`` holds the collapsed bound per point during optimisation;
+        ``progress`` shows a bar meanwhile.
         """
         device = torch.device(device) if device is not None else q.device
         f64 = dict(dtype=torch.float64, device=device)
@@ -213,7 +204,8 @@ class SparseGP(ObservationModel):
         if (cfg.optimize_inducing or cfg.fit_hyperparameters) and cfg.sparse_iterations > 0:
             z, outputscale, lengthscale, noise, history = _optimise_sgpr(
                 x, r, z, outputscale, lengthscale, noise, optimize_inducing=cfg.optimize_inducing,
-                fit_hyper=cfg.fit_hyperparameters, ard=cfg.ard, iterations=cfg.sparse_iterations, lr=cfg.fit_lr)
+                fit_hyper=cfg.fit_hyperparameters, ard=cfg.ard, iterations=cfg.sparse_iterations, lr=cfg.fit_lr,
+                progress=progress)
         w, p = sgpr_cache(x, r, z, outputscale, lengthscale, noise, jitter=jitter)
         model = cls(inputs, z, w, p, y_mean, outputscale, lengthscale, noise, config=config_to_dict(cfg),
                     with_variance=cfg.variance != "none")
