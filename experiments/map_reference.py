@@ -16,7 +16,6 @@ Writes ``--out`` (experiments/results/robust/map_reference.md and .json); the pe
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 import time
@@ -33,7 +32,7 @@ from lightcurve_gp.render import Scene
 from lightcurve_gp.rotations import quat_mul, rotvec_to_quat
 from lightcurve_gp.scenario import Scenario, simulate_scenario
 
-from experiments.robust_gpukf import trained_model
+from experiments.robust_gpukf import robust_arguments, trained_model
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -87,15 +86,10 @@ def score(sc: Scenario, estimates: dict[int, torch.Tensor]) -> dict:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--config", default=str(ROOT / "configs/boxwing_robust.yaml"))
-    p.add_argument("--seeds", type=int, default=100)
-    p.add_argument("--seed-start", type=int, default=200)
+    p = robust_arguments(__doc__.splitlines()[0], seeds=100, seed_start=200, seed_help="not a tuning seed")
     p.add_argument("--rho-true", type=float, default=0.7)
     p.add_argument("--every", type=float, default=25.0, help="checkpoint spacing inside the scoring window (s)")
     p.add_argument("--models", default="renderer,renderer_offset,gp_offset")
-    p.add_argument("--out", default=str(ROOT / "experiments/results/robust"), type=Path)
-    p.add_argument("--runs", default=str(ROOT / "runs"), type=Path)
     p.add_argument("--raw", default=str(ROOT / "runs/robust"), type=Path, help="where per-seed results go")
     args = p.parse_args(argv)
     torch.set_default_dtype(torch.float64)

@@ -60,6 +60,19 @@ def trained_model(cfg, runs: Path):
     return load_model(path)
 
 
+def robust_arguments(description: str, *, seeds: int, seed_start: int, seed_help: str) -> argparse.ArgumentParser:
+    """The arguments every experiment on the robust config shares: ``--config``, ``--seeds``, ``--seed-start``,
+    ``--out`` (committed summaries) and ``--runs`` (trained models)."""
+    p = argparse.ArgumentParser(description=description)
+    p.add_argument("--config", default=str(ROOT / "configs/boxwing_robust.yaml"))
+    p.add_argument("--seeds", type=int, default=seeds, help=f"noise seeds (default {seeds})")
+    p.add_argument("--seed-start", type=int, default=seed_start,
+                   help=f"first noise seed (default {seed_start}: {seed_help})")
+    p.add_argument("--out", default=str(ROOT / "experiments/results/robust"), type=Path)
+    p.add_argument("--runs", default=str(ROOT / "runs"), type=Path, help="where trained models are kept")
+    return p
+
+
 def merged(robust: ScenarioResult, paper: ScenarioResult) -> ScenarioResult:
     """One table: the robust config's estimators, then the paper config's under ``paper_`` names."""
     out = ScenarioResult(robust.scenario, robust.window, dict(robust.results))
@@ -99,16 +112,11 @@ def row(name: str, e: dict) -> str:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--config", default=str(ROOT / "configs/boxwing_robust.yaml"))
+    p = robust_arguments(__doc__.splitlines()[0], seeds=200, seed_start=200, seed_help="not a tuning seed")
     p.add_argument("--paper-config", default=str(ROOT / "configs/boxwing.yaml"))
-    p.add_argument("--seeds", type=int, default=200, help="noise seeds per rho (default 200)")
-    p.add_argument("--seed-start", type=int, default=200, help="first noise seed (default 200: not a tuning seed)")
     p.add_argument("--rho", default="0.3,0.4,0.6,0.7")
     p.add_argument("--ablation-rho", type=float, default=0.7)
     p.add_argument("--ablation-seeds", type=int, default=100)
-    p.add_argument("--out", default=str(ROOT / "experiments/results/robust"), type=Path)
-    p.add_argument("--runs", default=str(ROOT / "runs"), type=Path, help="where trained models are kept")
     p.add_argument("--raw", default=str(ROOT / "runs/robust"), type=Path, help="where per-seed results go")
     args = p.parse_args(argv)
     torch.set_default_dtype(torch.float64)
@@ -154,10 +162,10 @@ def main(argv=None) -> int:
     # ablation: what each ingredient buys (one rho); the fixed-hyperparameter GP is the previous robust model
     fixed = load_config(args.config, FIXED_HYPERPARAMETERS)
     fixed_model = trained_model(fixed, args.runs)
-    gp_err = results["gp_error_on_trajectory_mag_fixed_hyperparameters"] = gp_error_on_trajectory(fixed, fixed_model,
-                                                                                                 scene)
-    lines.append(f"\nThe same GP with the paper's fixed (theta1, theta2, sigma): mean error {gp_err['mean_error']:+.4f} "
-                 f"mag, RMS about it {gp_err['rms_about_mean']:.4f} mag, mean predictive std "
+    gp_err = gp_error_on_trajectory(fixed, fixed_model, scene)
+    results["gp_error_on_trajectory_mag_fixed_hyperparameters"] = gp_err
+    lines.append(f"\nThe same GP with the paper's fixed (theta1, theta2, sigma): mean error "
+                 f"{gp_err['mean_error']:+.4f} mag, RMS about it {gp_err['rms_about_mean']:.4f} mag, mean predictive std "
                  f"{gp_err['mean_predictive_std']:.4f} mag.")
     steps = [
         ("joint UKF (renderer, offset state), paper process noise 1e-4", ["filter.process_noise=1e-4"], "joint_ukf",

@@ -9,9 +9,7 @@ The rule: the value whose mean NEES is nearest the band's centre. The robust exp
 
 from __future__ import annotations
 
-import argparse
 import sys
-from pathlib import Path
 
 import torch
 
@@ -20,18 +18,13 @@ from lightcurve_gp.estimation import run_estimators
 from lightcurve_gp.io import write_text_atomic
 from lightcurve_gp.render import Scene
 
-from experiments.robust_gpukf import HEAD, ROOT, row, trained_model
+from experiments.robust_gpukf import HEAD, robust_arguments, row, trained_model
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--config", default=str(ROOT / "configs/boxwing_robust.yaml"))
+    p = robust_arguments(__doc__.splitlines()[0], seeds=100, seed_start=100, seed_help="the tuning seeds")
     p.add_argument("--process-noise", default="5e-6,1e-6,2e-7,1e-7,0", help="comma-separated values (rad^2 per step)")
-    p.add_argument("--seeds", type=int, default=100)
-    p.add_argument("--seed-start", type=int, default=100, help="first tuning seed (default 100)")
     p.add_argument("--rho-true", type=float, default=0.7)
-    p.add_argument("--out", default=str(ROOT / "experiments/results/robust"), type=Path)
-    p.add_argument("--runs", default=str(ROOT / "runs"), type=Path, help="where trained models are kept")
     args = p.parse_args(argv)
     torch.set_default_dtype(torch.float64)
     cfg = load_config(args.config)
