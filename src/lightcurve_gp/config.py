@@ -131,15 +131,17 @@ class ModelConfig:
     noise_std: float = _spec(lo=0.0, lo_open=True)
     standardize_inputs: bool = _spec(False)
     ard: bool = _spec(False)
-    fit_hyperparameters: bool = _spec(False)
-    fit_iterations: int = _spec(100, lo=0)
+    fit_hyperparameters: bool = _spec(False, doc="fit (theta1, lengthscale, sigma): exact GP on its evidence over "
+                                                 "fit_subset points, sparse GP on its collapsed bound")
+    fit_iterations: int = _spec(100, lo=0, doc="Adam steps of the exact GP's hyperparameter fit")
     fit_lr: float = _spec(0.05, lo=0.0, lo_open=True)
     fit_subset: int = _spec(2000, lo=1)
     variance: str = _spec("fast", choices=("fast", "exact", "none"))
     fast_variance_neighbors: int = _spec(256, lo=1)
     num_inducing: int = _spec(512, lo=1)
     optimize_inducing: bool = _spec(False)
-    sparse_iterations: int = _spec(200, lo=0)
+    sparse_iterations: int = _spec(200, lo=0, doc="Adam steps on the SGPR bound (inducing inputs and/or "
+                                                  "hyperparameters)")
 
 
 @dataclass(kw_only=True)
