@@ -11,8 +11,8 @@ import dataclasses
 import statistics
 import time
 import traceback
-from pathlib import Path
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import _common as C
@@ -67,7 +67,7 @@ class Context:
 
     def __init__(self, args, budget: Budget, sizes: dict, cfg, out: Path):
         self.args, self.budget, self.sizes, self.cfg, self.out = args, budget, sizes, cfg, Path(out)
-        self.packages: set[str] = set()  # "name version" imported by helper processes (the CUDA tests)
+        self.test_packages: list[str] = []  # "name version" imported by the CUDA-test process
         self.device, self.cpu = torch.device(args.device), torch.device("cpu")
         self.report: Report | None = None
         self.failures = 0

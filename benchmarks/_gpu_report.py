@@ -21,8 +21,6 @@ from pathlib import Path
 
 from _common import fmt_seconds, load_average
 
-from lightcurve_gp.io import write_text_atomic
-
 __all__ = ["NOT_MEASURED", "Budget", "Report", "Row", "best_rate", "imported_packages", "machine_header"]
 
 #: the CPU cell of a case the CPU is not asked to run (e.g. B = 10⁵ filters)
@@ -129,6 +127,9 @@ class Report:
         return buf.getvalue()
 
     def write(self) -> None:
+        # imported here, so that a run checks the packages the project needs before importing it
+        from lightcurve_gp.io import write_text_atomic
+
         write_text_atomic(self.markdown(), self.md_path)
         write_text_atomic(self.csv(), self.csv_path)
 
@@ -160,12 +161,15 @@ def _cpu_model() -> str:
 
 
 def _driver() -> str:
+    """``driver X, compute mode Y`` from nvidia-smi (``unknown`` without it)."""
     try:
-        out = subprocess.run(["nvidia-smi", "--query-gpu=driver_version", "--format=csv,noheader"],
+        out = subprocess.run(["nvidia-smi", "--query-gpu=driver_version,compute_mode", "--format=csv,noheader"],
                              check=False, capture_output=True, text=True, timeout=10)
-        return out.stdout.strip().splitlines()[0] if out.returncode == 0 and out.stdout.strip() else "unknown"
     except (OSError, subprocess.SubprocessError):
-        return "unknown"
+        return "driver unknown"
+    first = out.stdout.strip().splitlines()[0] if out.returncode == 0 and out.stdout.strip() else ""
+    driver, _, mode = first.partition(",")
+    return f"driver {driver.strip()}, compute mode {mode.strip()}" if first else "driver unknown"
 
 
 def machine_header(device, gflops: dict, memory_cap_gib: float | None) -> list[str]:
@@ -177,7 +181,7 @@ def machine_header(device, gflops: dict, memory_cap_gib: float | None) -> list[s
         props = torch.cuda.get_device_properties(device)
         cap = f"; this run's allocation cap {memory_cap_gib:.0f} GiB" if memory_cap_gib else ""
         lines.append(f"* device: **{torch.cuda.get_device_name(device)}** ({props.total_memory / 2**30:.1f} GiB, "
-                     f"{props.multi_processor_count} SMs, driver {_driver()}){cap}")
+                     f"{props.multi_processor_count} SMs, {_driver()}){cap}")
         lines.append(f"* torch {torch.__version__}, CUDA {torch.version.cuda}, cuDNN {torch.backends.cudnn.version()}")
     else:
         lines.append(f"* device: {device} (a CPU-only rehearsal: both columns run on the CPU)")

@@ -30,6 +30,7 @@ import argparse
 import copy
 import dataclasses
 import functools
+import importlib.util
 import signal
 import sys
 import time
@@ -38,9 +39,8 @@ import warnings
 from pathlib import Path
 
 import _common as C
-import _cuda_tests as cuda_tests
 import torch
-from _gpu_context import Context, Skip, median_time
+from _gpu_context import Context, Skip, first_line, median_time
 from _gpu_report import (
     Budget,
     Report,
@@ -51,6 +51,9 @@ from _gpu_report import (
 )
 
 AIM_FILTER_STEPS_PER_S = 1e6
+#: import name -> distribution of what a run needs beside torch (the CUDA tests: pytest and scipy)
+REQUIRED = {"numpy": "numpy", "trimesh": "trimesh", "yaml": "PyYAML", "tqdm": "tqdm", "pytest": "pytest",
+            "scipy": "scipy"}
 
 # ----------------------------------------------------------------------------------------------- library adapters
 # Every call into lightcurve_gp lives in these functions, so an API change is adapted here alone.
@@ -179,12 +182,14 @@ def gp(ctx: Context, kind: str, device: torch.device):
     copied once to the CPU for the CPU rows."""
     if device != ctx.device:
         return ctx.once(f"{kind} GP copy on CPU", lambda: model_on(gp(ctx, kind, ctx.device), ctx.cpu))
-    chunk = ctx.args.gpu_chunk_values if ctx.cuda else None
-    if kind == "exact":
-        build = lambda: fit_exact(training_data(ctx), ctx.cfg, ctx.device)
-    else:
-        build = lambda: fit_sparse(training_data(ctx), ctx.cfg, ctx.device, ctx.sizes["num_inducing"])
-    return ctx.once(f"{kind} GP on {ctx.device}", lambda: model_on(build(), ctx.device, chunk))
+
+    def build():
+        data = training_data(ctx)
+        fitted = (fit_exact(data, ctx.cfg, ctx.device) if kind == "exact"
+                  else fit_sparse(data, ctx.cfg, ctx.device, ctx.sizes["num_inducing"]))
+        return model_on(fitted, ctx.device, ctx.args.gpu_chunk_values if ctx.cuda else None)
+
+    return ctx.once(f"{kind} GP on {ctx.device}", build)
 
 
 def scenario(ctx: Context, device: torch.device) -> dict:
@@ -204,6 +209,8 @@ def rel_diff(a, b) -> float:
 
 def section_cuda_tests(ctx: Context) -> None:
     """The CUDA tests in a pytest process of their own (``_cuda_tests.py``): one row per test, then a summary."""
+    import _cuda_tests as cuda_tests
+
     timeout = max(10.0, min(ctx.args.tests_timeout_s, ctx.budget.left()))
     ctx.log(f"CUDA tests: pytest in a subprocess (log {ctx.out / 'cuda_tests.log'}, timeout {timeout:.0f} s)")
     res = cuda_tests.run(ctx.out, timeout)
@@ -217,7 +224,7 @@ def section_cuda_tests(ctx: Context) -> None:
         ctx.report.add(Row("CUDA tests", nodeid, device_s=test["duration_s"], unit="s", note=note, cpu_note="—"))
     summary = cuda_tests.summary(res)
     ctx.report.add(Row("CUDA tests", "summary", note=summary))
-    ctx.packages.update(res.get("packages", []))
+    ctx.test_packages = res.get("packages", [])
     ctx.log(f"CUDA tests: {summary}")
 
 
@@ -313,11 +320,8 @@ def section_render(ctx: Context) -> None:
     chunk = ctx.args.gpu_render_chunk if ctx.cuda else None
 
     def generate(device):
-        if device == ctx.device:
-            scene = make_scene(cfg, device, cfg.torch_dtype, chunk)
-            seconds, ts = timed_call(ctx, device, lambda: device_training_set(cfg, scene))
-        else:
-            seconds, ts = median_time(lambda: cpu_training_set(cfg), lambda: None, repeats=ctx.args.repeats, warmup=0)
+        scene = make_scene(cfg, device, cfg.torch_dtype, chunk if device == ctx.device else None)
+        seconds, ts = timed_call(ctx, device, lambda: device_training_set(cfg, scene))
         return seconds, "", ts.y
 
     ctx.case("render", "training-set generation (propagate + render + window)", f"N = {len(data)} × {samples} samples",
@@ -384,6 +388,13 @@ def fail(message: str) -> None:
     sys.exit(2)
 
 
+def _importable(module: str) -> bool:
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):
+        return False
+
+
 def check_args(args) -> torch.device:
     try:
         device = torch.device(args.device)
@@ -395,9 +406,14 @@ def check_args(args) -> torch.device:
         fail(f"--device {args.device}: torch {torch.__version__} sees no CUDA device (CUDA build: {torch.version.cuda})")
     if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():
         fail(f"--device {args.device}: only {torch.cuda.device_count()} CUDA device(s)")
-    for name in ("time_budget_s", "repeats", "gpu_chunk_values", "gpu_render_chunk", "tests_timeout_s"):
-        if not getattr(args, name) > 0:
+    missing = [dist for module, dist in REQUIRED.items() if not _importable(module)]
+    if missing:
+        fail(f"missing Python packages: {', '.join(missing)} (install them first)")
+    for name in ("time_budget_s", "repeats", "gpu_chunk_values", "gpu_render_chunk", "tests_timeout_s", "case_cap_s"):
+        if getattr(args, name) is not None and not getattr(args, name) > 0:
             fail(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
+    if args.cpu_threads < 0:
+        fail(f"--cpu-threads must be >= 0, got {args.cpu_threads}")
     existing = [p for p in ("gpu_check.md", "gpu_check.csv") if (Path(args.out) / p).exists()]
     if existing and not args.overwrite:
         fail(f"--out {args.out}: {existing[0]} exists from an earlier run (pass --overwrite to replace it)")
@@ -418,12 +434,12 @@ def footer(ctx: Context, status: str) -> list[str]:
     rate = best_rate(ctx.report.rows, "filter", "SparseGP")
     aim = ("not measured" if rate is None else
            f"{rate:.3g} filter-steps/s: {'met' if rate >= AIM_FILTER_STEPS_PER_S else 'missed'}")
-    skipped = sum("skipped" in r.note for r in ctx.report.rows)
-    packages = sorted(set(imported_packages()) | ctx.packages)
+    skipped = sum("skipped" in r.note for r in ctx.report.rows if r.section != "CUDA tests")
     return [f"* aim ≥ 10⁶ filter-steps/s with the sparse GP on {ctx.device.type}: best {aim}",
             (f"* {status} after {ctx.budget.elapsed():.0f} s (budget {ctx.budget.seconds:.0f} s); {ctx.failures} "
-             f"failure(s); {skipped} row(s) with a skipped part"),
-            "* third-party packages imported by this run and its CUDA-test process: " + ", ".join(packages)]
+             f"failure(s); {skipped} timing row(s) with a part skipped"),
+            "* Python packages imported by this process: " + ", ".join(imported_packages()),
+            "* and by the CUDA-test process: " + (", ".join(ctx.test_packages) or "(did not run)")]
 
 
 def workload_lines(ctx: Context, args) -> list[str]:
@@ -462,7 +478,7 @@ def main(argv=None) -> int:
             except Exception as error:  # noqa: BLE001 - a section's failure is recorded, the next one runs
                 traceback.print_exc()
                 ctx.failures += 1
-                ctx.report.add(Row(name, "(whole section)", note=f"FAILED: {type(error).__name__}: {error}"))
+                ctx.report.add(Row(name, "(whole section)", note=f"FAILED: {type(error).__name__}: {first_line(error)}"))
         status = "finished"
     finally:
         ctx.report.finish(footer(ctx, status))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import importlib
 import os
 import subprocess
 import sys
@@ -13,10 +14,18 @@ import torch
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "benchmarks" / "gpu_check.py"
-sys.path.insert(0, str(ROOT / "benchmarks"))
 
-import _cuda_tests  # noqa: E402
-from _gpu_report import NOT_MEASURED, Report, Row  # noqa: E402
+
+def _benchmark_module(name: str):
+    """A module of benchmarks/ (which imports its siblings by plain name, as the scripts run from there)."""
+    if str(ROOT / "benchmarks") not in sys.path:
+        sys.path.insert(0, str(ROOT / "benchmarks"))
+    return importlib.import_module(name)
+
+
+cuda_tests = _benchmark_module("_cuda_tests")
+report_mod = _benchmark_module("_gpu_report")
+NOT_MEASURED, Report, Row = report_mod.NOT_MEASURED, report_mod.Report, report_mod.Row
 
 SECTIONS = ["CUDA tests", "filter", "conditioning", "render", "sparse fit"]
 QUICK_BATCHES = [10, 100, 1000]  # gpu_check.QUICK: the CPU column at the two smaller only
@@ -124,4 +133,4 @@ def test_report_rewrites_table_after_each_row(tmp_path):
     ({"outcome": "failed", "reason": "E   AssertionError"}, True, ("FAILED (failed): E   AssertionError", 1)),
 ])
 def test_cuda_test_verdicts(test, expect_cuda, verdict):
-    assert _cuda_tests.describe(test, expect_cuda=expect_cuda) == verdict
+    assert cuda_tests.describe(test, expect_cuda=expect_cuda) == verdict
