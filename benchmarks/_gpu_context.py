@@ -98,6 +98,20 @@ class Context:
     def sync(self, device: torch.device) -> Callable[[], None]:
         return C.synchronizer(device)
 
+    def timed(self, device: torch.device, fn: Callable[[], Any], *, heavy: bool = False):
+        """``(median seconds, output)`` of ``fn`` on ``device``: on the run's device one warm-up and ``--repeats``
+        runs; on the CPU beside it ``--repeats`` runs, or for a ``heavy`` case ``cpu_heavy_repeats`` runs."""
+        if device != self.device and heavy:
+            return median_time(fn, lambda: None, repeats=self.sizes["cpu_heavy_repeats"], warmup=0)
+        return median_time(fn, self.sync(device), repeats=self.args.repeats, warmup=1 if device == self.device else 0)
+
+    def check_cholesky(self, n: int, dtype: torch.dtype, *, runs: int) -> None:
+        """Raise :class:`Skip` when ``runs`` CPU Cholesky factorisations of ``n × n`` (``n³/3`` flops each at half
+        the measured matrix-product rate) are projected to outlast the budget left."""
+        projected = n**3 / 3 / (0.5 * self.gflops[dtype] * 1e9) * runs
+        if projected > self.budget.left():
+            raise Skip(f"projected {projected:.3g} s > {self.budget.left():.0f} s of budget left")
+
     def gpu_reset(self) -> None:
         if self.cuda:
             torch.cuda.synchronize(self.device)

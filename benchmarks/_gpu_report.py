@@ -21,7 +21,8 @@ from pathlib import Path
 
 from _common import fmt_seconds, load_average
 
-__all__ = ["NOT_MEASURED", "Budget", "Report", "Row", "best_rate", "imported_packages", "machine_header"]
+__all__ = ["NOT_MEASURED", "Budget", "Report", "Row", "best_rate", "footer_lines", "imported_packages", "machine_header",
+           "workload_lines"]
 
 #: the CPU cell of a case the CPU is not asked to run (e.g. B = 10⁵ filters)
 NOT_MEASURED = "not measured"
@@ -192,3 +193,28 @@ def machine_header(device, gflops: dict, memory_cap_gib: float | None) -> list[s
     lines.append(f"* started {time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime())}, load average "
                  f"{load_average()}, Python {platform.python_version()}")
     return lines
+
+
+def workload_lines(sizes: dict, args, dtype: str) -> list[str]:
+    """Markdown lines: the sizes, how cases are timed, and the command."""
+    return [(f"* workload: configs/boxwing.yaml{' with --quick sizes' if args.quick else ''} ({dtype}); filters: "
+             f"B = {', '.join(map(str, sizes['batches']))} USQUE filters × 7 sigma points, CPU at "
+             f"B = {', '.join(map(str, sizes['cpu_batches']))} only; sparse GP M = {sizes['num_inducing']}"),
+            (f"* timing: device median of {args.repeats} runs after 1 warm-up (synchronised); CPU median of "
+             f"{args.repeats} (exact conditioning: {sizes['cpu_heavy_repeats']} run(s), no warm-up); filter rows: "
+             f"seconds per step of all B filters; CUDA kernel blocks of {args.gpu_chunk_values} GP kernel values and "
+             f"{args.gpu_render_chunk} renderer attitude-facet pairs"),
+            f"* command: `python benchmarks/gpu_check.py {' '.join(sys.argv[1:])}`"]
+
+
+def footer_lines(rows: list[Row], *, device_type: str, aim: float, status: str, elapsed: float, budget: float,
+                 failures: int, test_packages: list[str]) -> list[str]:
+    """Markdown lines: the sparse filter's best rate against ``aim``, how the run ended, the packages it used."""
+    rate = best_rate(rows, "filter", "SparseGP")
+    verdict = "not measured" if rate is None else f"{rate:.3g} filter-steps/s: {'met' if rate >= aim else 'missed'}"
+    skipped = sum("skipped" in r.note for r in rows if r.section != "CUDA tests")
+    return [f"* aim ≥ {aim:.0e} filter-steps/s with the sparse GP on {device_type}: best {verdict}",
+            (f"* {status} after {elapsed:.0f} s (budget {budget:.0f} s); {failures} failure(s); {skipped} timing "
+             "row(s) with a part skipped"),
+            "* Python packages imported by this process: " + ", ".join(imported_packages()),
+            "* and by the CUDA-test process: " + (", ".join(test_packages) or "(did not run)")]

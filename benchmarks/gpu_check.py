@@ -26,11 +26,9 @@ Exit code 0 when every case ran or was skipped for time, 1 when a case or a CUDA
 
 from __future__ import annotations
 
-import argparse
 import copy
 import dataclasses
 import functools
-import importlib.util
 import signal
 import sys
 import time
@@ -45,15 +43,13 @@ from _gpu_report import (
     Budget,
     Report,
     Row,
-    best_rate,
-    imported_packages,
+    footer_lines,
     machine_header,
+    workload_lines,
 )
+from _gpu_setup import check_args, memory_cap, parse_args
 
 AIM_FILTER_STEPS_PER_S = 1e6
-#: import name -> distribution of what a run needs beside torch (the CUDA tests: pytest and scipy)
-REQUIRED = {"numpy": "numpy", "trimesh": "trimesh", "yaml": "PyYAML", "tqdm": "tqdm", "pytest": "pytest",
-            "scipy": "scipy"}
 
 # ----------------------------------------------------------------------------------------------- library adapters
 # Every call into lightcurve_gp lives in these functions, so an API change is adapted here alone.
@@ -185,6 +181,8 @@ def gp(ctx: Context, kind: str, device: torch.device):
 
     def build():
         data = training_data(ctx)
+        if kind == "exact" and ctx.device.type == "cpu":
+            ctx.check_cholesky(len(data), torch.float64, runs=1)
         fitted = (fit_exact(data, ctx.cfg, ctx.device) if kind == "exact"
                   else fit_sparse(data, ctx.cfg, ctx.device, ctx.sizes["num_inducing"]))
         return model_on(fitted, ctx.device, ctx.args.gpu_chunk_values if ctx.cuda else None)
@@ -266,32 +264,19 @@ def section_filter(ctx: Context) -> None:
                      compare=lambda d, c: max_abs_diff("q̂")(d, c) + " after 2 steps")
 
 
-def timed_call(ctx: Context, device: torch.device, fn, *, heavy: bool = False):
-    """``(median seconds, output)`` of ``fn``: on the device one warm-up and ``--repeats`` runs; on the CPU (when
-    ``heavy``) ``cpu_heavy_repeats`` runs and no warm-up."""
-    if device.type == "cpu" and heavy and device != ctx.device:
-        return median_time(fn, lambda: None, repeats=ctx.sizes["cpu_heavy_repeats"], warmup=0)
-    return median_time(fn, ctx.sync(device), repeats=ctx.args.repeats, warmup=1 if device == ctx.device else 0)
-
-
-def check_cholesky_time(ctx: Context, n: int, dtype) -> None:
-    """Skip a CPU Cholesky of ``n × n`` whose projection (n³/3 flops at half the measured GEMM rate) exceeds the
-    budget left."""
-    projected = n**3 / 3 / (0.5 * ctx.gflops[dtype] * 1e9) * ctx.sizes["cpu_heavy_repeats"]
-    if projected > ctx.budget.left():
-        raise Skip(f"projected {projected:.3g} s > {ctx.budget.left():.0f} s of budget left")
-
-
 def section_conditioning(ctx: Context) -> None:
     """Exact conditioning: ExactGP.from_data (float64) and its algebra in float32, device vs CPU."""
     data, cfg = training_data(ctx), ctx.cfg
     n = len(data)
     reps = f"{ctx.sizes['cpu_heavy_repeats']} run(s)"
 
+    def cpu_runs(device):  # as timed_call(heavy=True) runs them
+        return ctx.sizes["cpu_heavy_repeats"] if device != ctx.device else 1 + ctx.args.repeats
+
     def f64(device):
-        if device == ctx.cpu and device != ctx.device:
-            check_cholesky_time(ctx, n, torch.float64)
-        seconds, model = timed_call(ctx, device, lambda: fit_exact(data, cfg, device), heavy=True)
+        if device.type == "cpu":
+            ctx.check_cholesky(n, torch.float64, runs=cpu_runs(device))
+        seconds, model = ctx.timed(device, lambda: fit_exact(data, cfg, device), heavy=True)
         return seconds, reps if device != ctx.device else "", model.alpha
 
     ctx.case("conditioning", "ExactGP.from_data, float64", f"N = {n}", lambda: f64(ctx.device), lambda: f64(ctx.cpu),
@@ -300,12 +285,12 @@ def section_conditioning(ctx: Context) -> None:
     xs64, r, theta1, noise = exact_conditioning_inputs(ref, data)
 
     def f32(device):
-        if device == ctx.cpu and device != ctx.device:
-            check_cholesky_time(ctx, n, torch.float32)
+        if device.type == "cpu":
+            ctx.check_cholesky(n, torch.float32, runs=cpu_runs(device))
         xs, rr = xs64.to(device, torch.float32), r.to(device, torch.float32)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            seconds, alpha = timed_call(ctx, device, lambda: condition_alpha(xs, rr, theta1, noise), heavy=True)
+            seconds, alpha = ctx.timed(device, lambda: condition_alpha(xs, rr, theta1, noise), heavy=True)
         note = f"|α32 − α64| / |α64| = {rel_diff(alpha, ref.alpha):.2g}"
         note += "".join(f"; {w.message}" for w in caught[:1])
         return seconds, note + (f" ({reps})" if device != ctx.device else ""), alpha
@@ -321,7 +306,7 @@ def section_render(ctx: Context) -> None:
 
     def generate(device):
         scene = make_scene(cfg, device, cfg.torch_dtype, chunk if device == ctx.device else None)
-        seconds, ts = timed_call(ctx, device, lambda: device_training_set(cfg, scene))
+        seconds, ts = ctx.timed(device, lambda: device_training_set(cfg, scene))
         return seconds, "", ts.y
 
     ctx.case("render", "training-set generation (propagate + render + window)", f"N = {len(data)} × {samples} samples",
@@ -334,7 +319,7 @@ def section_render(ctx: Context) -> None:
         def magnitudes(device, dtype=dtype):
             scene = make_scene(cfg, device, dtype, chunk if device == ctx.device else None)
             qd, rd = q.to(device, dtype), rho.to(device, dtype)
-            seconds, m = timed_call(ctx, device, lambda: render(scene, qd, rd))
+            seconds, m = ctx.timed(device, lambda: render(scene, qd, rd))
             return seconds, "", m
 
         ctx.case("render", f"render only, {str(dtype).replace('torch.', '')}", f"{len(data)} × {samples} attitudes",
@@ -348,7 +333,7 @@ def section_sparse_fit(ctx: Context) -> None:
     probe_q, probe_m = data.q[:2000], data.m_past[:2000]
 
     def fit(device):
-        seconds, model = timed_call(ctx, device, lambda: fit_sparse(data, ctx.cfg, device, m))
+        seconds, model = ctx.timed(device, lambda: fit_sparse(data, ctx.cfg, device, m))
         mean, _ = model.predict(probe_q.to(device), probe_m.to(device), with_variance=False)
         return seconds, "", mean
 
@@ -360,102 +345,8 @@ SECTIONS = (("CUDA tests", section_cuda_tests), ("filter", section_filter), ("co
             ("render", section_render), ("sparse fit", section_sparse_fit))
 
 
-# ----------------------------------------------------------------------------------------------- command line
-
-def parse_args(argv=None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", required=True, help="folder for gpu_check.md, gpu_check.csv and cuda_tests.*")
-    parser.add_argument("--device", default="cuda", help="cuda, cuda:N or cpu (a CPU-only rehearsal; default cuda)")
-    parser.add_argument("--quick", action="store_true",
-                        help="tiny sizes: 1260 training points, M = 128, B = 10/100/1000, 5 steps")
-    parser.add_argument("--time-budget-s", type=float, default=240.0,
-                        help="wall-clock budget of the whole run; sections left are skipped (default 240)")
-    parser.add_argument("--repeats", type=int, default=3, help="timed runs per case, median reported (default 3)")
-    parser.add_argument("--case-cap-s", type=float, default=None,
-                        help="seconds aimed at per filter case (default 6; --quick 0.5)")
-    parser.add_argument("--cpu-threads", type=int, default=0, help="torch CPU threads (default 0: torch's default)")
-    parser.add_argument("--tests-timeout-s", type=float, default=150.0, help="limit of the CUDA-test process")
-    parser.add_argument("--gpu-chunk-values", type=int, default=1 << 27,
-                        help="GP kernel values per block on CUDA (default 2^27: 1 GiB in float64)")
-    parser.add_argument("--gpu-render-chunk", type=int, default=1 << 22,
-                        help="attitude-facet pairs per renderer chunk on CUDA (default 2^22)")
-    parser.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
-    return parser.parse_args(argv)
-
-
-def fail(message: str) -> None:
-    print(f"gpu_check: error: {message}", file=sys.stderr)
-    sys.exit(2)
-
-
-def _importable(module: str) -> bool:
-    try:
-        return importlib.util.find_spec(module) is not None
-    except (ImportError, ValueError):
-        return False
-
-
-def check_args(args) -> torch.device:
-    try:
-        device = torch.device(args.device)
-    except RuntimeError:
-        fail(f"--device {args.device!r} is not a torch device (cuda, cuda:N or cpu)")
-    if device.type not in ("cuda", "cpu"):
-        fail(f"--device {args.device!r}: only cuda, cuda:N or cpu")
-    if device.type == "cuda" and not torch.cuda.is_available():
-        fail(f"--device {args.device}: torch {torch.__version__} sees no CUDA device (CUDA build: {torch.version.cuda})")
-    if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():
-        fail(f"--device {args.device}: only {torch.cuda.device_count()} CUDA device(s)")
-    missing = [dist for module, dist in REQUIRED.items() if not _importable(module)]
-    if missing:
-        fail(f"missing Python packages: {', '.join(missing)} (install them first)")
-    for name in ("time_budget_s", "repeats", "gpu_chunk_values", "gpu_render_chunk", "tests_timeout_s", "case_cap_s"):
-        if getattr(args, name) is not None and not getattr(args, name) > 0:
-            fail(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
-    if args.cpu_threads < 0:
-        fail(f"--cpu-threads must be >= 0, got {args.cpu_threads}")
-    existing = [p for p in ("gpu_check.md", "gpu_check.csv") if (Path(args.out) / p).exists()]
-    if existing and not args.overwrite:
-        fail(f"--out {args.out}: {existing[0]} exists from an earlier run (pass --overwrite to replace it)")
-    return device
-
-
-def memory_cap(device: torch.device, cap_gib: float = 60.0) -> float | None:
-    """Cap this process's CUDA allocations at ``cap_gib`` (or 90 % of a smaller card); returns the cap."""
-    if device.type != "cuda":
-        return None
-    total = torch.cuda.get_device_properties(device).total_memory
-    fraction = min(0.9, cap_gib * 2**30 / total)
-    torch.cuda.set_per_process_memory_fraction(fraction, device)
-    return fraction * total / 2**30
-
-
-def footer(ctx: Context, status: str) -> list[str]:
-    rate = best_rate(ctx.report.rows, "filter", "SparseGP")
-    aim = ("not measured" if rate is None else
-           f"{rate:.3g} filter-steps/s: {'met' if rate >= AIM_FILTER_STEPS_PER_S else 'missed'}")
-    skipped = sum("skipped" in r.note for r in ctx.report.rows if r.section != "CUDA tests")
-    return [f"* aim ≥ 10⁶ filter-steps/s with the sparse GP on {ctx.device.type}: best {aim}",
-            (f"* {status} after {ctx.budget.elapsed():.0f} s (budget {ctx.budget.seconds:.0f} s); {ctx.failures} "
-             f"failure(s); {skipped} timing row(s) with a part skipped"),
-            "* Python packages imported by this process: " + ", ".join(imported_packages()),
-            "* and by the CUDA-test process: " + (", ".join(ctx.test_packages) or "(did not run)")]
-
-
-def workload_lines(ctx: Context, args) -> list[str]:
-    s = ctx.sizes
-    return [(f"* workload: configs/boxwing.yaml{' with --quick sizes' if args.quick else ''} "
-             f"({ctx.cfg.dtype}); filters: B = {', '.join(map(str, s['batches']))} USQUE filters × 7 sigma points, "
-             f"CPU at B = {', '.join(map(str, s['cpu_batches']))} only; sparse GP M = {s['num_inducing']}"),
-            (f"* timing: {ctx.device.type} median of {args.repeats} runs after 1 warm-up (synchronised); CPU median "
-             f"of {args.repeats} (exact conditioning: {s['cpu_heavy_repeats']} run(s), no warm-up); filter rows: "
-             f"seconds per step of all B filters; CUDA kernel blocks of {args.gpu_chunk_values} GP kernel values and "
-             f"{args.gpu_render_chunk} renderer attitude-facet pairs"),
-            f"* command: `python benchmarks/gpu_check.py {' '.join(sys.argv[1:])}`"]
-
-
 def main(argv=None) -> int:
-    args = parse_args(argv)
+    args = parse_args(argv, description=__doc__)
     device = check_args(args)
     if args.cpu_threads:
         torch.set_num_threads(args.cpu_threads)
@@ -464,7 +355,8 @@ def main(argv=None) -> int:
     cap = memory_cap(device)
     ctx = Context(args, budget, QUICK if args.quick else FULL, paper_config(args.quick), Path(args.out))
     ctx.out.mkdir(parents=True, exist_ok=True)
-    ctx.report = Report(ctx.out, device.type, machine_header(device, ctx.gflops, cap) + workload_lines(ctx, args))
+    header = machine_header(device, ctx.gflops, cap) + workload_lines(ctx.sizes, args, ctx.cfg.dtype)
+    ctx.report = Report(ctx.out, device.type, header)
     ctx.log(f"writing {ctx.report.md_path}; budget {args.time_budget_s:.0f} s")
     status = "interrupted"
     try:
@@ -481,7 +373,9 @@ def main(argv=None) -> int:
                 ctx.report.add(Row(name, "(whole section)", note=f"FAILED: {type(error).__name__}: {first_line(error)}"))
         status = "finished"
     finally:
-        ctx.report.finish(footer(ctx, status))
+        ctx.report.finish(footer_lines(ctx.report.rows, device_type=device.type, aim=AIM_FILTER_STEPS_PER_S,
+                                       status=status, elapsed=budget.elapsed(), budget=budget.seconds,
+                                       failures=ctx.failures, test_packages=ctx.test_packages))
         print(ctx.report.md_path.read_text(), flush=True)
     return 1 if ctx.failures else 0
 
