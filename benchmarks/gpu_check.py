@@ -245,7 +245,10 @@ def filter_part(ctx: Context, kind: str, params, batch: int, device: torch.devic
     seconds, _ = median_time(lambda: run_filter(model, tensors, params, batch, steps), sync, repeats=repeats,
                              warmup=0)
     last[device.type] = seconds / steps / batch
-    return seconds / steps, f"{repeats} x {steps} steps", warm.q_est[:, -1]
+    refused, fallbacks = int(warm.rejected.sum()), int(warm.fallbacks.sum())
+    note = f"{repeats} x {steps} steps" + (f", {refused} updates refused in the warm-up" if refused else "")
+    note += f", {fallbacks} square-root fallbacks in the warm-up" if fallbacks else ""
+    return seconds / steps, note, warm.q_est[:, -1]
 
 
 def section_filter(ctx: Context) -> None:
@@ -270,7 +273,7 @@ def section_conditioning(ctx: Context) -> None:
     n = len(data)
     reps = f"{ctx.sizes['cpu_heavy_repeats']} run(s)"
 
-    def cpu_runs(device):  # as timed_call(heavy=True) runs them
+    def cpu_runs(device):  # as ctx.timed(heavy=True) runs them
         return ctx.sizes["cpu_heavy_repeats"] if device != ctx.device else 1 + ctx.args.repeats
 
     def f64(device):
