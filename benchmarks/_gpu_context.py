@@ -90,6 +90,7 @@ class Context:
                 self.log(f"built {key} in {time.perf_counter() - t0:.2f} s")
             except Exception as error:  # noqa: BLE001 - kept: each case that needs it says why, no rebuild
                 self._built[key] = (None, error)
+                self.log(f"could not build {key}: {type(error).__name__}: {first_line(error)}")
         value, error = self._built[key]
         if error is not None:
             raise error
