@@ -213,7 +213,7 @@ def footer_lines(rows: list[Row], *, device_type: str, aim: float, status: str, 
     rate = best_rate(rows, "filter", "SparseGP")
     verdict = "not measured" if rate is None else f"{rate:.3g} filter-steps/s: {'met' if rate >= aim else 'missed'}"
     skipped = sum("skipped" in r.note for r in rows if r.section != "CUDA tests")
-    return [f"* aim ≥ {aim:.0e} filter-steps/s with the sparse GP on {device_type}: best {verdict}",
+    return [f"* aim ≥ {aim:,.0f} filter-steps/s with the sparse GP on {device_type}: best {verdict}",
             (f"* {status} after {elapsed:.0f} s (budget {budget:.0f} s); {failures} failure(s); {skipped} timing "
              "row(s) with a part skipped"),
             "* Python packages imported by this process: " + ", ".join(imported_packages()),
