@@ -83,7 +83,8 @@ def memory_cap(device: torch.device, cap_gib: float = 60.0) -> float | None:
     """Cap this process's CUDA allocations at ``cap_gib`` (or 90 % of a smaller card); returns the cap."""
     if device.type != "cuda":
         return None
-    total = torch.cuda.get_device_properties(device).total_memory
+    index = device.index if device.index is not None else torch.cuda.current_device()
+    total = torch.cuda.get_device_properties(index).total_memory
     fraction = min(0.9, cap_gib * 2**30 / total)
-    torch.cuda.set_per_process_memory_fraction(fraction, device)
+    torch.cuda.set_per_process_memory_fraction(fraction, index)
     return fraction * total / 2**30
