@@ -17,6 +17,8 @@ import dataclasses
 import hashlib
 import json
 import math
+import os
+import re
 import types
 import typing
 from dataclasses import dataclass, field
@@ -40,6 +42,9 @@ __all__ = [
     "config_from_dict",
     "config_to_dict",
     "config_hash",
+    "content_dict",
+    "content_hash",
+    "check_mesh",
     "apply_overrides",
     "parse_override",
 ]
@@ -76,7 +81,8 @@ class ShapeConfig:
     """Facet model of the object: the paper's box-wing or any mesh trimesh reads."""
 
     kind: str = _spec(choices=("box_wing", "mesh"))
-    mesh_path: str | None = _spec(None)
+    mesh_path: str | None = _spec(None, doc="mesh file; a relative path in a config file is relative to that "
+                                            "file's folder, one given by --set to the working directory")
     box_m: list[float] = _spec(lo=0.0, lo_open=True, length=3)
     box_grid: int = _spec(lo=1)
     wing_m: list[float] = _spec(lo=0.0, lo_open=True, length=3)
@@ -101,7 +107,7 @@ class SurfaceConfig:
 class DataConfig:
     """Training set of the GP observation model (paper section 3.2)."""
 
-    rho_grid: list[float] = _spec(lo=0.0, hi=1.0, min_length=1)
+    rho_grid: list[float] = _spec(lo=0.0, lo_open=True, hi=1.0, min_length=1)
     sampling: str = _spec(choices=("grid", "random", "sobol"))
     icosphere_subdivisions: int = _spec(lo=0, hi=7)
     phi_step_deg: float = _spec(lo=0.0, lo_open=True, hi=360.0)
@@ -152,7 +158,7 @@ class ScenarioConfig:
     omega0_deg_s: list[float] = _spec(length=3)
     dt_s: float = _spec(lo=0.0, lo_open=True)
     duration_s: float = _spec(lo=0.0, lo_open=True)
-    rho_true: float = _spec(lo=0.0, hi=1.0)
+    rho_true: float = _spec(lo=0.0, lo_open=True, hi=1.0, doc="a reflectance of 0 renders no diffuse light")
     noise_var: float = _spec(lo=0.0, doc="variance of the magnitude noise (mag^2)")
     initial_error_deg: list[float] = _spec(length=3)
     seeds: int = _spec(lo=1)
@@ -172,7 +178,7 @@ class FilterConfig:
     measurement_noise: float = _spec(lo=0.0)
     p0_deg: float = _spec(lo=0.0, lo_open=True)
     add_model_variance: bool = _spec(True)
-    rho_assumed: float = _spec(lo=0.0, hi=1.0)
+    rho_assumed: float = _spec(lo=0.0, lo_open=True, hi=1.0)
     estimate_offset: bool = _spec(False, doc="carry a magnitude offset b in the state: y = h(q) + b")
     offset_prior_std: float = _spec(1.0, lo=0.0, lo_open=True, doc="prior std of b around y_0 - h(q_0) (mag)")
     offset_process_noise: float = _spec(0.0, lo=0.0, doc="random-walk variance of b per step (mag^2)")
@@ -189,7 +195,7 @@ class EvaluationConfig:
 class Config:
     """The whole experiment; see ``configs/boxwing.yaml`` for the paper's values."""
 
-    name: str = _spec()
+    name: str = _spec(doc="run name: one safe folder name (letters, digits, '.', '_', '-'; no leading '.')")
     dtype: str = _spec("float64", choices=("float64", "float32"))
     device: str = _spec("cpu")
     geometry: GeometryConfig
@@ -303,7 +309,17 @@ def _build(cls: type, raw: Any, prefix: str = "") -> Any:
     return cls(**values)
 
 
+_SAFE_NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9._-]*")
+
+
+def _check_name(name: str) -> None:
+    if not _SAFE_NAME.fullmatch(name) or len(name) > 100:
+        raise ConfigError(f"name: {name!r} is not a safe folder name (1-100 letters, digits, '.', '_' or '-', "
+                          f"not starting with '.')")
+
+
 def _cross_check(cfg: Config) -> None:
+    _check_name(cfg.name)
     if cfg.shape.kind == "mesh" and not cfg.shape.mesh_path:
         raise ConfigError("shape.mesh_path: required when shape.kind is 'mesh'")
     lo, hi = cfg.evaluation.rmse_window_s
@@ -372,21 +388,54 @@ def apply_overrides(raw: dict, overrides: list[str] | None) -> dict:
 def load_config(path: str | Path, overrides: list[str] | None = None) -> Config:
     """Read, override and validate a YAML config.
 
+    A relative ``shape.mesh_path`` written in the file resolves against the file's folder, one given in
+    ``overrides`` against the working directory; the mesh must exist, be readable by trimesh and hold triangles.
+
     Args:
         path: YAML file.
         overrides: ``["section.key=value", ...]``; values are parsed as YAML.
 
     Raises:
-        ConfigError: missing file, invalid YAML, unknown key, wrong type or out-of-range value.
+        ConfigError: missing file, invalid YAML, unknown key, wrong type or out-of-range value, a bad mesh.
     """
     path = Path(path)
+    raw = _read_yaml(path)
+    mesh_base = Path.cwd() if any(o.partition("=")[0].strip() == "shape.mesh_path" for o in overrides or []) \
+        else path.resolve().parent
+    cfg = config_from_dict(apply_overrides(raw, overrides))
+    if cfg.shape.mesh_path:
+        cfg.shape.mesh_path = str(mesh_base / Path(cfg.shape.mesh_path).expanduser())
+        check_mesh(cfg.shape.mesh_path)
+    return cfg
+
+
+def _read_yaml(path: Path) -> dict:
+    if path.is_dir():
+        raise ConfigError(f"config file {str(path)!r} is a folder, not a YAML file")
     if not path.is_file():
         raise ConfigError(f"config file {str(path)!r} does not exist")
     try:
-        raw = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: invalid YAML: {exc}") from None
-    return config_from_dict(apply_overrides(raw, overrides))
+        raw = yaml.safe_load(path.read_text())
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: invalid YAML: {' '.join(str(exc).split())}") from None
+    except OSError as exc:
+        raise ConfigError(f"config file {str(path)!r}: {exc.strerror}") from None
+    if raw is None:
+        raise ConfigError(f"config file {str(path)!r} is empty (expected the sections of configs/boxwing.yaml)")
+    return raw
+
+
+def check_mesh(mesh_path: str) -> None:
+    """Raise :class:`ConfigError` naming ``shape.mesh_path`` unless the file exists, trimesh reads it and it has
+    triangles of positive area."""
+    if not os.path.isfile(mesh_path):
+        raise ConfigError(f"shape.mesh_path: {mesh_path!r} does not exist or is not a file")
+    from .shapes import load_mesh  # trimesh is only needed when a mesh is named
+
+    try:
+        load_mesh(mesh_path)
+    except (ValueError, OSError) as exc:
+        raise ConfigError(f"shape.mesh_path: {' '.join(str(exc).split())}") from None
 
 
 def config_hash(cfg: Config, *sections: str, extra: Any = None) -> str:
@@ -400,4 +449,26 @@ def config_hash(cfg: Config, *sections: str, extra: Any = None) -> str:
     full = config_to_dict(cfg)
     chosen = {s: full[s] for s in sections} if sections else full
     blob = json.dumps({"sections": chosen, "extra": extra}, sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def content_dict(cfg: Config, *sections: str) -> dict:
+    """The named sections as a plain dict with files replaced by their contents' hash: ``shape.mesh_path`` becomes
+    ``shape.mesh_sha256`` (``None`` without a mesh). Two configs with equal content dicts give the same data and
+    model wherever the files live; editing a mesh in place changes it."""
+    full = config_to_dict(cfg)
+    chosen = {s: full[s] for s in sections} if sections else full
+    if "shape" in chosen:
+        from .io import file_sha256
+
+        shape = dict(chosen["shape"])
+        path = shape.pop("mesh_path")
+        shape["mesh_sha256"] = file_sha256(path) if path and cfg.shape.kind == "mesh" else None
+        chosen["shape"] = shape
+    return chosen
+
+
+def content_hash(cfg: Config, *sections: str, extra: Any = None) -> str:
+    """:func:`config_hash` of :func:`content_dict`: the cache key of anything computed from these sections."""
+    blob = json.dumps({"sections": content_dict(cfg, *sections), "extra": extra}, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]

@@ -1,4 +1,4 @@
-"""Training sets of the GP observation model (paper section 3.2), cached on disk by config hash.
+"""Training sets of the GP observation model (paper section 3.2), cached on disk by content hash.
 
 Each training point is one short torque-free trajectory from an initial attitude ``q(0)`` with the config's
 ``data.omega0_deg_s``, sampled every ``dt`` from ``0`` to ``T = t_span_past``, rendered with one reflectance ρ:
@@ -22,7 +22,7 @@ from torch import Tensor
 from tqdm.auto import tqdm
 
 from .attitudes import grid_attitudes, icosphere_axes, random_attitudes, sobol_attitudes
-from .config import Config, DataConfig, ModelConfig, config_hash
+from .config import Config, DataConfig, ModelConfig, content_hash
 from .dynamics import propagate
 from .io import save_torch_atomic
 from .render import Scene
@@ -30,7 +30,7 @@ from .rotations import quat_canonical
 
 __all__ = ["TrainingSet", "initial_attitudes", "drop_duplicate_attitudes", "window_samples",
            "generate_training_set", "generate_heldout_set", "load_or_generate", "normalised_targets",
-           "model_targets", "DATA_FORMAT_VERSION"]
+           "model_targets", "data_cache_key", "DATA_FORMAT_VERSION"]
 
 DATA_FORMAT_VERSION = 1
 
@@ -207,9 +207,11 @@ def model_targets(ts: TrainingSet, model: ModelConfig) -> TrainingSet:
 
 
 def data_cache_key(cfg: Config) -> str:
-    """Hash of every config value that determines the training set (geometry, shape, surface, data)."""
-    return config_hash(cfg, "geometry", "shape", "surface", "data", extra={"format": DATA_FORMAT_VERSION,
-                                                                           "dtype": cfg.dtype})
+    """Hash of everything that determines the training set: the geometry, shape, surface and data sections with
+    the mesh file's content hash in place of its path (:func:`~lightcurve_gp.config.content_hash`), the dtype and
+    the file format. Editing a mesh in place therefore misses the cache instead of loading stale data."""
+    return content_hash(cfg, "geometry", "shape", "surface", "data", extra={"format": DATA_FORMAT_VERSION,
+                                                                            "dtype": cfg.dtype})
 
 
 def load_or_generate(cfg: Config, cache_dir: str | Path = "runs/cache", progress: bool = True) -> tuple[TrainingSet, Path, bool]:

@@ -5,6 +5,13 @@ Runs the GPUKF (trained model), the conventional UKF (renderer with ``filter.rho
 and inter-quartile RMSE per axis, and writes to ``<out>/<name>/estimate_rho<rho>/``: ``results.json``,
 ``euler_errors.png`` and ``light_curves.png`` (seed 0, paper style: GPUKF blue, UKF red, observations black) and
 ``rmse_boxplot.png`` (all seeds).
+
+Every scenario is simulated: the truth, its light curve and the noise come from the config (``scenario``) and the
+seeds. Before any computation the command checks its inputs (config, estimator list, ``--model`` readable and
+trained with the config's data and model settings — a mismatch names the first differing key unless
+``--allow-model-mismatch`` — ``--out`` writable, the run folder new or ``--force``). The folder appears whole at
+the end (temporary sibling, then rename); ``results.json`` records under ``run`` the command line, the exact
+config, the model file and its SHA-256, the seeds, the package/torch/Python versions and the thread count.
 """
 
 from __future__ import annotations
@@ -13,13 +20,16 @@ import argparse
 import sys
 from pathlib import Path
 
-import torch
+from tqdm.auto import tqdm
 
-from .config import ConfigError, load_config
+from .cli import (UserError, add_common_arguments, apply_threads, check_new_folder, check_output_root,
+                  progress_enabled, provenance, run_command, run_interruptible)
+from .config import load_config
 from .estimation import DEFAULT_ESTIMATORS, ESTIMATORS, ScenarioResult, run_estimators
-from .io import write_json_atomic
-from .observation.serialization import ModelFileError, load_model
+from .io import RunFolder, write_json_atomic
+from .model_store import check_model_matches, model_file_record, open_model, training_mismatch
 from .plots import euler_errors, light_curves, rmse_boxplot
+from .render import Scene
 
 __all__ = ["format_table", "write_outputs", "main"]
 
@@ -41,17 +51,34 @@ def format_table(summary: dict) -> str:
                      f"{e['nees_mean']:6.2f} {1e3 * e['seconds_per_step']:8.3f} "
                      f"{1e6 * e['seconds_per_filter_step']:14.1f}")
     lo, hi = summary["nees_band_95"]
-    lines.append(f"NEES: mean over the window and seeds (95 % band for a consistent filter: {lo:.2f}-{hi:.2f}); "
-                 f"paper: {PAPER_STEP_SECONDS['gpukf']} s per GPUKF step, {PAPER_STEP_SECONDS['ukf']} s per UKF step")
+    lines += [f"  {note}" for note in COLUMN_NOTES]
+    lines.append(f"  NEES 95 % band for a consistent filter over these seeds: {lo:.2f}-{hi:.2f}; paper: "
+                 f"{PAPER_STEP_SECONDS['gpukf']} s per GPUKF step, {PAPER_STEP_SECONDS['ukf']} s per UKF step")
     return "\n".join(lines)
 
 
-def write_outputs(result: ScenarioResult, folder: Path, title: str = "") -> dict:
-    """Write ``results.json`` and the three figures of one scenario into ``folder``; returns the summary."""
+COLUMN_NOTES = (
+    "yaw/pitch/roll: RMSE of the 3-2-1 Euler-angle error over the scoring window, per seed; median [q25, q75] "
+    "over the seeds, deg",
+    "<10deg: share of seeds whose RMSE is below 10 deg on all three axes",
+    "LC rmse: median over seeds of the RMS difference between the estimator's predicted and the observed (noisy) "
+    "light curve, mag (NaN for no_update, which predicts none)",
+    "NEES: normalised estimation error squared, mean over the window and the seeds (3 for a consistent filter)",
+    "ms/step: wall time of one filter step for all seeds in one batch; us/filter-step: the same per seed",
+)
+
+
+def write_outputs(result: ScenarioResult, folder: Path, title: str = "", record: dict | None = None) -> dict:
+    """Write ``results.json`` and the three figures of one scenario into ``folder``; returns the summary.
+
+    ``record`` (the run's provenance: command line, config, model file and its hash...) is stored under ``"run"``.
+    """
     sc = result.scenario
     summary = result.summary()
     summary["seed_values"] = list(sc.seeds)
     summary["per_seed_rmse_deg"] = {n: r.rmse_deg.tolist() for n, r in result.results.items()}
+    summary["columns"] = list(COLUMN_NOTES)
+    summary["run"] = record or {}
     write_json_atomic(summary, folder / "results.json")
     errors = {n: r.errors_deg[0] for n, r in result.results.items()}
     euler_errors(sc.times, errors, folder / "euler_errors.png", title=title, window=result.window)
@@ -64,63 +91,105 @@ def write_outputs(result: ScenarioResult, folder: Path, title: str = "") -> dict
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m lightcurve_gp.estimate",
-        description="Estimate the attitude of the config's scenario with the GPUKF (a trained model file), the "
-                    "conventional UKF (renderer with filter.rho_assumed), a matched-rho UKF and the no-update "
-                    "baseline, over many noise seeds batched in one filter run each.",
+        description="Estimate the attitude of the config's simulated scenario with the GPUKF (a trained model file), "
+                    "the conventional UKF (renderer with filter.rho_assumed), a matched-rho UKF and the no-update "
+                    "baseline, over many noise seeds batched in one filter run each. Writes the new folder "
+                    "OUT/<name>/estimate_rho<rho>/ (results.json, three figures) atomically; an existing one is "
+                    "refused unless --force.",
     )
     parser.add_argument("config", help="YAML config, e.g. configs/boxwing.yaml")
-    parser.add_argument("--model", type=Path, help="trained model file (runs/<name>/model.pt); without it the "
-                                                   "GPUKF is skipped")
+    parser.add_argument("--model", type=Path, help="trained model file (runs/<name>/model.pt); required by the "
+                                                   "gpukf estimator")
     parser.add_argument("--seeds", type=int, default=None, help="number of noise seeds (default: scenario.seeds)")
-    parser.add_argument("--rho-true", type=float, default=None, help="true rho (default: scenario.rho_true)")
-    parser.add_argument("--estimators", default=",".join(DEFAULT_ESTIMATORS),
+    parser.add_argument("--rho-true", type=float, default=None, help="true rho in (0, 1] (default: scenario.rho_true)")
+    parser.add_argument("--estimators", default=None,
                         help=f"comma-separated subset of {','.join(ESTIMATORS)} (default: "
-                             f"{','.join(DEFAULT_ESTIMATORS)})")
+                             f"{','.join(DEFAULT_ESTIMATORS)}, without gpukf when no --model is given)")
+    parser.add_argument("--allow-model-mismatch", action="store_true",
+                        help="run a model trained with other data/model settings than the config's (recorded in "
+                             "results.json)")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY.PATH=VALUE",
                         help="override a config value (repeatable)")
     parser.add_argument("--out", default="runs", type=Path, help="output folder (default: runs)")
-    parser.add_argument("--threads", type=int, default=1,
-                        help="torch threads (default 1: small per-step tensors run fastest on one thread)")
+    add_common_arguments(parser)
     return parser
+
+
+def _estimators(text: str | None, have_model: bool) -> list[str]:
+    if text is None:
+        return [e for e in DEFAULT_ESTIMATORS if have_model or e != "gpukf"]
+    names = [e.strip() for e in text.split(",") if e.strip()]
+    if not names:
+        raise UserError(f"--estimators: {text!r} names no estimator; choose from {', '.join(ESTIMATORS)}")
+    unknown = [e for e in names if e not in ESTIMATORS]
+    if unknown:
+        raise UserError(f"--estimators: unknown estimator {unknown[0]!r}; choose from {', '.join(ESTIMATORS)}")
+    if "gpukf" in names and not have_model:
+        raise UserError("--model: the gpukf estimator needs a trained model file (python -m lightcurve_gp.train)")
+    return list(dict.fromkeys(names))
+
+
+def _check_numbers(args: argparse.Namespace) -> None:
+    if args.seeds is not None and args.seeds < 1:
+        raise UserError(f"--seeds: {args.seeds} must be >= 1")
+    if args.rho_true is not None and not 0.0 < args.rho_true <= 1.0:
+        raise UserError(f"--rho-true: {args.rho_true:g} is outside (0, 1]")
+
+
+def _load_checked_model(args: argparse.Namespace, cfg) -> tuple[object | None, dict]:
+    """The model file (checked against the config unless --allow-model-mismatch) and its provenance record."""
+    if args.model is None:
+        return None, {"model_file": None}
+    model = open_model(args.model)
+    mismatch = training_mismatch(model, cfg)
+    if mismatch is not None and not args.allow_model_mismatch:
+        check_model_matches(model, cfg, args.model)
+    return model, {**model_file_record(args.model), "model_key": model.extra.get("model_key"),
+                   "allow_model_mismatch": args.allow_model_mismatch, "model_mismatch": mismatch}
+
+
+def _run_all(cfg, model, estimators: list[str], args: argparse.Namespace, progress: bool) -> ScenarioResult:
+    """Each estimator in turn (a progress bar over them), interruptible, merged into one result."""
+    seeds = None if args.seeds is None else range(args.seeds)
+    scene = Scene.from_config(cfg)
+    merged: ScenarioResult | None = None
+    for name in tqdm(estimators, desc="estimators", unit="filter", disable=not progress):
+        part = run_interruptible(lambda n=name: run_estimators(cfg, model, seeds=seeds, rho_true=args.rho_true,
+                                                                  estimators=[n], scene=scene))
+        merged = part if merged is None else merged
+        merged.results.update(part.results)
+    assert merged is not None
+    return merged
+
+
+def _run(args: argparse.Namespace) -> int:
+    apply_threads(args.threads)
+    _check_numbers(args)
+    cfg = load_config(args.config, args.overrides)
+    estimators = _estimators(args.estimators, args.model is not None)
+    model, model_info = _load_checked_model(args, cfg)
+    check_output_root(args.out)
+    rho = args.rho_true if args.rho_true is not None else cfg.scenario.rho_true
+    folder = args.out / cfg.name / f"estimate_rho{rho:g}"
+    check_new_folder(folder, args.force)
+    seeds = list(range(args.seeds if args.seeds is not None else cfg.scenario.seeds))
+    record = provenance(cfg, seeds=seeds, config_file=str(args.config), estimators=estimators, rho_true=rho,
+                        **model_info)
+    try:
+        result = _run_all(cfg, model, estimators, args, progress_enabled(args.no_progress))
+    except ValueError as exc:  # e.g. a model whose target the filter cannot use
+        raise UserError(str(exc)) from exc
+    with RunFolder(folder, force=args.force) as tmp:
+        summary = write_outputs(result, tmp, title=f"rho_true = {rho:g}, rho_ukf = {cfg.filter.rho_assumed:g}",
+                                record=record)
+    print(format_table(summary))
+    print(f"written: {folder}")
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    torch.set_num_threads(max(1, args.threads))
-    try:
-        cfg = load_config(args.config, args.overrides)
-    except ConfigError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    estimators = [e.strip() for e in args.estimators.split(",") if e.strip()]
-    model = None
-    if args.model is not None:
-        try:
-            model = load_model(args.model)
-        except ModelFileError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
-    elif "gpukf" in estimators:
-        print("note: no --model given, the GPUKF is skipped", file=sys.stderr)
-        estimators.remove("gpukf")
-    if args.seeds is not None and args.seeds < 1:
-        print(f"error: --seeds: {args.seeds} must be >= 1", file=sys.stderr)
-        return 2
-    if args.rho_true is not None and not 0.0 <= args.rho_true <= 1.0:
-        print(f"error: --rho-true: {args.rho_true:g} is outside [0, 1]", file=sys.stderr)
-        return 2
-    try:
-        result = run_estimators(cfg, model, seeds=None if args.seeds is None else range(args.seeds),
-                                rho_true=args.rho_true, estimators=estimators)
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    rho = result.scenario.rho_true
-    folder = args.out / cfg.name / f"estimate_rho{rho:g}"
-    summary = write_outputs(result, folder, title=f"rho_true = {rho:g}, rho_ukf = {cfg.filter.rho_assumed:g}")
-    print(format_table(summary))
-    print(f"written: {folder}")
-    return 0
+    return run_command(lambda: _run(args), debug=args.debug)
 
 
 if __name__ == "__main__":

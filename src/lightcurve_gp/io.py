@@ -1,9 +1,11 @@
-"""Atomic file writes: a killed run never leaves a half-written artifact that a later run would load."""
+"""Atomic file writes and run folders: a killed run never leaves a half-written artifact that a later run would load."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
+import shutil
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -11,7 +13,7 @@ from typing import Any, Iterator
 
 import torch
 
-__all__ = ["atomic_path", "save_torch_atomic", "write_json_atomic", "write_text_atomic"]
+__all__ = ["RunFolder", "atomic_path", "file_sha256", "save_torch_atomic", "write_json_atomic", "write_text_atomic"]
 
 
 @contextmanager
@@ -55,3 +57,51 @@ def write_text_atomic(text: str, path: str | Path) -> None:
 def write_json_atomic(obj: Any, path: str | Path) -> None:
     """Write ``obj`` as indented JSON to ``path`` atomically."""
     write_text_atomic(json.dumps(obj, indent=2, sort_keys=False) + "\n", path)
+
+
+def file_sha256(path: str | Path, chunk: int = 1 << 20) -> str:
+    """Hex SHA-256 of a file's bytes (read in ``chunk``-byte pieces)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(chunk), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+class RunFolder:
+    """A run's output folder that appears whole or not at all.
+
+    ``with RunFolder(final, force=False) as tmp:`` yields a fresh temporary sibling of ``final``
+    (``.<name>.partial-XXXX``); every file goes there. On a normal exit the temporary folder is renamed to ``final``;
+    with ``force`` an existing ``final`` is moved aside first and deleted only after the rename, so it is replaced
+    at the very end. On any exception (Ctrl-C included) the temporary folder is deleted and ``final`` is untouched.
+
+    Raises:
+        FileExistsError: ``final`` exists and ``force`` is false (checked on entry, before any work is written).
+    """
+
+    def __init__(self, final: str | Path, *, force: bool = False):
+        self.final = Path(final)
+        self.force = force
+        self.tmp: Path | None = None
+
+    def __enter__(self) -> Path:
+        if self.final.exists() and not self.force:
+            raise FileExistsError(f"{self.final} already exists; pass --force to replace it or choose another --out")
+        self.final.parent.mkdir(parents=True, exist_ok=True)
+        self.tmp = Path(tempfile.mkdtemp(prefix=f".{self.final.name}.partial-", dir=self.final.parent))
+        os.chmod(self.tmp, 0o777 & ~_umask())
+        return self.tmp
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        assert self.tmp is not None
+        if exc_type is not None:
+            shutil.rmtree(self.tmp, ignore_errors=True)
+            return
+        old = None
+        if self.final.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{self.final.name}.old-", dir=self.final.parent))
+            os.replace(self.final, old / self.final.name)
+        os.replace(self.tmp, self.final)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)

@@ -6,7 +6,11 @@ the held-out metrics are computed on the same targets.
 
 Writes ``<out>/<name>/``: ``model.pt`` (the trained observation model), ``metrics.json`` (held-out RMSE, mean
 negative log predictive density, fraction of residuals within 2σ, timings), ``config.yaml`` (the resolved
-config), ``heldout_scatter.png`` and ``heldout_residuals.png``. Every file is written atomically.
+config), ``heldout_scatter.png`` and ``heldout_residuals.png``. The folder appears whole when the run ends
+(written into a temporary sibling, then renamed); an existing one is refused unless ``--force``, which replaces it
+only at the end and only when it holds nothing but these files. ``metrics.json`` records the model key
+(:mod:`lightcurve_gp.model_store`), the model file's SHA-256, the seeds, and under ``run`` the command line, the
+exact config, the package/torch/Python versions and the thread count.
 """
 
 from __future__ import annotations
@@ -20,34 +24,36 @@ from pathlib import Path
 import torch
 import yaml
 
-from .config import Config, ConfigError, config_to_dict, load_config
+from torch import Tensor
+
+from .cli import (UserError, add_common_arguments, apply_threads, check_new_folder, check_output_root,
+                  progress_enabled, provenance, run_command, run_interruptible)
+from .config import Config, config_to_dict, load_config
 from .data import TrainingSet, generate_heldout_set, load_or_generate, model_targets
-from .io import write_json_atomic, write_text_atomic
+from .io import RunFolder, file_sha256, write_json_atomic, write_text_atomic
+from .model_store import model_key, model_record
 from .observation.base import ObservationModel
 from .observation.exact_gp import ExactGP, fast_variance_error
 from .observation.serialization import build_model, save_model
 from .plots import prediction_scatter, residual_histogram
 
-__all__ = ["evaluate_model", "train", "main"]
+__all__ = ["heldout_metrics", "evaluate_model", "train", "main"]
 
 
-def evaluate_model(model: ObservationModel, data: TrainingSet, noise_var: float) -> dict[str, float]:
-    """Held-out metrics of a model's predictive distribution of ``y``.
+def heldout_metrics(mean: Tensor, var: Tensor | None, y: Tensor, noise_var: float) -> dict[str, float]:
+    """Held-out metrics of a predictive distribution ``N(mean, var + noise_var)`` of targets ``y``, all ``(N,)``.
 
-    The predictive distribution of a noise-free target is ``N(mean, var_f + noise_var)`` with ``var_f`` the
-    model's latent variance and ``noise_var = σ²`` its likelihood noise.
+    ``var`` is the model's latent variance (``None``: zero) and ``noise_var = σ²`` its likelihood noise.
 
     Returns:
         ``rmse`` (mag), ``mae`` (mag), ``nlpd`` (mean negative log predictive density, nats), ``within_2sigma``
         (fraction of residuals inside ±2 predictive std), ``mean_std`` (mag), ``n``.
     """
-    with torch.no_grad():
-        mean, var = model(q=data.q, m_past=data.m_past, with_variance=True)
     var_y = (var if var is not None else torch.zeros_like(mean)) + noise_var
-    resid = mean - data.y
+    resid = mean - y
     nlpd = 0.5 * (torch.log(2 * math.pi * var_y) + resid**2 / var_y)
     return {
-        "n": int(data.y.numel()),
+        "n": int(y.numel()),
         "rmse": float(resid.pow(2).mean().sqrt()),
         "mae": float(resid.abs().mean()),
         "nlpd": float(nlpd.mean()),
@@ -56,74 +62,99 @@ def evaluate_model(model: ObservationModel, data: TrainingSet, noise_var: float)
     }
 
 
+def evaluate_model(model: ObservationModel, data: TrainingSet, noise_var: float) -> dict[str, float]:
+    """:func:`heldout_metrics` of ``model``'s predictions on ``data``."""
+    with torch.no_grad():
+        mean, var = model(q=data.q, m_past=data.m_past, with_variance=True)
+    return heldout_metrics(mean, var, data.y, noise_var)
+
+
 def _noise_var(model: ObservationModel) -> float:
     noise = getattr(model, "noise", None)
     return float(noise) if noise is not None else 0.0
 
 
-def train(cfg: Config, out_dir: Path, cache_dir: Path, progress: bool = True,
-          variance_check_points: int = 200) -> dict:
-    """Run the whole training job for ``cfg`` and return the metrics written to ``metrics.json``."""
-    run_dir = out_dir / cfg.name
-    timings: dict[str, float] = {}
-
+def _fit(cfg: Config, cache_dir: Path, progress: bool, timings: dict) -> tuple[ObservationModel, TrainingSet]:
     t0 = time.perf_counter()
     data, cache_path, loaded = load_or_generate(cfg, cache_dir, progress=progress)
     timings["data_s"] = time.perf_counter() - t0
     _say(f"training set: {len(data)} points ({'loaded from' if loaded else 'generated into'} {cache_path}, "
-         f"{data.dropped} zero-flux trajectories dropped) in {timings['data_s']:.1f} s")
-
+         f"{data.dropped} zero-flux trajectories dropped) in {timings['data_s']:.1f} s", progress)
     t0 = time.perf_counter()
     data = model_targets(data, cfg.model)
-    _say(f"fitting the {cfg.model.kind} GP on {len(data)} points ({_TARGETS[cfg.model.target]}) ...")
-    model = build_model(data.q, data.m_past, data.y, cfg.model, progress=progress)
+    _say(f"fitting the {cfg.model.kind} GP on {len(data)} points ({_TARGETS[cfg.model.target]})", progress)
+    model = run_interruptible(lambda: build_model(data.q, data.m_past, data.y, cfg.model, progress=progress),
+                              status=f"fitting the {cfg.model.kind} GP", progress=progress)
     timings["fit_s"] = time.perf_counter() - t0
-    _say(f"fitted in {timings['fit_s']:.1f} s")
+    _say(f"fitted in {timings['fit_s']:.1f} s", progress)
+    return model, data
 
+
+def _predict(model: ObservationModel, heldout: TrainingSet) -> tuple[Tensor, Tensor | None]:
+    with torch.no_grad():
+        return model(q=heldout.q, m_past=heldout.m_past, with_variance=True)
+
+
+def _evaluate(model: ObservationModel, cfg: Config, progress: bool, timings: dict,
+              variance_check_points: int) -> tuple[TrainingSet, Tensor, Tensor, dict, dict | None]:
     t0 = time.perf_counter()
     heldout = model_targets(generate_heldout_set(cfg), cfg.model)
     timings["heldout_data_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    metrics = evaluate_model(model, heldout, _noise_var(model))
+    mean, var = run_interruptible(lambda: _predict(model, heldout), progress=progress,
+                                  status=f"held-out prediction ({len(heldout)} points)")
+    metrics = heldout_metrics(mean, var, heldout.y, _noise_var(model))
     timings["heldout_predict_s"] = time.perf_counter() - t0
-
     variance_check = None
     if isinstance(model, ExactGP) and model.variance_mode == "fast":
         k = min(variance_check_points, len(heldout))
-        variance_check = fast_variance_error(model, heldout.q[:k], heldout.m_past[:k])
+        variance_check = run_interruptible(lambda: fast_variance_error(model, heldout.q[:k], heldout.m_past[:k]),
+                                           status="fast-vs-exact variance check", progress=progress)
         variance_check["points"] = k
     if isinstance(model, ExactGP):
         model.drop_cholesky()  # the factor is N² floats: free it before saving and plotting
-
-    model_path = save_model(model, run_dir / "model.pt", extra={"config": config_to_dict(cfg)})
-    write_text_atomic(yaml.safe_dump(config_to_dict(cfg), sort_keys=False), run_dir / "config.yaml")
-    with torch.no_grad():
-        mean, var = model(q=heldout.q, m_past=heldout.m_past, with_variance=True)
     std_y = ((var if var is not None else torch.zeros_like(mean)) + _noise_var(model)).sqrt()
-    prediction_scatter(heldout.y, mean, run_dir / "heldout_scatter.png",
-                       title=f"{cfg.name}: {cfg.model.kind} GP, held-out RMSE {metrics['rmse']:.3f} mag")
-    residual_histogram(mean - heldout.y, std_y, run_dir / "heldout_residuals.png")
+    return heldout, mean, std_y, metrics, variance_check
 
-    result = {
-        "name": cfg.name,
-        "model": cfg.model.kind,
-        "target": cfg.model.target,
-        "train_points": len(data),
-        "heldout": metrics,
-        "fast_variance_vs_exact": variance_check,
-        "timings_s": timings,
-        "model_file": str(model_path),
-        "torch_threads": torch.get_num_threads(),
-    }
-    write_json_atomic(result, run_dir / "metrics.json")
+
+def train(cfg: Config, run_dir: str | Path, cache_dir: str | Path, *, progress: bool = False,
+          variance_check_points: int = 200, force: bool = False, record: dict | None = None) -> dict:
+    """Run the whole training job for ``cfg`` into the run folder ``run_dir``; returns what ``metrics.json`` holds.
+
+    The folder appears atomically (:class:`~lightcurve_gp.io.RunFolder`): an interrupted or failed run leaves
+    nothing, and an existing folder is refused unless ``force`` (then replaced at the end). ``record`` (e.g.
+    :func:`lightcurve_gp.cli.provenance`) is stored under ``"run"`` in ``metrics.json``, with the model key and the
+    model file's SHA-256.
+    """
+    run_dir = Path(run_dir)
+    timings: dict[str, float] = {}
+    with RunFolder(run_dir, force=force) as tmp:
+        model, data = _fit(cfg, Path(cache_dir), progress, timings)
+        heldout, mean, std_y, metrics, variance_check = _evaluate(model, cfg, progress, timings,
+                                                                  variance_check_points)
+        save_model(model, tmp / "model.pt", extra=model_record(cfg))
+        write_text_atomic(yaml.safe_dump(config_to_dict(cfg), sort_keys=False), tmp / "config.yaml")
+        prediction_scatter(heldout.y, mean, tmp / "heldout_scatter.png",
+                           title=f"{cfg.name}: {cfg.model.kind} GP, held-out RMSE {metrics['rmse']:.3f} mag")
+        residual_histogram(mean - heldout.y, std_y, tmp / "heldout_residuals.png")
+        result = {
+            "name": cfg.name, "model": cfg.model.kind, "target": cfg.model.target, "train_points": len(data),
+            "heldout": metrics, "fast_variance_vs_exact": variance_check, "timings_s": timings,
+            "model_file": str(run_dir / "model.pt"), "model_key": model_key(cfg),
+            "model_sha256": file_sha256(tmp / "model.pt"), "torch_threads": torch.get_num_threads(),
+            "seeds": {"training_attitudes": cfg.data.seed, "heldout": cfg.data.seed + 1},
+            "run": record or {},
+        }
+        write_json_atomic(result, tmp / "metrics.json")
     return result
 
 
 _TARGETS = {"magnitude": "target: magnitude", "rho_normalised": "target: magnitude normalised to model.rho_reference"}
 
 
-def _say(text: str) -> None:
-    print(text, file=sys.stderr, flush=True)
+def _say(text: str, progress: bool) -> None:
+    if progress:
+        print(text, file=sys.stderr, flush=True)
 
 
 def _summary(result: dict) -> str:
@@ -151,7 +182,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="python -m lightcurve_gp.train",
         description="Generate or load the training set of CONFIG, fit its GP observation model (model.kind: exact "
                     "or sparse) and evaluate it on held-out trajectories with random attitudes and rho values off the "
-                    "training grid. Writes OUT/<name>/ with model.pt, metrics.json, config.yaml and two figures.",
+                    "training grid. Writes the new folder OUT/<name>/ (model.pt, metrics.json, config.yaml, two "
+                    "figures) atomically; an existing one is refused unless --force.",
     )
     parser.add_argument("config", help="YAML config, e.g. configs/boxwing.yaml")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY.PATH=VALUE",
@@ -159,20 +191,38 @@ def build_parser() -> argparse.ArgumentParser:
                              "--set data.t_span_past=10")
     parser.add_argument("--out", default="runs", type=Path, help="output folder (default: runs)")
     parser.add_argument("--cache", default=None, type=Path, help="training-data cache (default: OUT/cache)")
-    parser.add_argument("--no-progress", action="store_true", help="hide progress bars")
+    add_common_arguments(parser)
     return parser
+
+
+#: what a train run folder holds; --force replaces only a folder that holds nothing else
+TRAIN_FILES = frozenset({"model.pt", "metrics.json", "config.yaml", "heldout_scatter.png", "heldout_residuals.png"})
+
+
+def _check_replaceable(run_dir: Path) -> None:
+    foreign = sorted(p.name for p in run_dir.iterdir() if p.name not in TRAIN_FILES) if run_dir.is_dir() else []
+    if foreign:
+        raise UserError(f"{run_dir} holds {', '.join(foreign)}, not written by train; --force replaces only a train "
+                        f"run folder: move them away or choose another --out or name")
+
+
+def _run(args: argparse.Namespace) -> int:
+    apply_threads(args.threads)
+    cfg = load_config(args.config, args.overrides)
+    check_output_root(args.out)
+    run_dir = args.out / cfg.name
+    check_new_folder(run_dir, args.force)
+    _check_replaceable(run_dir)
+    progress = progress_enabled(args.no_progress)
+    result = train(cfg, run_dir, args.cache or args.out / "cache", progress=progress, force=args.force,
+                   record=provenance(cfg, seeds=[cfg.data.seed, cfg.data.seed + 1], config_file=str(args.config)))
+    print(_summary(result))
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    try:
-        cfg = load_config(args.config, args.overrides)
-    except ConfigError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    result = train(cfg, args.out, args.cache or args.out / "cache", progress=not args.no_progress)
-    print(_summary(result))
-    return 0
+    return run_command(lambda: _run(args), debug=args.debug)
 
 
 if __name__ == "__main__":
