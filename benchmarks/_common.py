@@ -184,47 +184,43 @@ def quick_overrides(quick: bool) -> list[str]:
 
 def cached_gp(cfg, data, kind: str, *, num_inducing: int | None = None, cache_dir: str | Path = "runs/bench",
               refit: bool = False, after_fit: Callable[[Any], dict] | None = None):
-    """An ExactGP / SparseGP of ``cfg`` trained on ``data``, loaded from ``cache_dir`` when its config matches.
+    """An ExactGP / SparseGP of ``cfg`` (with ``kind`` and ``num_inducing``) from the model store ``cache_dir``
+    (:func:`lightcurve_gp.model_store.get_or_train`), trained there with ``os.cpu_count()`` threads when missing or
+    with ``refit``. ``data`` is the training set the caller uses (the store trains on the same set of ``cfg``).
 
-    The file name hashes the geometry/shape/surface/data/model sections (with ``kind`` and ``num_inducing``);
-    ``extra`` in the file also holds ``fit_s`` (training seconds, with ``os.cpu_count()`` threads) and whatever ``after_fit(model)`` returned
-    when the model was trained (e.g. a variance check that needs the just-computed Cholesky factor).
+    ``extra`` holds ``fit_s`` (training seconds, from the store entry's ``metrics.json``), ``n_train`` and whatever
+    ``after_fit(model)`` returned, computed once per store entry and kept in its ``bench_extra.json``.
 
     Returns ``(model, extra, loaded)``.
     """
     import dataclasses
 
-    from lightcurve_gp.config import config_hash
-    from lightcurve_gp.observation.serialization import ModelFileError, build_model, load_model, save_model
+    import torch
+
+    from lightcurve_gp.io import write_json_atomic
+    from lightcurve_gp.model_store import get_or_train, store_folder
 
     mcfg = dataclasses.replace(cfg.model, kind=kind,
                                num_inducing=num_inducing if num_inducing is not None else cfg.model.num_inducing)
     cfg_m = dataclasses.replace(cfg, model=mcfg)
-    key = config_hash(cfg_m, "geometry", "shape", "surface", "data", "model", extra={"dtype": cfg.dtype})
-    path = Path(cache_dir) / f"{kind}{'' if kind == 'exact' else f'-M{mcfg.num_inducing}'}-{key}.pt"
-    if path.exists() and not refit:
-        try:
-            model = load_model(path)
-            if model.extra.get("key") == key:
-                return model, model.extra, True
-        except ModelFileError:
-            pass  # regenerated below
-    import torch
-
+    folder = store_folder(cfg_m, cache_dir)
+    loaded = (folder / "model.pt").is_file() and not refit
     threads = torch.get_num_threads()
     torch.set_num_threads(os.cpu_count() or 1)  # training is timed with every core, whatever the latency setting
     try:
-        model, fit_s = timed(lambda: build_model(data.q, data.m_past, data.y, mcfg))
-        extra = {"key": key, "fit_s": fit_s, "n_train": len(data), "fit_threads": torch.get_num_threads()}
-        if after_fit is not None:
-            extra.update(after_fit(model))
+        model, _ = get_or_train(cfg_m, cache_dir, retrain=refit)
     finally:
         torch.set_num_threads(threads)
-    if hasattr(model, "drop_cholesky"):
-        model.drop_cholesky()
-    save_model(model, path, extra=extra)
-    model.extra = extra
-    return model, extra, False
+    metrics = json.loads((folder / "metrics.json").read_text())
+    extra = {"key": metrics["model_key"], "fit_s": metrics["timings_s"]["fit_s"], "n_train": metrics["train_points"],
+             "fit_threads": metrics["torch_threads"]}
+    side = folder / "bench_extra.json"
+    if after_fit is not None:
+        if not side.is_file() or not loaded:
+            write_json_atomic(after_fit(model), side)
+        extra.update(json.loads(side.read_text()))
+    model.extra = {**model.extra, **extra}
+    return model, extra, loaded
 
 
 def sigma_like_inputs(data, sets: int, per_set: int, seed: int, spread_deg: float = 3.0, offset_deg: float = 5.0):

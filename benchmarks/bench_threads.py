@@ -23,8 +23,6 @@ def _spin(stop) -> None:
 
 
 def _filter_steps(steps: int):
-    import torch
-
     from lightcurve_gp import load_config
     from lightcurve_gp.data import generate_training_set
     from lightcurve_gp.observation import ExactGP

@@ -28,14 +28,12 @@ from pathlib import Path
 
 import torch
 
-from lightcurve_gp.config import ConfigError, config_from_dict, load_config
+from lightcurve_gp.config import load_config
 from lightcurve_gp.estimation import ScenarioResult, run_estimators
 from lightcurve_gp.io import write_json_atomic, write_text_atomic
-from lightcurve_gp.observation.serialization import ModelFileError, load_model
+from lightcurve_gp.model_store import get_or_train
 from lightcurve_gp.plots import rmse_boxplot
 from lightcurve_gp.render import Scene
-from lightcurve_gp.sweep import model_key
-from lightcurve_gp.train import train
 
 ROOT = Path(__file__).resolve().parents[1]
 GOAL_RATIO = 1.25
@@ -48,16 +46,8 @@ HEAD = ("| estimator | yaw | pitch | roll | < 10 deg all axes | mean NEES | s (a
 
 
 def trained_model(cfg, runs: Path):
-    """The model of ``cfg`` from ``runs/<name>/model.pt`` when its data and model settings match, else train it."""
-    path = runs / cfg.name / "model.pt"
-    try:
-        model = load_model(path)
-        if model_key(config_from_dict(model.extra["config"])) == model_key(cfg):
-            return model
-    except (ModelFileError, KeyError, ConfigError):
-        pass
-    train(cfg, runs, runs / "cache", progress=False)
-    return load_model(path)
+    """The model of ``cfg`` from the model store ``runs/models`` (trained there when missing)."""
+    return get_or_train(cfg, runs / "models", cache_dir=runs / "cache")[0]
 
 
 def robust_arguments(description: str, *, seeds: int, seed_start: int, seed_help: str) -> argparse.ArgumentParser:

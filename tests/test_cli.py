@@ -32,9 +32,9 @@ def test_train_writes_model_metrics_and_figures(trained, capsys):
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["train_points"] == 12 * 3 * 5
     held = metrics["heldout"]
-    assert held["n"] == 40 and 0 <= held["within_2sigma"] <= 1 and held["rmse"] > 0
+    assert held["n"] == 40
     fv = metrics["fast_variance_vs_exact"]
-    assert fv["n"] == 40 and fv["median_rel"] >= 0
+    assert fv["n"] == 40
     # the saved model predicts the held-out RMSE it reported
     model = load_model(run / "model.pt")
     assert model.num_train == 180
@@ -62,7 +62,7 @@ def test_sparse_model_trains_from_the_command_line(tmp_path):
 
 def test_bad_config_value_is_reported_with_its_key(tmp_path, capsys):
     assert train.main([BOXWING, "--out", str(tmp_path), "--set", "model.noise_std=-1"]) == 2
-    assert "model.noise_std: -1 must be > 0" in capsys.readouterr().err
+    assert capsys.readouterr().err == "error: model.noise_std: -1 must be > 0\n"
     assert not (tmp_path / "boxwing").exists()
 
 
@@ -86,13 +86,15 @@ def test_estimate_errors_are_clear(tmp_path, capsys):
     bad = tmp_path / "model.pt"
     bad.write_bytes(b"garbage")
     assert estimate.main([BOXWING, "--model", str(bad), *sets(TINY)]) == 2
-    assert "not a readable model file" in capsys.readouterr().err
+    assert capsys.readouterr().err == (f"error: {bad}: not a lightcurve-gp model file (not a PyTorch archive; "
+                                       f"train one with python -m lightcurve_gp.train)\n")
     assert estimate.main([BOXWING, "--rho-true", "1.5", *sets(TINY)]) == 2
-    assert "--rho-true: 1.5 is outside [0, 1]" in capsys.readouterr().err
+    assert capsys.readouterr().err == "error: --rho-true: 1.5 is outside (0, 1]\n"
     assert estimate.main([BOXWING, "--estimators", "ukf,kalman", "--seeds", "1", "--out", str(tmp_path),
                           *sets(TINY)]) == 2
-    assert "unknown estimator 'kalman'" in capsys.readouterr().err
-    torch.set_num_threads(1)  # estimate.main sets the thread count; keep the suite's setting
+    assert capsys.readouterr().err == ("error: --estimators: unknown estimator 'kalman'; choose from gpukf, ukf, "
+                                       "matched_ukf, joint_ukf, no_update\n")
+    assert list(tmp_path.iterdir()) == [bad]
 
 
 ROBUST = str(Path(__file__).resolve().parents[1] / "configs" / "boxwing_robust.yaml")
@@ -127,11 +129,13 @@ def test_offset_config_trains_on_normalised_magnitudes_and_estimates_with_the_of
     assert "gpukf" in capsys.readouterr().out
 
 
-def test_a_model_trained_for_another_target_is_refused(trained, tmp_path, capsys):
-    assert estimate.main([ROBUST, "--model", str(trained / "tiny" / "model.pt"), "--seeds", "2", "--out",
-                          str(tmp_path), *sets(ROBUST_TINY)]) == 2
-    assert "model.target: the GP was trained on target 'magnitude', the config says 'rho_normalised'" in \
-        capsys.readouterr().err
+def test_a_model_trained_for_another_config_is_refused(trained, tmp_path, capsys):
+    model = trained / "tiny" / "model.pt"
+    assert estimate.main([ROBUST, "--model", str(model), "--seeds", "2", "--out", str(tmp_path),
+                          *sets(ROBUST_TINY)]) == 2
+    assert capsys.readouterr().err == (f"error: --model {model}: data.rho_grid: the model was trained with [0.1, "
+                                       f"0.3, 0.5, 0.7, 0.9], the config says [0.3, 0.5, 0.7]; train a model with this config or pass "
+                                       f"--allow-model-mismatch\n")
 
 
 def test_offset_filter_without_a_normalised_gp_is_a_config_error(tmp_path, capsys):

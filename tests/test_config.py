@@ -29,7 +29,13 @@ def test_default_config_holds_the_papers_setup():
 @pytest.mark.parametrize(
     "override, message",
     [
-        ("scenario.rho_true=1.4", "scenario.rho_true: 1.4 is outside [0, 1]"),
+        ("scenario.rho_true=1.4", "scenario.rho_true: 1.4 is outside (0, 1]"),
+        ("scenario.rho_true=0", "scenario.rho_true: 0 is outside (0, 1]"),
+        ("filter.rho_assumed=0", "filter.rho_assumed: 0 is outside (0, 1]"),
+        ("data.rho_grid=[0, 0.5]", "data.rho_grid[0]: 0 is outside (0, 1]"),
+        ("name=\"\"", "name: '' is not a safe folder name"),
+        ("name=../escaped", "name: '../escaped' is not a safe folder name"),
+        ("name=.hidden", "name: '.hidden' is not a safe folder name"),
         ("surface.f0=-0.1", "surface.f0: -0.1 is outside [0, 1]"),
         ("shape.box_m=[1, -1, 1]", "shape.box_m[1]: -1 must be > 0"),
         ("scenario.noise_var=-0.5", "scenario.noise_var: -0.5 must be >= 0"),
@@ -98,3 +104,68 @@ def test_config_hash_depends_only_on_named_sections():
     assert config_hash(base, "data") != config_hash(other_data, "data")
     assert config_hash(base) != config_hash(other_filter)
     assert config_hash(base, "data", extra=1) != config_hash(base, "data", extra=2)
+
+
+def test_empty_file_and_folder_are_named_as_such(tmp_path):
+    empty = tmp_path / "empty.yaml"
+    empty.write_text("")
+    with pytest.raises(ConfigError) as info:
+        load_config(empty)
+    assert str(info.value) == (f"config file {str(empty)!r} is empty (expected the sections of "
+                               f"configs/boxwing.yaml)")
+    with pytest.raises(ConfigError) as info:
+        load_config(tmp_path)
+    assert str(info.value) == f"config file {str(tmp_path)!r} is a folder, not a YAML file"
+
+
+def _box_obj(path: Path, size: float = 1.0) -> Path:
+    import trimesh
+
+    trimesh.creation.box(extents=[size, size, size]).export(path)
+    return path
+
+
+def test_mesh_path_is_checked_at_load_and_resolves_against_the_config_folder(tmp_path, monkeypatch):
+    folder = tmp_path / "configs"
+    folder.mkdir()
+    _box_obj(folder / "box.obj")
+    raw = raw_config()
+    raw["shape"].update(kind="mesh", mesh_path="box.obj")
+    (folder / "mesh.yaml").write_text(yaml.safe_dump(raw))
+    monkeypatch.chdir(tmp_path)  # the mesh is not in the working directory
+    cfg = load_config(folder / "mesh.yaml")
+    assert Path(cfg.shape.mesh_path) == folder / "box.obj"
+    # an override is relative to the working directory
+    with pytest.raises(ConfigError) as info:
+        load_config(folder / "mesh.yaml", ["shape.mesh_path=box.obj"])
+    assert str(info.value) == f"shape.mesh_path: {str(tmp_path / 'box.obj')!r} does not exist or is not a file"
+
+
+@pytest.mark.parametrize("content, message", [
+    (None, "does not exist or is not a file"),
+    ("", "mesh is empty (no triangles)"),
+    ("this is not a mesh\n", "mesh is empty (no triangles)"),
+])
+def test_bad_meshes_are_config_errors(tmp_path, content, message):
+    mesh = tmp_path / "object.obj"
+    if content is not None:
+        mesh.write_text(content)
+    with pytest.raises(ConfigError) as info:
+        load_config(BOXWING, ["shape.kind=mesh", f"shape.mesh_path={mesh}"])
+    assert str(info.value).startswith("shape.mesh_path: ") and message in str(info.value)
+
+
+def test_content_hash_follows_the_mesh_file_not_its_path(tmp_path):
+    from lightcurve_gp.config import content_hash
+    from lightcurve_gp.data import data_cache_key
+    from lightcurve_gp.model_store import model_key
+
+    mesh = _box_obj(tmp_path / "object.obj")
+    cfg = load_config(BOXWING, ["shape.kind=mesh", f"shape.mesh_path={mesh}"])
+    keys = (data_cache_key(cfg), model_key(cfg), content_hash(cfg, "shape"))
+    _box_obj(mesh, size=2.0)  # edited in place: same path, other content
+    assert all(a != b for a, b in zip(keys, (data_cache_key(cfg), model_key(cfg), content_hash(cfg, "shape"))))
+    copy = tmp_path / "copy.obj"
+    copy.write_bytes(mesh.read_bytes())  # same content elsewhere: same keys
+    moved = load_config(BOXWING, ["shape.kind=mesh", f"shape.mesh_path={copy}"])
+    assert (data_cache_key(moved), model_key(moved)) == (data_cache_key(cfg), model_key(cfg))

@@ -69,7 +69,7 @@ def test_cases_apply_the_grid_and_share_models_across_scenario_values():
 def test_bad_grid_key_or_value_is_an_error_naming_the_key():
     with pytest.raises(ConfigError, match=r"^data\.t_span_pst: unknown key"):
         make_cases(tiny_raw(), [("data.t_span_pst", [10])], range(1))
-    with pytest.raises(ConfigError, match=r"scenario\.rho_true: 1\.7 is outside \[0, 1\].*scenario.rho_true=1.7"):
+    with pytest.raises(ConfigError, match=r"scenario\.rho_true: 1\.7 is outside \(0, 1\].*scenario.rho_true=1.7"):
         make_cases(tiny_raw(), [("scenario.rho_true", [0.3, 1.7])], range(1))
     with pytest.raises(ConfigError, match="estimators: unknown estimator 'ekf'"):
         make_cases(tiny_raw(), [], range(1), estimators=["ekf"])

@@ -22,8 +22,17 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
-from .cli import (UserError, add_common_arguments, apply_threads, check_new_folder, check_output_root,
-                  progress_enabled, provenance, run_command, run_interruptible)
+from .cli import (
+    UserError,
+    add_common_arguments,
+    apply_threads,
+    check_new_folder,
+    check_output_root,
+    progress_enabled,
+    provenance,
+    run_command,
+    run_interruptible,
+)
 from .config import load_config
 from .estimation import DEFAULT_ESTIMATORS, ESTIMATORS, ScenarioResult, run_estimators
 from .io import RunFolder, write_json_atomic

@@ -24,7 +24,8 @@ from .observation.base import ObservationModel
 from .observation.serialization import ModelFileError, load_model
 
 __all__ = ["MODEL_SECTIONS", "IGNORED_KEYS", "STORE_FORMAT", "ModelMismatchError", "model_key", "model_record",
-           "store_folder", "get_or_train", "open_model", "model_file_record", "training_mismatch", "check_model_matches"]
+           "store_folder", "get_or_train", "open_model", "model_file_record", "training_mismatch",
+           "check_model_matches"]
 
 #: config sections a trained model depends on (with the dtype)
 MODEL_SECTIONS = ("geometry", "shape", "surface", "data", "model")
@@ -56,17 +57,17 @@ def store_folder(cfg: Config, root: str | Path) -> Path:
     return Path(root) / model_key(cfg)
 
 
-def get_or_train(cfg: Config, root: str | Path, *, cache_dir: str | Path | None = None,
-                 progress: bool = False) -> tuple[ObservationModel, Path]:
-    """The trained model of ``cfg`` and its file: loaded from the store when present and intact, else trained by
-    :func:`lightcurve_gp.train.train` into ``<root>/<key>/`` (atomically; the training data cache is
-    ``cache_dir``, default ``<root>/cache``). A damaged store entry is replaced."""
+def get_or_train(cfg: Config, root: str | Path, *, cache_dir: str | Path | None = None, progress: bool = False,
+                 retrain: bool = False) -> tuple[ObservationModel, Path]:
+    """The trained model of ``cfg`` and its file: loaded from the store when present and intact, else (or with
+    ``retrain``) trained by :func:`lightcurve_gp.train.train` into ``<root>/<key>/`` (atomically; the training
+    data cache is ``cache_dir``, default ``<root>/cache``). A damaged store entry is replaced."""
     from .train import train
 
     folder = store_folder(cfg, root)
     path = folder / "model.pt"
     key = model_key(cfg)
-    if path.is_file():
+    if path.is_file() and not retrain:
         try:
             model = open_model(path)
             if model.extra.get("model_key") == key:

@@ -32,7 +32,7 @@ import multiprocessing
 import sys
 import time
 import traceback
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -124,8 +124,10 @@ class Case:
 
 
 def model_key(cfg: Config) -> str:
-    """Hash of everything a trained observation model depends on (:data:`MODEL_SECTIONS` and the dtype)."""
-    return config_hash(cfg, *MODEL_SECTIONS, extra={"dtype": cfg.dtype, "kind": "model"})
+    """The model store's key of ``cfg`` (:func:`lightcurve_gp.model_store.model_key`)."""
+    from .model_store import model_key as store_key
+
+    return store_key(cfg)
 
 
 def _case_key(cfg: Config, seeds: Sequence[int], estimators: Sequence[str]) -> str:
@@ -165,39 +167,27 @@ def _model_path(root: Path, model_hash: str) -> Path:
 
 def ensure_models(cases: Sequence[Case], root: Path, cache_dir: Path, progress: bool = True,
                   threads: int | None = None) -> dict[str, str | None]:
-    """Train (with :func:`lightcurve_gp.train.train`) every model the cases need that is not on disk yet.
+    """Get every model the cases need from the model store ``root/models``
+    (:func:`lightcurve_gp.model_store.get_or_train`), training the missing ones.
 
     Returns ``{model_hash: error or None}``; a failed training is reported, not raised, so that the cases that
     need it fail with its error and the others go on.
     """
-    from .observation.serialization import ModelFileError, read_model_file
-    from .train import train
+    from .model_store import get_or_train
 
     errors: dict[str, str | None] = {}
     wanted = {c.model_hash: c.config for c in cases if c.model_hash is not None}
-    old_threads, old_dtype = torch.get_num_threads(), torch.get_default_dtype()
+    old_threads = torch.get_num_threads()
     for model_hash, cfg in wanted.items():
-        path = _model_path(root, model_hash)
-        try:
-            read_model_file(path)
-            errors[model_hash] = None
-            continue
-        except ModelFileError:
-            pass
-        if progress:
-            print(f"training model {model_hash} (data.t_span_past={cfg.data.t_span_past:g}, "
-                  f"model.kind={cfg.model.kind}) ...", file=sys.stderr, flush=True)
         try:
             if threads:
                 torch.set_num_threads(threads)
-            torch.set_default_dtype(torch.float64)  # as python -m lightcurve_gp.train
-            train(replace(cfg, name=model_hash), root / "models", cache_dir, progress=progress)
+            get_or_train(cfg, root / "models", cache_dir=cache_dir, progress=progress)
             errors[model_hash] = None
         except Exception as exc:  # recorded on every case that needs this model
             errors[model_hash] = f"model training failed: {type(exc).__name__}: {exc}"
         finally:
             torch.set_num_threads(old_threads)
-            torch.set_default_dtype(old_dtype)
     return errors
 
 
