@@ -27,7 +27,11 @@ def _read_until(fd: int, marker: bytes, limit_s: float) -> bytes:
     while marker not in seen and time.monotonic() < end:
         ready, _, _ = select.select([fd], [], [], 0.5)
         if ready:
-            seen += os.read(fd, 4096)
+            try:
+                chunk = os.read(fd, 4096)
+            except OSError:  # the command has exited and closed the terminal
+                break
+            seen += chunk
     return seen
 
 
@@ -42,7 +46,10 @@ def main(argv: list[str] | None = None) -> int:
                "--cache", str(ROOT / "runs" / "cache"), *(a for o in args.overrides for a in ("--set", o))]
         proc = subprocess.Popen(cmd, stdin=slave, stdout=slave, stderr=slave, cwd=ROOT)
         os.close(slave)
-        _read_until(master, b"fitting the exact GP", 600)
+        head = _read_until(master, b"fitting the exact GP", 600)
+        if proc.poll() is not None:
+            print(head.decode(errors="replace"))
+            return 1
         time.sleep(args.delay)
         sent = time.perf_counter()
         proc.send_signal(signal.SIGINT)

@@ -34,7 +34,7 @@ from tqdm.auto import tqdm
 
 __all__ = ["DEFAULT_THREADS", "UserError", "Interrupted", "add_common_arguments", "apply_threads",
            "progress_enabled", "check_output_root", "check_new_folder", "run_interruptible", "run_command",
-           "provenance"]
+           "exit_process", "provenance"]
 
 #: torch intra-op threads of every command unless ``--threads`` says otherwise (see the module docstring)
 DEFAULT_THREADS = 1
@@ -153,6 +153,18 @@ def run_command(body: Callable[[], int], *, debug: bool) -> int:
         kept = exc.kept if isinstance(exc, Interrupted) else ""
         print(f"interrupted; {kept or 'nothing written'}", file=sys.stderr)
         return 130
+
+
+def exit_process(code: int) -> None:
+    """End a command's process with ``code``. When a worker abandoned by Ctrl-C is still inside torch, the
+    interpreter's normal shutdown would tear torch's thread pool down under it (``terminate called without an
+    active exception``, SIGABRT), so the process then ends at once with ``os._exit`` after flushing the streams;
+    every file was already written atomically or not at all."""
+    if any(t is not threading.main_thread() and t.is_alive() for t in threading.enumerate()):
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)
 
 
 def provenance(cfg, seeds: list[int] | None = None, **extra: Any) -> dict:

@@ -89,10 +89,11 @@ def write_outputs(result: ScenarioResult, folder: Path, title: str = "", record:
     summary["columns"] = list(COLUMN_NOTES)
     summary["run"] = record or {}
     write_json_atomic(summary, folder / "results.json")
+    first = ", ".join(filter(None, (title, f"noise seed {sc.seeds[0]}")))
     errors = {n: r.errors_deg[0] for n, r in result.results.items()}
-    euler_errors(sc.times, errors, folder / "euler_errors.png", title=title, window=result.window)
+    euler_errors(sc.times, errors, folder / "euler_errors.png", title=first, window=result.window)
     predictions = {n: r.history.y_pred[0] for n, r in result.results.items() if r.history is not None}
-    light_curves(sc.times, sc.observations[0], predictions, folder / "light_curves.png", title=title)
+    light_curves(sc.times, sc.observations[0], predictions, folder / "light_curves.png", title=first)
     rmse_boxplot({n: r.rmse_deg for n, r in result.results.items()}, folder / "rmse_boxplot.png", title=title)
     return summary
 
@@ -202,4 +203,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    exit_process(main())
