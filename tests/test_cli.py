@@ -134,8 +134,8 @@ def test_a_model_trained_for_another_config_is_refused(trained, tmp_path, capsys
     assert estimate.main([ROBUST, "--model", str(model), "--seeds", "2", "--out", str(tmp_path),
                           *sets(ROBUST_TINY)]) == 2
     assert capsys.readouterr().err == (f"error: --model {model}: data.rho_grid: the model was trained with [0.1, "
-                                       f"0.3, 0.5, 0.7, 0.9], the config says [0.3, 0.5, 0.7]; train a model with this config or pass "
-                                       f"--allow-model-mismatch\n")
+                                       f"0.3, 0.5, 0.7, 0.9], the config says [0.3, 0.5, 0.7]; train a model with "
+                                       f"this config or pass --allow-model-mismatch\n")
 
 
 def test_offset_filter_without_a_normalised_gp_is_a_config_error(tmp_path, capsys):

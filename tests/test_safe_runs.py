@@ -148,7 +148,8 @@ def test_interrupt_reaches_the_command_during_a_blocking_call(capsys):
 # 8. files that are not model files
 @pytest.mark.parametrize("content, reason", [
     (b"just some text\n", "not a PyTorch archive; train one with python -m lightcurve_gp.train"),
-    (yaml.safe_dump({"name": "boxwing"}).encode(), "not a PyTorch archive; train one with python -m lightcurve_gp.train"),
+    (yaml.safe_dump({"name": "boxwing"}).encode(),
+     "not a PyTorch archive; train one with python -m lightcurve_gp.train"),
     ("pickle", "it holds objects other than tensors and plain values"),
 ])
 def test_foreign_files_as_model_are_one_clear_line(tmp_path, capsys, content, reason):
@@ -237,6 +238,19 @@ def test_long_steps_show_a_status_line(capsys):
     assert capsys.readouterr().err == ""
     assert cli.progress_enabled(no_progress=False) is sys.stderr.isatty()
     assert cli.progress_enabled(no_progress=True) is False
+
+
+@pytest.mark.parametrize("command", ["train", "estimate"])
+def test_the_module_entry_points_exit_with_the_error_code(tmp_path, command):
+    """``python -m lightcurve_gp.<command>`` as a user runs it: one line on stderr, exit 2, no traceback."""
+    import os
+    import subprocess
+
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")]))
+    done = subprocess.run([sys.executable, "-m", f"lightcurve_gp.{command}", BOXWING, "--out", str(tmp_path),
+                           "--set", "scenario.rho_true=0"], capture_output=True, text=True, env=env, timeout=120)
+    assert (done.returncode, done.stderr) == (2, "error: scenario.rho_true: 0 is outside (0, 1]\n")
+    assert list(tmp_path.iterdir()) == []
 
 
 # 14. readable outputs

@@ -17,7 +17,6 @@ config, the model file and its SHA-256, the seeds, the package/torch/Python vers
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from tqdm.auto import tqdm
@@ -28,6 +27,7 @@ from .cli import (
     apply_threads,
     check_new_folder,
     check_output_root,
+    exit_process,
     progress_enabled,
     provenance,
     run_command,
@@ -165,7 +165,8 @@ def _run_all(cfg, model, estimators: list[str], args: argparse.Namespace, progre
     merged: ScenarioResult | None = None
     for name in tqdm(estimators, desc="estimators", unit="filter", disable=not progress):
         part = run_interruptible(lambda n=name: run_estimators(cfg, model, seeds=seeds, rho_true=args.rho_true,
-                                                                  estimators=[n], scene=scene))
+                                                                  estimators=[n], scene=scene),
+                                 status=f"running {name}", progress=progress)
         merged = part if merged is None else merged
         merged.results.update(part.results)
     assert merged is not None

@@ -23,11 +23,20 @@ from pathlib import Path
 
 import torch
 import yaml
-
 from torch import Tensor
 
-from .cli import (UserError, add_common_arguments, apply_threads, check_new_folder, check_output_root,
-                  exit_process, progress_enabled, provenance, run_command, run_interruptible)
+from .cli import (
+    UserError,
+    add_common_arguments,
+    apply_threads,
+    check_new_folder,
+    check_output_root,
+    exit_process,
+    progress_enabled,
+    provenance,
+    run_command,
+    run_interruptible,
+)
 from .config import Config, config_to_dict, load_config
 from .data import TrainingSet, generate_heldout_set, load_or_generate, model_targets
 from .io import RunFolder, file_sha256, write_json_atomic, write_text_atomic
