@@ -221,6 +221,20 @@ def test_an_interrupted_forced_train_keeps_the_old_run(model_file, tmp_path, cap
     assert tree(out / "tiny") == before and sorted(p.name for p in out.iterdir()) == ["tiny"]
 
 
+def test_an_interrupt_says_what_was_kept(tmp_path, capsys, monkeypatch):
+    from lightcurve_gp.data import data_cache_key
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(train, "residual_histogram", interrupted)
+    assert train.main([BOXWING, "--out", str(tmp_path / "runs"), "--no-progress", *sets(TINY)]) == 130
+    cache = tmp_path / "runs" / "cache" / f"data-{data_cache_key(load_config(BOXWING, TINY))}.pt"
+    assert capsys.readouterr().err == (f"interrupted; kept the new training-data cache {cache}; "
+                                       f"{tmp_path / 'runs' / 'tiny'} not written\n")
+    assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == ["cache"] and cache.is_file()
+
+
 def test_force_refuses_a_folder_holding_other_runs(model_file, tmp_path, capsys):
     out = tmp_path / "runs"
     (out / "tiny" / "estimate_rho0.7").mkdir(parents=True)
