@@ -14,7 +14,7 @@ Goal (issue "GPUKF accuracy near a filter that knows rho"): median RMSE per axis
 >= 90 % of seeds below 10 deg on all axes, mean NEES inside its 95 % chi-square band. An ablation on one rho shows
 what each ingredient buys. Writes ``--out`` (experiments/results/robust/): results.json, table.md, ablation.md and
 one box plot per rho; the per-seed RMSE goes to ``--raw`` (runs/robust/per_seed_rmse.json, not committed). Trained
-models are kept in runs/<config name>/ and reused while their config matches.
+models come from the model store runs/models/<model key>/ (lightcurve_gp.model_store), trained there when missing.
 
     python -m experiments.robust_gpukf
 """
