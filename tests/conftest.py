@@ -1,4 +1,4 @@
-"""Shared test settings: small tensors run fastest on one thread (dispatch overhead dominates, DESIGN.md)."""
+"""Shared test settings: small tensors run fastest on one thread (dispatch overhead dominates, docs/design.md)."""
 
 import torch
 

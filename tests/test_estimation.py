@@ -84,7 +84,7 @@ def test_matched_ukf_converges_with_noise_free_observations():
 
 
 def test_conventional_ukf_suffers_from_a_rho_mismatch_that_the_matched_one_does_not_have():
-    """The paper's Fig. ukf_doesNotWork without noise: ρ_ukf = 0.5 on ρ_true = 0.7 loses the attitude."""
+    """The paper's Fig. 10 without noise: ρ_ukf = 0.5 on ρ_true = 0.7 loses the attitude."""
     cfg = load_config(BOXWING, ["scenario.noise_var=0", "filter.measurement_noise=0.02"])
     res = run_estimators(cfg, seeds=[0], rho_true=0.7, estimators=("ukf", "matched_ukf"))
     summary = res.summary()["estimators"]

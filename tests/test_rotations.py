@@ -113,7 +113,7 @@ def test_euler_round_trip():
 
 
 def test_euler_matrix_is_the_papers_r_b_i():
-    """Paper eq. R_b_i, written out entry by entry, with φ = yaw, θ = pitch, ψ = roll."""
+    """Paper Eq. (16), written out entry by entry, with φ = yaw, θ = pitch, ψ = roll."""
     euler = random_euler(50, seed=10)
     phi, theta, psi = euler.unbind(-1)
     c, s = torch.cos, torch.sin

@@ -4,7 +4,7 @@ All functions are pure and broadcast over leading dimensions. Inputs are body-fr
 ``s`` towards the Sun, ``v`` towards the observer, facet normal ``n`` and tangent axes ``u``, ``w = n × u``
 (``Facets.u``/``Facets.v``); material parameters broadcast against ``(...)``.
 
-Ashikhmin–Shirley, with ``h = (s + v)/|s + v|`` (DESIGN.md)::
+Ashikhmin–Shirley, with ``h = (s + v)/|s + v|`` (paper Sec. 2.1, Eqs. (2)–(7); docs/design.md)::
 
     c_d = 28ρ/(23π) (1 − F0) [1 − (1 − n·s/2)^5] [1 − (1 − n·v/2)^5]
     F   = F0 + (1 − F0)(1 − v·h)^5

@@ -70,7 +70,7 @@ def _spec(default: Any = dataclasses.MISSING, *, lo: float | None = None, hi: fl
 
 @dataclass(kw_only=True)
 class GeometryConfig:
-    """Fixed object–observer–Sun geometry in the inertial frame, object at the origin (paper Table obj-obs-sun)."""
+    """Fixed object–observer–Sun geometry in the inertial frame, object at the origin (paper Table 3)."""
 
     observer_km: list[float] = _spec(length=3, doc="observer position (km)")
     sun_km: list[float] = _spec(length=3, doc="Sun position (km)")
@@ -92,7 +92,7 @@ class ShapeConfig:
 
 @dataclass(kw_only=True)
 class SurfaceConfig:
-    """Ashikhmin–Shirley surface parameters shared by every rendering (paper Table surface_para).
+    """Ashikhmin–Shirley surface parameters shared by every rendering (paper Table 4).
 
     The diffuse reflectance ρ is not here: it is what varies (``data.rho_grid``, ``scenario.rho_true``,
     ``filter.rho_assumed``).

@@ -8,7 +8,7 @@ Each training point is one short torque-free trajectory from an initial attitude
 * ``y      = m_app(T)``                      — the magnitude to predict (GP output).
 
 So ``m_past`` summarises the past ``T`` seconds and excludes the predicted sample, as in the filter, whose
-``m_past`` (paper eq. m_appPast_updated) folds in observation ``k`` only after the update at step ``k``.
+``m_past`` (paper Sec. 3.3, Eq. (54)) folds in observation ``k`` only after the update at step ``k``.
 The set is the product of the initial attitudes (``data.sampling``) and ``data.rho_grid``.
 """
 
@@ -189,7 +189,7 @@ def generate_heldout_set(cfg: Config) -> TrainingSet:
 def normalised_targets(m: Tensor, rho: Tensor, rho_reference: float) -> Tensor:
     """ρ-normalised magnitudes ``m + 2.5 log10(ρ / ρ0)`` ``(N,)``: the magnitude the attitude would have at ``ρ0``.
 
-    Exact for a diffuse-dominated light curve (``c_d ∝ ρ``, paper eq. mApp), where ρ only shifts the magnitude.
+    Exact for a diffuse-dominated light curve (``c_d ∝ ρ``, paper Eqs. (4), (8)), where ρ only shifts the magnitude.
     """
     if not bool((rho > 0).all()):
         raise ValueError("rho: every training reflectance must be positive to normalise magnitudes")

@@ -1,9 +1,9 @@
 """Torque-free rigid-body dynamics: Euler's equations, quaternion kinematics, fixed-step RK4.
 
-Equations (paper section 2.3, DESIGN.md):
+Equations (paper Sec. 2.3; docs/design.md):
 
-* Euler's equations with ``τ = 0`` (eq. euler_equation): ``J ω̇ = −ω × J ω``, ω the body-frame rate;
-* kinematics (eq. quaternion_omega): ``q̇ = ½ [ω; 0] ⊗ q`` with the paper's product (``rotations.quat_mul``).
+* Euler's equations with ``τ = 0`` (Eq. (18)): ``J ω̇ = −ω × J ω``, ω the body-frame rate;
+* kinematics (Eq. (14)): ``q̇ = ½ [ω; 0] ⊗ q`` with the paper's product (``rotations.quat_mul``).
 
 Units: rad, rad/s, s, kg m². Quaternions are scalar last. Every function is batched over leading dimensions
 and works on any device and floating dtype.
@@ -107,7 +107,7 @@ def _pure(omega: Tensor) -> Tensor:
 
 
 def quaternion_rates(q: Tensor, omega: Tensor) -> Tensor:
-    """Kinematics ``q̇ = ½ [ω; 0] ⊗ q`` (paper eq. quaternion_omega); ``q (..., 4)``, ``ω (..., 3)`` broadcast."""
+    """Kinematics ``q̇ = ½ [ω; 0] ⊗ q`` (paper Eq. (14)); ``q (..., 4)``, ``ω (..., 3)`` broadcast."""
     _check_last_dim(q, 4, "q")
     _check_last_dim(omega, 3, "omega")
     return 0.5 * quat_mul(_pure(omega), q)

@@ -1,7 +1,7 @@
 """Light curves of a facet model: reflected flux and apparent magnitude for batches of attitudes.
 
 For an attitude ``q`` (inertial → body), body-frame unit vectors to the Sun ``s = A(q) ŝ`` and to the observer
-``v = A(q) v̂`` (paper section 2.1, DESIGN.md)::
+``v = A(q) v̂`` (paper Secs. 2.1–2.2; docs/design.md)::
 
     f_obs = Σ_facets (c_d + c_s) A (n·s)(n·v)     over facets with n·s > 0 and n·v > 0 (no shadowing)
     m_app = −26.7 − 2.5 log10(f_obs / r_obs²)     r_obs in metres

@@ -1,12 +1,12 @@
 """Quaternion algebra, attitude matrices, Euler 3-2-1 angles and generalised Rodrigues parameters.
 
-Conventions (paper section 2.3, DESIGN.md):
+Conventions (paper Sec. 2.3; docs/design.md):
 
 * quaternions are **scalar last**, ``q = [e sin(Φ/2), cos(Φ/2)]``, shape ``(..., 4)``;
-* the product is the paper's eq. (quaternion_product),
+* the product is the paper's Eq. (13),
   ``q ⊗ p = [q4 p̄ + p4 q̄ − q̄ × p̄ ; q4 p4 − q̄·p̄]``, so that ``A(q ⊗ p) = A(q) A(p)``;
 * ``A(q)`` maps inertial vectors to the body frame, ``v_b = A(q) v_i``;
-* Euler 3-2-1 angles ``(φ, θ, ψ)`` = (yaw, pitch, roll) with ``A = R_x(ψ) R_y(θ) R_z(φ)`` (paper eq. R_b/i);
+* Euler 3-2-1 angles ``(φ, θ, ψ)`` = (yaw, pitch, roll) with ``A = R_x(ψ) R_y(θ) R_z(φ)`` (paper Eq. (16));
 * GRP ``p = f q̄ / (a + q4)`` (Crassidis & Markley 2003), ``a = 1``, ``f = 2 (a + 1) = 4`` by default.
 
 Every function works on tensors with arbitrary leading batch dimensions, on any device and floating dtype.
@@ -45,7 +45,7 @@ def identity_quat(*batch: int, dtype: torch.dtype | None = None, device=None) ->
 
 
 def quat_mul(q: Tensor, p: Tensor) -> Tensor:
-    """Paper's quaternion product ``q ⊗ p`` (eq. quaternion_product); shapes broadcast, ``(..., 4)``."""
+    """Paper's quaternion product ``q ⊗ p`` (Eq. (13)); shapes broadcast, ``(..., 4)``."""
     qv, q4 = q[..., :3], q[..., 3:]
     pv, p4 = p[..., :3], p[..., 3:]
     qv, pv = torch.broadcast_tensors(qv, pv)  # linalg.cross needs operands of equal ndim
@@ -104,7 +104,7 @@ def rotate(q: Tensor, v: Tensor) -> Tensor:
 
 
 def axis_angle_to_quat(axis: Tensor, angle: Tensor) -> Tensor:
-    """Quaternion ``[e sin(Φ/2), cos(Φ/2)]`` (paper eq. quaternion_def).
+    """Quaternion ``[e sin(Φ/2), cos(Φ/2)]`` (paper Eq. (11)).
 
     Args:
         axis: unit rotation axes ``(..., 3)``.
@@ -138,7 +138,7 @@ def quat_to_rotvec(q: Tensor) -> Tensor:
 def euler321_to_quat(euler: Tensor) -> Tensor:
     """Quaternion of 3-2-1 Euler angles ``(φ, θ, ψ)`` in radians ``(..., 3)``.
 
-    The result satisfies ``A(q) = R_x(ψ) R_y(θ) R_z(φ)`` (paper eq. R_b_i): a yaw rotation about z
+    The result satisfies ``A(q) = R_x(ψ) R_y(θ) R_z(φ)`` (paper Eq. (16)): a yaw rotation about z
     first, then pitch about the new y, then roll about the new x.
     """
     yaw, pitch, roll = (0.5 * euler).unbind(-1)

@@ -4,7 +4,7 @@ The truth starts at ``scenario.q0`` with rate ``scenario.omega0_deg_s`` and is p
 for ``duration_s``; samples ``k = 0 … T`` lie at ``t_k = k dt``. Its light curve is rendered with
 ``scenario.rho_true``; observation ``k`` of seed ``s`` adds ``N(0, noise_var)`` noise drawn from a generator seeded
 with ``s`` alone, so a seed's curve does not depend on which other seeds run beside it.
-The filter's initial estimate is ``q_est,0 = q(Euler error) ⊗ q_true,0`` (DESIGN.md).
+The filter's initial estimate is ``q_est,0 = q(Euler error) ⊗ q_true,0`` (docs/design.md).
 """
 
 from __future__ import annotations

@@ -10,14 +10,14 @@ Generic pieces (any state dimension ``n``):
   ``λ = α² (n + κ) − n``;
 * :func:`matrix_sqrt` / :func:`sigma_points` — lower Cholesky factor of the symmetrised ``(n + λ) P``, with a
   per-filter eigendecomposition fallback (clipped eigenvalues) that is counted, never a silent NaN;
-* :func:`ukf_predict` / :func:`ukf_update` — the additive-noise UKF of the paper's eqs. (sigmapoints …
-  posterior_cov); the update redraws sigma points from the prior like the paper ("computed again") and filterpy.
+* :func:`ukf_predict` / :func:`ukf_update` — the additive-noise UKF of the paper's Sec. 2.5, Eqs. (31)–(47); the
+  update redraws sigma points from the prior like the paper ("computed again") and filterpy.
 
 USQUE (:func:`run_usque`): the state is the GRP attitude error ``δp`` (3) about reference quaternions ``q̂``;
 ω is known, so the prediction model enters only through per-step kinematic increments ``δ_k`` with
 ``q_{k+1} = normalise(δ_k ⊗ q_k)`` for every attitude (torque-free ω(t) does not depend on q).
 
-Conventions (DESIGN.md): scalar-last quaternions, paper product ``⊗``, error ``q_err = q_true ⊗ q_est⁻¹``,
+Conventions (docs/design.md): scalar-last quaternions, paper product ``⊗``, error ``q_err = q_true ⊗ q_est⁻¹``,
 GRP ``p = f q̄ / (a + q4)``. The sign of ``q̂`` is never canonicalised inside the filter: it stays continuous
 along a run, because ``q`` and ``−q`` are different inputs to a GP observation model.
 """
@@ -140,7 +140,7 @@ def _warn_fallbacks(count: int, total: int, where: str) -> None:
 
 
 def sigma_points(x: Tensor, P: Tensor, lam: float, *, warn: bool = True) -> tuple[Tensor, Tensor]:
-    """Sigma points ``[x, x + cols(√((n+λ)P)), x − cols(√((n+λ)P))]`` (paper eqs. sigmapoints_x_1–3).
+    """Sigma points ``[x, x + cols(√((n+λ)P)), x − cols(√((n+λ)P))]`` (paper Eqs. (31)–(33)).
 
     Args:
         x: means ``(B, n)`` (any leading batch shape ``(...)``).
@@ -253,7 +253,7 @@ def _as_cov(c: Tensor | float, n: int, like: Tensor) -> Tensor:
 
 @dataclass(frozen=True, eq=False)
 class UsqueParams:
-    """USQUE tuning (defaults: the paper's filter, DESIGN.md).
+    """USQUE tuning (defaults: the paper's filter, Sec. 4.1; docs/design.md).
 
     Attributes:
         alpha, beta, kappa: unscented tuning parameters.
@@ -262,7 +262,7 @@ class UsqueParams:
         Q: process noise on the GRP error per step (rad²): scalar (× I), ``(3, 3)`` or ``(B, 3, 3)``.
         R: measurement noise variance (mag²): scalar or ``(B,)``.
         add_model_variance: add the observation model's mean predictive variance ``Σ wm var_i`` to ``Pyy``.
-        t_span_past: ``T`` of the running mean ``m_past ← (T m_past + ỹ) / (T + 1)`` (paper eq. m_appPast_updated).
+        t_span_past: ``T`` of the running mean ``m_past ← (T m_past + ỹ) / (T + 1)`` (paper Sec. 3.3, Eq. (54)).
     """
 
     alpha: float = 1e-4

@@ -1,7 +1,7 @@
 """USQUE with a magnitude offset in the state: joint attitude and reflectance estimation.
 
 The light curve of the paper's object is diffuse-dominated, so its magnitude at reflectance ρ is the magnitude at a
-reference ``ρ0`` shifted by a constant (paper eq. mApp with ``c_d ∝ ρ``)::
+reference ``ρ0`` shifted by a constant (paper Eq. (8) with ``c_d ∝ ρ``, Eq. (4))::
 
     m(q; ρ) = m(q; ρ0) − 2.5 log10(ρ / ρ0)
 

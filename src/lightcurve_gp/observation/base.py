@@ -1,4 +1,4 @@
-"""The one interface every observation model implements (paper eq. observation_model).
+"""The one interface every observation model implements (paper Sec. 3.1, Eq. (49)).
 
 An observation model maps an attitude ``q`` and the filter's running mean of past magnitudes ``m_past``
 to a predictive distribution of the apparent magnitude: ``m_app ~ N(mean, variance)``.

@@ -327,7 +327,7 @@ class ExactGP(ObservationModel):
     # ------------------------------------------------------------------ prediction
 
     def _predict(self, q: Tensor, m_past: Tensor, with_variance: bool) -> Prediction:
-        """Mean ``k*ᵀα + μ`` (paper eq. GP_mu) and the chosen variance, in chunks of at most :attr:`chunk_values`
+        """Mean ``k*ᵀα + μ`` (paper Eq. (25)) and the chosen variance, in chunks of at most :attr:`chunk_values`
         kernel values (a chunk's kernel block stays in the CPU cache between its passes).
 
         Points along the last batch dimension of a ``(..., S, 4)`` input form a set (a filter's sigma points);

@@ -52,7 +52,7 @@ def attitude_matrix_features(q: Tensor, m_past: Tensor) -> Tensor:
     """The attitude matrix ``A(q)`` (inertial → body) flattened row-major ``(..., 9)``; ``m_past`` is not used.
 
     Sign-invariant (``A(q) = A(−q)``) and attitude-only: the body-frame Sun and observer directions ``A(q) s`` and
-    ``A(q) v`` that the light curve depends on (paper eq. mApp) are linear in these features for any geometry, and
+    ``A(q) v`` that the light curve depends on (paper Eqs. (8)–(10)) are linear in these features for any geometry, and
     ``‖A(q) − A(q')‖_F² = 4 (1 − cos θ)`` with ``θ`` the angle between the attitudes, so an isotropic kernel on them
     is a kernel on the rotation angle. ``q`` need not be normalised.
     """
