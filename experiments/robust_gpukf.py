@@ -21,46 +21,26 @@ models come from the model store runs/models/<model key>/ (lightcurve_gp.model_s
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
 
-import torch
-
+from experiments._cli import ROOT, robust_arguments
+from experiments._models import trained_model
 from lightcurve_gp.config import load_config
 from lightcurve_gp.estimation import ScenarioResult, run_estimators
 from lightcurve_gp.io import write_json_atomic, write_text_atomic
-from lightcurve_gp.model_store import get_or_train
+from lightcurve_gp.metrics import model_error_on_trajectory
 from lightcurve_gp.plots import rmse_boxplot
 from lightcurve_gp.render import Scene
+from lightcurve_gp.reporting import SUMMARY_HEADER, markdown_table, summary_row
+from lightcurve_gp.scenario import simulate_scenario
 
-ROOT = Path(__file__).resolve().parents[1]
 GOAL_RATIO = 1.25
 GOAL_FRACTION = 0.9
 #: the robust config with the paper's fixed GP hyperparameters and the process noise tuned for it
 FIXED_HYPERPARAMETERS = ["name=boxwing_robust_fixed_hyperparameters", "model.fit_hyperparameters=false",
                          "filter.process_noise=5e-6"]
-HEAD = ("| estimator | yaw | pitch | roll | < 10 deg all axes | mean NEES | s (all seeds) |\n"
-        "|---|---|---|---|---|---|---|")
-
-
-def trained_model(cfg, runs: Path):
-    """The model of ``cfg`` from the model store ``runs/models`` (trained there when missing)."""
-    return get_or_train(cfg, runs / "models", cache_dir=runs / "cache")[0]
-
-
-def robust_arguments(description: str, *, seeds: int, seed_start: int, seed_help: str) -> argparse.ArgumentParser:
-    """The arguments every experiment on the robust config shares: ``--config``, ``--seeds``, ``--seed-start``,
-    ``--out`` (committed summaries) and ``--runs`` (trained models)."""
-    p = argparse.ArgumentParser(description=description)
-    p.add_argument("--config", default=str(ROOT / "configs/boxwing_robust.yaml"))
-    p.add_argument("--seeds", type=int, default=seeds, help=f"noise seeds (default {seeds})")
-    p.add_argument("--seed-start", type=int, default=seed_start,
-                   help=f"first noise seed (default {seed_start}: {seed_help})")
-    p.add_argument("--out", default=str(ROOT / "experiments/results/robust"), type=Path)
-    p.add_argument("--runs", default=str(ROOT / "runs"), type=Path, help="where trained models are kept")
-    return p
 
 
 def merged(robust: ScenarioResult, paper: ScenarioResult) -> ScenarioResult:
@@ -86,77 +66,41 @@ def goal_check(summary: dict) -> dict:
 
 def gp_error_on_trajectory(cfg, model, scene: Scene) -> dict:
     """The GP's error against the renderer along the scenario's true trajectory (ρ0, noise-free), in mag."""
-    from lightcurve_gp.scenario import simulate_scenario
-
     sc = simulate_scenario(cfg, seeds=[0], rho_true=cfg.model.rho_reference, scene=scene)
-    mean, var = model(q=sc.q_true, m_past=sc.m_clean, with_variance=True)
-    err = mean - sc.m_clean
-    return {"mean_error": float(err.mean()), "rms_about_mean": float((err - err.mean()).pow(2).mean().sqrt()),
-            "rms": float(err.pow(2).mean().sqrt()), "mean_predictive_std": float(var.sqrt().mean())}
+    return model_error_on_trajectory(model, q=sc.q_true, m_true=sc.m_clean, m_past=sc.m_clean)
 
 
-def row(name: str, e: dict) -> str:
-    med = " | ".join(f"{m:.2f}" for m in e["rmse_deg_median"])
-    return (f"| {name} | {med} | {100 * e['fraction_all_axes_below_10deg']:.0f} % | {e['nees_mean']:.2f} | "
-            f"{e['seconds']:.1f} |")
+def _goal_line(goal: dict) -> str:
+    met = lambda flag: "met" if flag else "NOT met"  # noqa: E731
+    return ("\ngpukf / matched_ukf: " + ", ".join(f"{x:.2f}" for x in goal["ratio_to_matched_ukf"])
+            + "; gpukf / paper_matched_ukf: " + ", ".join(f"{x:.2f}" for x in goal["ratio_to_paper_matched_ukf"])
+            + f". Goal: ratio {met(goal['ratio_met'])}, >= 90 % below 10 deg {met(goal['fraction_met'])}, "
+              f"NEES in band {met(goal['nees_met'])}.")
 
 
-def main(argv=None) -> int:
-    p = robust_arguments(__doc__.splitlines()[0], seeds=200, seed_start=200, seed_help="not a tuning seed")
-    p.add_argument("--paper-config", default=str(ROOT / "configs/boxwing.yaml"))
-    p.add_argument("--rho", default="0.3,0.4,0.6,0.7")
-    p.add_argument("--ablation-rho", type=float, default=0.7)
-    p.add_argument("--ablation-seeds", type=int, default=100)
-    p.add_argument("--raw", default=str(ROOT / "runs/robust"), type=Path, help="where per-seed results go")
-    args = p.parse_args(argv)
-    torch.set_default_dtype(torch.float64)
-    cfg = load_config(args.config)
-    paper = load_config(args.paper_config, ["filter.add_model_variance=false"])  # the paper's GPUKF: GP mean only
-    seeds = range(args.seed_start, args.seed_start + args.seeds)
-    scene = Scene.from_config(cfg)
-    t0 = time.perf_counter()
-    model, paper_model = trained_model(cfg, args.runs), trained_model(paper, args.runs)
-    print(f"models ready in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+def rho_case(rho: float, cfg, paper, models: tuple, seeds: range, scene: Scene, args) -> tuple[dict, dict, list]:
+    """Every estimator at one ``rho_true``: its summary with the goal check, the per-seed RMSE and table lines."""
+    model, paper_model = models
+    robust = run_estimators(cfg, model, seeds=seeds, rho_true=rho, scene=scene,
+                            estimators=("gpukf", "joint_ukf", "matched_ukf", "no_update"))
+    ref = run_estimators(paper, paper_model, seeds=seeds, rho_true=rho, scene=scene,
+                         estimators=("gpukf", "ukf", "matched_ukf"))
+    res = merged(robust, ref)
+    s = res.summary()
+    s["goal"] = goal_check(s)
+    s["offset_final_median"] = {n: float(res.results[n].history.offset[:, -1].median()) for n in ("gpukf", "joint_ukf")}
+    lo, hi = s["nees_band_95"]
+    lines = [f"\n### rho_true = {rho:g} ({args.seeds} seeds from {seeds.start}; median RMSE in deg over "
+             f"{s['window_s'][0]:g}-{s['window_s'][1]:g} s; NEES band {lo:.2f}-{hi:.2f})\n",
+             markdown_table(SUMMARY_HEADER, [summary_row(n, e) for n, e in s["estimators"].items()]).rstrip("\n"),
+             _goal_line(s["goal"])]
+    rmse_boxplot({n: r.rmse_deg for n, r in res.results.items()}, args.out / f"rmse_boxplot_rho{rho:g}.png",
+                 title=f"rho_true = {rho:g}, {args.seeds} seeds")
+    return s, {n: r.rmse_deg.tolist() for n, r in res.results.items()}, lines
 
-    results, lines, per_seed = {"seeds": [seeds.start, seeds.stop], "config": args.config}, [], {}
-    gp_err = results["gp_error_on_trajectory_mag"] = gp_error_on_trajectory(cfg, model, scene)
-    lines.append(f"\nGP of the reference curve along the true trajectory: mean error {gp_err['mean_error']:+.4f} mag, "
-                 f"RMS about it {gp_err['rms_about_mean']:.4f} mag, mean predictive std "
-                 f"{gp_err['mean_predictive_std']:.4f} mag.")
-    for rho in [float(r) for r in args.rho.split(",")]:
-        robust = run_estimators(cfg, model, seeds=seeds, rho_true=rho, scene=scene,
-                                estimators=("gpukf", "joint_ukf", "matched_ukf", "no_update"))
-        ref = run_estimators(paper, paper_model, seeds=seeds, rho_true=rho, scene=scene,
-                             estimators=("gpukf", "ukf", "matched_ukf"))
-        res = merged(robust, ref)
-        s = res.summary()
-        s["goal"] = goal_check(s)
-        per_seed[f"{rho:g}"] = {n: r.rmse_deg.tolist() for n, r in res.results.items()}
-        s["offset_final_median"] = {n: float(res.results[n].history.offset[:, -1].median())
-                                    for n in ("gpukf", "joint_ukf")}
-        results[f"{rho:g}"] = s
-        lo, hi = s["nees_band_95"]
-        lines += [f"\n### rho_true = {rho:g} ({args.seeds} seeds from {seeds.start}; median RMSE in deg over "
-                  f"{s['window_s'][0]:g}-{s['window_s'][1]:g} s; NEES band {lo:.2f}-{hi:.2f})\n", HEAD]
-        lines += [row(n, e) for n, e in s["estimators"].items()]
-        goal = s["goal"]
-        lines.append("\ngpukf / matched_ukf: " + ", ".join(f"{x:.2f}" for x in goal["ratio_to_matched_ukf"])
-                     + "; gpukf / paper_matched_ukf: " + ", ".join(f"{x:.2f}" for x in goal["ratio_to_paper_matched_ukf"])
-                     + f". Goal: ratio {'met' if goal['ratio_met'] else 'NOT met'}, >= 90 % below 10 deg "
-                       f"{'met' if goal['fraction_met'] else 'NOT met'}, NEES in band "
-                       f"{'met' if goal['nees_met'] else 'NOT met'}.")
-        rmse_boxplot({n: r.rmse_deg for n, r in res.results.items()}, args.out / f"rmse_boxplot_rho{rho:g}.png",
-                     title=f"rho_true = {rho:g}, {args.seeds} seeds")
-        print("\n".join(lines[-(len(s["estimators"]) + 3):]), flush=True)
 
-    # ablation: what each ingredient buys (one rho); the fixed-hyperparameter GP is the previous robust model
-    fixed = load_config(args.config, FIXED_HYPERPARAMETERS)
-    fixed_model = trained_model(fixed, args.runs)
-    gp_err = gp_error_on_trajectory(fixed, fixed_model, scene)
-    results["gp_error_on_trajectory_mag_fixed_hyperparameters"] = gp_err
-    lines.append(f"\nThe same GP with the paper's fixed (theta1, theta2, sigma): mean error "
-                 f"{gp_err['mean_error']:+.4f} mag, RMS about it {gp_err['rms_about_mean']:.4f} mag, mean predictive std "
-                 f"{gp_err['mean_predictive_std']:.4f} mag.")
+def ablation(args, model, fixed_model, scene: Scene) -> list[str]:
+    """What each ingredient buys, at one rho; the fixed-hyperparameter GP is the previous robust model."""
     steps = [
         ("joint UKF (renderer, offset state), paper process noise 1e-4", ["filter.process_noise=1e-4"], "joint_ukf",
          model),
@@ -168,13 +112,52 @@ def main(argv=None) -> int:
         ("robust GPUKF without the GP variance in Pyy", ["filter.add_model_variance=false"], "gpukf", model),
         ("robust GPUKF, full config", [], "gpukf", model),
     ]
-    abl_seeds = range(args.seed_start, args.seed_start + args.ablation_seeds)
-    abl = [f"\n### Ablation at rho_true = {args.ablation_rho:g}, {args.ablation_seeds} seeds from {abl_seeds.start}\n",
-           HEAD]
+    seeds = range(args.seed_start, args.seed_start + args.ablation_seeds)
+    rows = []
     for label, overrides, est, gp in steps:
         c = load_config(args.config, overrides)
-        r = run_estimators(c, gp, seeds=abl_seeds, rho_true=args.ablation_rho, estimators=(est,), scene=scene)
-        abl.append(row(label, r.summary()["estimators"][est]))
+        r = run_estimators(c, gp, seeds=seeds, rho_true=args.ablation_rho, estimators=(est,), scene=scene)
+        rows.append(summary_row(label, r.summary()["estimators"][est]))
+    return [f"\n### Ablation at rho_true = {args.ablation_rho:g}, {args.ablation_seeds} seeds from {seeds.start}\n",
+            markdown_table(SUMMARY_HEADER, rows).rstrip("\n")]
+
+
+def _error_line(prefix: str, err: dict) -> str:
+    return (f"\n{prefix}: mean error {err['mean_error']:+.4f} mag, RMS about it {err['rms_about_mean']:.4f} mag, "
+            f"mean predictive std {err['mean_predictive_std']:.4f} mag.")
+
+
+def main(argv=None) -> int:
+    p = robust_arguments(__doc__.splitlines()[0], seeds=200, seed_start=200, seed_help="not a tuning seed")
+    p.add_argument("--paper-config", default=str(ROOT / "configs/boxwing.yaml"))
+    p.add_argument("--rho", default="0.3,0.4,0.6,0.7")
+    p.add_argument("--ablation-rho", type=float, default=0.7)
+    p.add_argument("--ablation-seeds", type=int, default=100)
+    p.add_argument("--raw", default=str(ROOT / "runs/robust"), type=Path, help="where per-seed results go")
+    args = p.parse_args(argv)
+    cfg = load_config(args.config)
+    paper = load_config(args.paper_config, ["filter.add_model_variance=false"])  # the paper's GPUKF: GP mean only
+    seeds = range(args.seed_start, args.seed_start + args.seeds)
+    scene = Scene.from_config(cfg)
+    t0 = time.perf_counter()
+    model, paper_model = trained_model(cfg, args.runs), trained_model(paper, args.runs)
+    print(f"models ready in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+
+    results, per_seed = {"seeds": [seeds.start, seeds.stop], "config": args.config}, {}
+    results["gp_error_on_trajectory_mag"] = gp_error_on_trajectory(cfg, model, scene)
+    lines = [_error_line("GP of the reference curve along the true trajectory", results["gp_error_on_trajectory_mag"])]
+    for rho in [float(r) for r in args.rho.split(",")]:
+        results[f"{rho:g}"], per_seed[f"{rho:g}"], rho_lines = rho_case(rho, cfg, paper, (model, paper_model), seeds,
+                                                                         scene, args)
+        lines += rho_lines
+        print("\n".join(rho_lines), flush=True)
+
+    fixed = load_config(args.config, FIXED_HYPERPARAMETERS)
+    fixed_model = trained_model(fixed, args.runs)
+    gp_err = results["gp_error_on_trajectory_mag_fixed_hyperparameters"] = gp_error_on_trajectory(fixed, fixed_model,
+                                                                                                  scene)
+    lines.append(_error_line("The same GP with the paper's fixed (theta1, theta2, sigma)", gp_err))
+    abl = ablation(args, model, fixed_model, scene)
     print("\n".join(abl))
     results["wall_seconds"] = time.perf_counter() - t0
     results["command"] = "python -m experiments.robust_gpukf" + (" " + " ".join(argv) if argv else "")

@@ -11,14 +11,13 @@ from __future__ import annotations
 
 import sys
 
-import torch
-
+from experiments._cli import robust_arguments
+from experiments._models import trained_model
 from lightcurve_gp.config import load_config
 from lightcurve_gp.estimation import run_estimators
 from lightcurve_gp.io import write_text_atomic
 from lightcurve_gp.render import Scene
-
-from experiments.robust_gpukf import HEAD, robust_arguments, row, trained_model
+from lightcurve_gp.reporting import SUMMARY_HEADER, markdown_table, summary_row
 
 
 def main(argv=None) -> int:
@@ -26,23 +25,22 @@ def main(argv=None) -> int:
     p.add_argument("--process-noise", default="5e-6,1e-6,2e-7,1e-7,0", help="comma-separated values (rad^2 per step)")
     p.add_argument("--rho-true", type=float, default=0.7)
     args = p.parse_args(argv)
-    torch.set_default_dtype(torch.float64)
     cfg = load_config(args.config)
     scene = Scene.from_config(cfg)
     model = trained_model(cfg, args.runs)
     seeds = range(args.seed_start, args.seed_start + args.seeds)
-    lines, nees = [], {}
+    rows, nees = [], {}
     for value in args.process_noise.split(","):
         c = load_config(args.config, [f"filter.process_noise={value}"])
         s = run_estimators(c, model, seeds=seeds, rho_true=args.rho_true, estimators=("gpukf",), scene=scene).summary()
         nees[value] = s["estimators"]["gpukf"]["nees_mean"]
-        lines.append(row(f"process noise {value}", s["estimators"]["gpukf"]))
-        print(lines[-1], flush=True)
+        rows.append(summary_row(f"process noise {value}", s["estimators"]["gpukf"]))
+        print("| " + " | ".join(rows[-1]) + " |", flush=True)
     lo, hi = s["nees_band_95"]
     best = min(nees, key=lambda v: abs(nees[v] - 0.5 * (lo + hi)))
     head = (f"Robust GPUKF on the tuning seeds {seeds.start}-{seeds.stop - 1}, rho_true = {args.rho_true:g}; mean NEES "
             f"band {lo:.2f}-{hi:.2f}; nearest its centre: process noise {best}\n")
-    write_text_atomic(head + "\n" + HEAD + "\n" + "\n".join(lines) + "\n", args.out / "tuning.md")
+    write_text_atomic(head + "\n" + markdown_table(SUMMARY_HEADER, rows), args.out / "tuning.md")
     print(head, end="")
     return 0
 

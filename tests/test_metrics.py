@@ -10,12 +10,15 @@ from lightcurve_gp.metrics import (
     attitude_errors_deg,
     chi2_band,
     lightcurve_rmse,
+    model_error_on_trajectory,
     nees,
     nis,
     rmse_over_window,
     total_angle_deg,
 )
 from lightcurve_gp.rotations import euler321_to_quat, grp_to_quat, identity_quat, quat_mul, quat_normalize
+
+from helpers import ToyModel
 
 DT = torch.float64
 
@@ -145,3 +148,26 @@ def test_chi2_band():
     assert lo == pytest.approx(0.000982, rel=1e-3) and hi == pytest.approx(5.0239, rel=1e-4)
     with pytest.raises(ValueError):
         chi2_band(0, 10)
+
+
+def test_model_error_on_trajectory_of_a_shifted_model():
+    """A model that is the truth shifted by c has mean error c, no spread about it, RMS |c|; its std is √variance."""
+    q = quat_normalize(random_quats(50, seed=4))
+    model = ToyModel(variance=0.04)
+    m_true = model(q=q, m_past=torch.zeros(50, dtype=torch.float64))[0] - 0.3
+    err = model_error_on_trajectory(model, q=q, m_true=m_true, m_past=torch.zeros(50, dtype=torch.float64))
+    assert err["mean_error"] == pytest.approx(0.3, abs=1e-12)
+    assert err["rms_about_mean"] == pytest.approx(0.0, abs=1e-12)
+    assert err["rms"] == pytest.approx(0.3, abs=1e-12)
+    assert err["mean_predictive_std"] == pytest.approx(0.2, abs=1e-12)
+
+
+def test_model_error_on_trajectory_spread_is_the_std_of_the_error():
+    q = quat_normalize(random_quats(64, seed=5))
+    model = ToyModel(variance=0.0)
+    noise = torch.linspace(-1.0, 1.0, 64, dtype=torch.float64)
+    m_true = model(q=q, m_past=torch.zeros(64, dtype=torch.float64))[0] + noise
+    err = model_error_on_trajectory(model, q=q, m_true=m_true, m_past=torch.zeros(64, dtype=torch.float64))
+    assert err["mean_error"] == pytest.approx(0.0, abs=1e-12)
+    assert err["rms_about_mean"] == pytest.approx(float(noise.std(unbiased=False)), rel=1e-12)
+    assert err["rms"] == pytest.approx(err["rms_about_mean"], rel=1e-12)

@@ -14,10 +14,9 @@ from lightcurve_gp.observation.inputs import INPUT_KINDS, InputMap, attitude_mat
 from lightcurve_gp.render import Scene
 from lightcurve_gp.rotations import attitude_matrix, quat_conj, quat_mul
 from lightcurve_gp.ukf import UsqueParams, run_usque
-from lightcurve_gp.ukf_offset import (initial_offset, offset_covariance, offset_to_rho, rho_to_offset,
-                                      run_usque_offset)
+from lightcurve_gp.ukf_offset import initial_offset, offset_covariance, offset_to_rho, rho_to_offset, run_usque_offset
 
-from test_ukf import ToyModel, err_deg, scenario
+from helpers import ToyModel, err_deg, scenario
 
 DT = torch.float64
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"

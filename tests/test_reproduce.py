@@ -5,12 +5,15 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # the experiments package lives at the repository root
 
 from experiments import reproduce_paper as rp  # noqa: E402
+
+pytestmark = pytest.mark.slow  # two whole (tiny) reproductions
 
 TABLES = ("models", "variance_check", "rho_mismatch", "tspan", "robustness_attitude", "robustness_lightcurve", "cost")
 FIGURES = ("rho_mismatch_euler_errors", "rho_mismatch_light_curves", "rho_mismatch_boxplot", "tspan_euler_errors",
@@ -52,25 +55,30 @@ def test_quick_run_writes_every_promised_file(quick):
         assert len(rows) == n and {r["status"] for r in rows} == {"ok"}, name
 
 
-def test_tables_carry_the_paper_numbers_and_every_estimator(quick):
+def test_tables_are_the_quantiles_of_the_raw_per_seed_rows(quick):
     base, _ = quick
     res = base / "results"
     rows = read_csv(res / "robustness_attitude.csv")
     assert [(float(r["rho_true"]), r["estimator"]) for r in rows] == [
         (rho, est) for rho in rp.RHOS_ROBUST for est in ("gpukf", "ukf", "matched_ukf", "no_update")]
+    raw = read_csv(base / "runs" / "paper_quick" / "sweep" / "robustness" / "results.csv")
     for r in rows:
-        paper = rp.PAPER_ATTITUDE[float(r["rho_true"])].get(r["estimator"])
-        got = tuple(float(r[f"{a}_paper"]) for a in ("yaw", "pitch", "roll")) if paper else None
-        assert got == paper
-        assert float(r["yaw_q25"]) <= float(r["yaw_median"]) <= float(r["yaw_q75"])
+        seeds = [x for x in raw if float(x["scenario.rho_true"]) == float(r["rho_true"])
+                 and x["estimator"] == r["estimator"]]
+        assert len(seeds) == 3
+        for axis in ("yaw", "pitch", "roll"):
+            values = np.array([float(x[f"rmse_{axis}_deg"]) for x in seeds])
+            assert float(r[f"{axis}_median"]) == pytest.approx(float(np.median(values)), rel=1e-12)
+            assert float(r[f"{axis}_q25"]) == pytest.approx(float(np.percentile(values, 25)), rel=1e-12)
+        # the paper prints rows for its GPUKF and UKF only
+        assert (r["yaw_paper"] != "") == (r["estimator"] in ("gpukf", "ukf"))
     lc = {(float(r["rho_true"]), r["estimator"]): r for r in read_csv(res / "robustness_lightcurve.csv")}
-    assert float(lc[(0.4, "ukf")]["lc_noisy_paper"]) == 3.7277
-    # the light curve against noisy observations can never beat the noise-free reference by much
+    # against the noisy observations the error includes the noise (std 0.707 mag), against the clean curve it does not
     assert all(float(r["lc_noisy_median"]) > float(r["lc_clean_median"]) for r in lc.values())
     cost = read_csv(res / "cost.csv")
     assert {r["estimator"] for r in cost} == {"gpukf", "ukf", "matched_ukf", "no_update"}
-    assert {float(r["paper_seconds_per_step"]) for r in cost if r["estimator"] == "gpukf"} == {
-        0.8793, 0.8476, 0.8289, 0.8382}
+    for r in cost:
+        assert float(r["seconds_per_filter_step"]) == pytest.approx(float(r["seconds_per_step"]) / 3, rel=1e-12)
     for stem in ("rho_mismatch", "tspan"):
         assert {r["estimator"] for r in read_csv(res / f"{stem}.csv")} == {"gpukf", "ukf", "matched_ukf", "no_update"}
     # the matched-rho UKF and the UKF with rho_ukf = rho_true = 0.5 are the same filter

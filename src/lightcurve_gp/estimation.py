@@ -26,11 +26,11 @@ import torch
 from torch import Tensor
 
 from .config import Config
-from .metrics import (attitude_error_vector, attitude_errors_deg, chi2_band, lightcurve_rmse, nees,
-                      rmse_over_window)
+from .metrics import attitude_error_vector, attitude_errors_deg, chi2_band, lightcurve_rmse, nees, rmse_over_window
 from .observation.base import ObservationModel
 from .observation.parametric import Parametric
 from .render import Scene
+from .reporting import quantiles
 from .rotations import quat_mul, quat_normalize
 from .scenario import Scenario, simulate_scenario
 from .ukf import FilterHistory, UsqueParams, initial_covariance, run_usque
@@ -86,20 +86,20 @@ class ScenarioResult:
         return chi2_band(3, len(self.scenario.seeds))
 
     def summary(self) -> dict:
-        """Plain-python summary: per estimator median and IQR of the RMSE per axis, light-curve RMSE, timing."""
+        """Plain-python summary: per estimator median and IQR of the RMSE per axis over the seeds
+        (:func:`~lightcurve_gp.reporting.quantiles`, NaN ignored), light-curve RMSE, NEES and timing."""
         out = {"rho_true": self.scenario.rho_true, "seeds": len(self.scenario.seeds), "window_s": list(self.window),
                "nees_band_95": list(self.nees_band()), "estimators": {}}
         S = len(self.scenario.seeds)
         for name, r in self.results.items():
-            q = torch.tensor([0.25, 0.5, 0.75], dtype=r.rmse_deg.dtype)
-            quant = torch.quantile(r.rmse_deg, q, dim=0)  # (3 quantiles, 3 axes)
+            per_axis = [quantiles(r.rmse_deg[:, i]) for i in range(3)]
             out["estimators"][name] = {
-                "rmse_deg_median": quant[1].tolist(),
-                "rmse_deg_q25": quant[0].tolist(),
-                "rmse_deg_q75": quant[2].tolist(),
+                "rmse_deg_median": [q.median for q in per_axis],
+                "rmse_deg_q25": [q.q25 for q in per_axis],
+                "rmse_deg_q75": [q.q75 for q in per_axis],
                 "fraction_all_axes_below_10deg": float((r.rmse_deg < 10).all(-1).double().mean()),
-                "lc_rmse_noisy_median": _nanmedian(r.lc_rmse_noisy),
-                "lc_rmse_clean_median": _nanmedian(r.lc_rmse_clean),
+                "lc_rmse_noisy_median": quantiles(r.lc_rmse_noisy).median,
+                "lc_rmse_clean_median": quantiles(r.lc_rmse_clean).median,
                 "nees_mean": _nanmean(r.nees_mean),
                 "seconds": r.seconds,
                 "seconds_per_step": r.seconds / self.steps,
@@ -108,10 +108,6 @@ class ScenarioResult:
                 "rejected_updates": int(r.history.rejected.sum()) if r.history is not None else 0,
             }
         return out
-
-
-def _nanmedian(x: Tensor) -> float:
-    return float(torch.nanmedian(x)) if x.numel() else float("nan")
 
 
 def _nanmean(x: Tensor) -> float:

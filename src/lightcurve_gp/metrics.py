@@ -1,7 +1,7 @@
 """Error metrics: Euler 3-2-1 attitude errors, windowed RMSE, filter consistency (NEES / NIS) and χ² bands.
 
 Paper section 4 scores a run by the RMSE of the 3-2-1 Euler angles of ``q_err = q_true ⊗ q_est⁻¹`` over
-400–600 s (DESIGN.md). ``q`` and ``−q`` are the same attitude, so every attitude metric is sign invariant.
+400–600 s (Sec. 4.2; docs/design.md). ``q`` and ``−q`` are the same attitude, so every attitude metric is sign invariant.
 Tensors carry arbitrary leading batch dimensions; NaN marks missing values and is ignored by the RMSEs.
 """
 
@@ -25,6 +25,7 @@ __all__ = [
     "nees",
     "nis",
     "chi2_band",
+    "model_error_on_trajectory",
 ]
 
 
@@ -148,3 +149,22 @@ def chi2_band(dof: int, n_samples: int, confidence: float = 0.95) -> tuple[float
         raise ValueError(f"need dof >= 1, n_samples >= 1, 0 < confidence < 1; got {dof}, {n_samples}, {confidence}")
     k = dof * n_samples
     return float(chi2.ppf(0.5 * (1.0 - confidence), k) / n_samples), float(chi2.ppf(0.5 * (1.0 + confidence), k) / n_samples)
+
+
+def model_error_on_trajectory(model, *, q: Tensor, m_true: Tensor, m_past: Tensor) -> dict[str, float]:
+    """An observation model's error against the true light curve along one trajectory (all in mag).
+
+    Args:
+        model: an :class:`~lightcurve_gp.observation.base.ObservationModel` (called with its variance).
+        q: attitudes ``(T, 4)`` of the trajectory.
+        m_true: the noise-free magnitudes ``(T,)`` there (e.g. the renderer's at the model's reference ρ).
+        m_past: the model's ``m_past`` input ``(T,)``.
+
+    Returns:
+        ``mean_error`` (mean of prediction − truth), ``rms_about_mean`` (its spread), ``rms`` and
+        ``mean_predictive_std`` (mean of the model's predictive standard deviation).
+    """
+    mean, var = model(q=q, m_past=m_past, with_variance=True)
+    err = mean - m_true
+    return {"mean_error": float(err.mean()), "rms_about_mean": float((err - err.mean()).pow(2).mean().sqrt()),
+            "rms": float(err.pow(2).mean().sqrt()), "mean_predictive_std": float(var.sqrt().mean())}

@@ -1,0 +1,33 @@
+"""``python -m lightcurve_gp.sweep CONFIG --grid KEY=V1,V2,... --seeds N``: resumable parameter sweeps.
+
+A sweep is the cartesian product of its grid axes (any config key, values parsed as YAML; :mod:`.grid`). Each grid
+point is a *case*: one validated config, run with every seed batched in one filter per estimator
+(:func:`~lightcurve_gp.estimation.run_estimators`; :mod:`.runner`). Storage under ``<out>/<name>/``:
+
+* ``models/<model-key>/model.pt`` (+ ``metrics.json``, held-out figures): the model store
+  (:mod:`lightcurve_gp.model_store`), one GP per distinct ``geometry``, ``shape``, ``surface``, ``data``, ``model``
+  setting (and dtype), trained once and reused by every case, sweep and rerun that needs it (:mod:`.models`);
+* ``cases/<case-id>.json``: one atomic file per finished case (:class:`~lightcurve_gp.reporting.CaseRecord`),
+  content-addressed — the case id hashes the whole config, the seeds and the estimators — so identical cases are
+  shared between sweeps and a rerun skips them (:mod:`.store`). It holds the per-(seed, estimator) rows, the
+  estimators' summary and the seed-0 traces for figures. A case that raised is stored with ``status = "failed"``
+  and its error; a rerun retries it.
+* ``sweep/<sweep-id>/``: ``sweep.json`` (the definition), ``results.csv`` (one row per case × seed ×
+  estimator, :data:`~lightcurve_gp.reporting.RESULT_COLUMNS` after the grid columns), ``summary.csv`` and
+  ``summary.json`` (median and IQR per case and estimator; :mod:`.tables`).
+
+Config errors (unknown key, bad value) stop the sweep before any work and name the key; a run-time failure of one
+case is recorded and the others go on. Ctrl-C keeps every finished case.
+"""
+
+from ..reporting import RESULT_COLUMNS, CaseRecord
+from .cli import build_parser, main
+from .grid import MODEL_SECTIONS, Case, expand_grid, make_cases, model_key, parse_grid
+from .models import ensure_models
+from .runner import SweepResult, run_case, run_sweep
+from .store import read_case
+from .tables import SUMMARY_COLUMNS, summarize_rows
+
+__all__ = ["RESULT_COLUMNS", "SUMMARY_COLUMNS", "MODEL_SECTIONS", "Case", "CaseRecord", "SweepResult", "parse_grid",
+           "expand_grid", "make_cases", "model_key", "ensure_models", "run_case", "run_sweep", "read_case",
+           "summarize_rows", "build_parser", "main"]

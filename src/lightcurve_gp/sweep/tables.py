@@ -1,0 +1,80 @@
+"""A sweep's tables: one row per case × seed × estimator, and median/IQR per case and estimator."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..io import write_json_atomic, write_text_atomic
+from ..reporting import RESULT_COLUMNS, CaseRecord, csv_text, quantiles
+from .grid import Case, value_text
+
+__all__ = ["SUMMARY_METRICS", "SUMMARY_COLUMNS", "table_rows", "summarize_rows", "write_sweep_tables",
+           "print_summary"]
+
+#: the metrics summarised by median and quartiles
+SUMMARY_METRICS = ("rmse_yaw_deg", "rmse_pitch_deg", "rmse_roll_deg", "lc_rmse_noisy", "lc_rmse_clean")
+#: columns of ``summary.csv`` after ``case_id`` and the grid columns
+SUMMARY_COLUMNS = ("estimator", "seeds_ok", "seeds_failed",
+                   *(f"{m}_{s}" for m in SUMMARY_METRICS for s in ("median", "q25", "q75")),
+                   "nees_mean", "seconds_per_step")
+
+
+def table_rows(cases: Sequence[Case], records: dict[str, CaseRecord]) -> list[dict[str, Any]]:
+    """``results.csv`` rows: ``case_id``, the grid values (as text) and the :class:`SeedRow` fields, for every case
+    that has a record."""
+    rows = []
+    for case in cases:
+        record = records.get(case.case_id)
+        if record is None:
+            continue
+        grid = {k: value_text(v) for k, v in case.values.items()}
+        rows += [{"case_id": case.case_id, **grid, **vars(row)} for row in record.rows]
+    return rows
+
+
+def summarize_rows(rows: Sequence[dict[str, Any]], keys: Sequence[str]) -> list[dict[str, Any]]:
+    """Median, 25 % and 75 % quantiles (:func:`~lightcurve_gp.reporting.quantiles`) of each metric per
+    (case, estimator) over the seeds with status ok; mean NEES and the time per step.
+
+    ``keys`` are the columns copied from the first row of each group (``case_id`` and the grid columns).
+    """
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for row in rows:
+        groups.setdefault((row["case_id"], row["estimator"]), []).append(row)
+    out = []
+    for (_, estimator), group in groups.items():
+        ok = [r for r in group if r["status"] == "ok"]
+        entry = {k: group[0].get(k) for k in keys}
+        entry.update(estimator=estimator, seeds_ok=len(ok), seeds_failed=len(group) - len(ok))
+        for metric in SUMMARY_METRICS:
+            q = quantiles([r[metric] for r in ok])
+            entry.update({f"{metric}_median": q.median, f"{metric}_q25": q.q25, f"{metric}_q75": q.q75})
+        nees = [r["nees_mean"] for r in ok if r["nees_mean"] is not None]
+        entry["nees_mean"] = float(np.mean(nees)) if nees else math.nan
+        entry["seconds_per_step"] = ok[0]["seconds_per_step"] if ok else math.nan
+        out.append(entry)
+    return out
+
+
+def write_sweep_tables(folder: Path, sweep_id: str, keys: Sequence[str], rows: Sequence[dict[str, Any]],
+                       summary: Sequence[dict[str, Any]], complete: bool, failed: Sequence[str]) -> None:
+    """``results.csv``, ``summary.csv`` and ``summary.json`` (NaN → null) of one sweep, atomically."""
+    write_text_atomic(csv_text(rows, [*keys, *RESULT_COLUMNS]), folder / "results.csv")
+    write_text_atomic(csv_text(summary, [*keys, *SUMMARY_COLUMNS]), folder / "summary.csv")
+    write_json_atomic({"sweep_id": sweep_id, "complete": complete, "failed_cases": list(failed),
+                       "summary": [{k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in e.items()}
+                                   for e in summary]}, folder / "summary.json")
+
+
+def print_summary(summary: Sequence[dict[str, Any]], grid_keys: Sequence[str]) -> None:
+    """Fixed-width medians per case and estimator on stdout."""
+    print(" ".join(f"{k:>22}" for k in grid_keys)
+          + f" {'estimator':>12} {'yaw':>8} {'pitch':>8} {'roll':>8} {'LC':>6}")
+    for e in summary:
+        cells = " ".join(f"{str(e[k]):>22}" for k in grid_keys)
+        print(f"{cells} {e['estimator']:>12} {e['rmse_yaw_deg_median']:8.2f} {e['rmse_pitch_deg_median']:8.2f} "
+              f"{e['rmse_roll_deg_median']:8.2f} {e['lc_rmse_noisy_median']:6.3f}")
