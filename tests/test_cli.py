@@ -32,25 +32,28 @@ def test_train_writes_model_metrics_and_figures(trained, capsys):
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["train_points"] == 12 * 3 * 5
     held = metrics["heldout"]
-    assert held["n"] == 40
+    assert held["n"] == 40 and held["mae"] <= held["rmse"]  # the mean of |r| never exceeds the root mean square
     fv = metrics["fast_variance_vs_exact"]
-    assert fv["n"] == 40
+    assert fv["n"] == 40 and fv["median_rel"] <= fv["max_rel"]
     # the saved model predicts the held-out RMSE it reported
     model = load_model(run / "model.pt")
     assert model.num_train == 180
 
 
-def test_train_recomputes_rmse_from_the_saved_model(trained):
+def test_train_recomputes_its_heldout_metrics_from_the_saved_model(trained):
     from lightcurve_gp.config import load_config
     from lightcurve_gp.data import generate_heldout_set
 
     cfg = load_config(BOXWING, TINY)
     held = generate_heldout_set(cfg)
     model = load_model(trained / "tiny" / "model.pt")
-    mean, _ = model(q=held.q, m_past=held.m_past, with_variance=False)
-    rmse = float((mean - held.y).pow(2).mean().sqrt())
-    reported = json.loads((trained / "tiny" / "metrics.json").read_text())["heldout"]["rmse"]
-    assert rmse == pytest.approx(reported, rel=1e-9)
+    mean, var = model(q=held.q, m_past=held.m_past, with_variance=True)
+    resid = mean - held.y
+    std_y = (var + float(model.noise)).sqrt()  # predictive std of a noisy target
+    reported = json.loads((trained / "tiny" / "metrics.json").read_text())["heldout"]
+    assert float(resid.pow(2).mean().sqrt()) == pytest.approx(reported["rmse"], rel=1e-9)
+    assert float(resid.abs().mean()) == pytest.approx(reported["mae"], rel=1e-9)
+    assert float((resid.abs() <= 2 * std_y).double().mean()) == reported["within_2sigma"]
 
 
 def test_sparse_model_trains_from_the_command_line(tmp_path):

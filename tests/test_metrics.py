@@ -65,7 +65,8 @@ def test_total_angle():
     q_est = random_quats(8, seed=2)
     for angle in (0.5, 30.0, 179.0):
         axis = torch.tensor([1.0, 2.0, -2.0], dtype=DT) / 3.0
-        dq = torch.cat([axis * math.sin(math.radians(angle) / 2), torch.tensor([math.cos(math.radians(angle) / 2)], dtype=DT)])
+        half = math.radians(angle) / 2
+        dq = torch.cat([axis * math.sin(half), torch.tensor([math.cos(half)], dtype=DT)])
         got = total_angle_deg(quat_mul(dq, q_est), q_est)
         assert torch.allclose(got, torch.full((8,), angle, dtype=DT), atol=1e-9)
 

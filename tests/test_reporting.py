@@ -8,8 +8,17 @@ import math
 import pytest
 import torch
 
-from lightcurve_gp.reporting import (RESULT_COLUMNS, CaseRecord, Quantiles, SeedRow, csv_text, format_quantiles,
-                                     markdown_table, quantiles, write_table)
+from lightcurve_gp.reporting import (
+    RESULT_COLUMNS,
+    CaseRecord,
+    Quantiles,
+    SeedRow,
+    csv_text,
+    format_quantiles,
+    markdown_table,
+    quantiles,
+    write_table,
+)
 
 
 def test_quantiles_interpolate_linearly_and_ignore_missing_values():

@@ -1,7 +1,7 @@
 """Error metrics: Euler 3-2-1 attitude errors, windowed RMSE, filter consistency (NEES / NIS) and χ² bands.
 
-Paper section 4 scores a run by the RMSE of the 3-2-1 Euler angles of ``q_err = q_true ⊗ q_est⁻¹`` over
-400–600 s (Sec. 4.2; docs/design.md). ``q`` and ``−q`` are the same attitude, so every attitude metric is sign invariant.
+The paper (Sec. 4.2) scores a run by the RMSE of the 3-2-1 Euler angles of ``q_err = q_true ⊗ q_est⁻¹`` over
+400–600 s (docs/design.md). ``q`` and ``−q`` are the same attitude, so every attitude metric is sign invariant.
 Tensors carry arbitrary leading batch dimensions; NaN marks missing values and is ignored by the RMSEs.
 """
 
@@ -148,7 +148,8 @@ def chi2_band(dof: int, n_samples: int, confidence: float = 0.95) -> tuple[float
     if dof < 1 or n_samples < 1 or not 0.0 < confidence < 1.0:
         raise ValueError(f"need dof >= 1, n_samples >= 1, 0 < confidence < 1; got {dof}, {n_samples}, {confidence}")
     k = dof * n_samples
-    return float(chi2.ppf(0.5 * (1.0 - confidence), k) / n_samples), float(chi2.ppf(0.5 * (1.0 + confidence), k) / n_samples)
+    lo, hi = chi2.ppf(0.5 * (1.0 - confidence), k), chi2.ppf(0.5 * (1.0 + confidence), k)
+    return float(lo / n_samples), float(hi / n_samples)
 
 
 def model_error_on_trajectory(model, *, q: Tensor, m_true: Tensor, m_past: Tensor) -> dict[str, float]:
