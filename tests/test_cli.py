@@ -105,6 +105,7 @@ ROBUST_TINY = ["data.num_random=100", "data.rho_grid=[0.3, 0.5, 0.7]", "data.hel
                "scenario.duration_s=60", "evaluation.rmse_window_s=[30, 60]", "name=robust_tiny"]
 
 
+@pytest.mark.slow  # trains a GP of its own
 def test_offset_config_trains_on_normalised_magnitudes_and_estimates_with_the_offset_filter(tmp_path, capsys):
     """The robust config end to end from the commands: the GP learns the reference curve (rho_reference) and the
     estimate command runs the offset filter, whose offset recovers rho_true."""

@@ -19,6 +19,7 @@ def library_snippet() -> str:
     return re.search(r"```python\n(.*?)```", section, re.S).group(1)
 
 
+@pytest.mark.slow  # conditions a GP on 1260 points and filters 600 steps
 def test_readme_snippet_runs_and_scores_every_seed(capsys):
     namespace: dict = {}
     cwd = os.getcwd()

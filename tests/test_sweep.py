@@ -106,6 +106,7 @@ def test_cli_reports_a_bad_grid_key_and_documents_the_outputs(tmp_path, capsys):
 
 # ----------------------------------------------------------------------------------------------- tables
 
+@pytest.mark.slow  # trains two GPs and runs four cases
 def test_results_table_has_one_row_per_case_seed_estimator_and_summary_agrees(tmp_path):
     axes = [("data.t_span_past", [10, 20]), ("scenario.rho_true", [0.3, 0.7])]
     res = run_sweep(tiny_raw(), axes, range(3), out=tmp_path, sweep_id="s", progress=False)
@@ -202,6 +203,7 @@ def test_interrupt_keeps_finished_cases_and_a_rerun_resumes(tmp_path):
     assert len(rows) == 3 * 2 and {r["status"] for r in rows} == {"ok"}
 
 
+@pytest.mark.slow  # spawns worker processes
 def test_results_are_deterministic_and_parallel_workers_agree(tmp_path):
     axes = [("scenario.rho_true", [0.3, 0.7])]
     est = ["ukf", "matched_ukf"]
