@@ -20,9 +20,9 @@ printed. The GP models bound their own kernel blocks (``chunk_values``), so B = 
 from __future__ import annotations
 
 import argparse
-import statistics
 import copy
 import dataclasses
+import statistics
 
 import _common as C
 
@@ -110,8 +110,8 @@ def main() -> None:
     loop_tab = C.Table("Batched vs a Python loop of single-filter runs (B = 100)",
                        ["model", "batched ms/step", "loop ms/step", "loop / batched"])
     whole_seeds = min(1 if args.quick else 5, sc.observations.shape[0])
-    whole_tab = C.Table(f"One whole 600 s run of one filter (median over noise seeds 0-{whole_seeds - 1}, one run each)",
-                        ["model", "seconds", "range", "ms / step", "target", "status"])
+    whole_tab = C.Table(f"One whole 600 s run of one filter (median over noise seeds 0-{whole_seeds - 1}, "
+                        "one run each)", ["model", "seconds", "range", "ms / step", "target", "status"])
 
     def time_case(model, params, B, device):
         """Median seconds per step of ``B`` filters, steps and runs timed."""
@@ -171,7 +171,8 @@ def main() -> None:
     else:
         step_tab.note("no CUDA device: the B = 100 000 cases (SparseGP, Parametric) need one")
 
-    step_tab.note(f"paper (MATLAB/Python, one filter): GPUKF {PAPER['GPUKF']} s per step, UKF {PAPER['UKF']} s per step")
+    step_tab.note(f"paper (MATLAB/Python, one filter): GPUKF {PAPER['GPUKF']} s per step, "
+                  f"UKF {PAPER['UKF']} s per step")
     step_tab.note(f"observations of B filters cycle through {sc.observations.shape[0]} noise seeds; "
                   f"load average at start {info['loadavg']}, now {C.load_average()}")
     tables = [step_tab] + ([loop_tab] if loop_tab.rows else []) + ([whole_tab] if whole_tab.rows else [])

@@ -11,11 +11,15 @@ import pytest
 import torch
 
 from lightcurve_gp.config import ModelConfig, load_config
-from lightcurve_gp.observation.exact_gp import (ExactGP, fast_variance_error, gpytorch_exact_model,
-                                                lengthscale_to_theta2, theta2_to_lengthscale)
+from lightcurve_gp.observation.exact_gp import (
+    ExactGP,
+    fast_variance_error,
+    gpytorch_exact_model,
+    lengthscale_to_theta2,
+    theta2_to_lengthscale,
+)
 from lightcurve_gp.observation.inputs import InputMap
-from lightcurve_gp.observation.serialization import (FORMAT_VERSION, ModelFileError, build_model, load_model,
-                                                     save_model)
+from lightcurve_gp.observation.serialization import FORMAT_VERSION, ModelFileError, build_model, load_model, save_model
 from lightcurve_gp.observation.sparse_gp import SparseGP, kmeans
 
 F64 = torch.float64
@@ -219,7 +223,7 @@ def test_input_registry():
     with pytest.raises(ValueError, match="unknown input kind"):
         InputMap("nope")
     with pytest.raises(ValueError, match="already registered"):
-        from lightcurve_gp.observation.inputs import register_input_kind, quaternion_features
+        from lightcurve_gp.observation.inputs import quaternion_features, register_input_kind
 
         register_input_kind("quaternion", 5, quaternion_features)
     q = torch.tensor([[0.1, 0.2, 0.3, 0.9]], dtype=F64)

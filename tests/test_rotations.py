@@ -47,7 +47,8 @@ def test_product_composes_attitude_matrices():
 def test_product_matches_the_papers_formula():
     q, p = random_quats(10, seed=3), random_quats(10, seed=4)
     qv, q4, pv, p4 = q[:, :3], q[:, 3:], p[:, :3], p[:, 3:]
-    expected = torch.cat([q4 * pv + p4 * qv - torch.linalg.cross(qv, pv), q4 * p4 - (qv * pv).sum(-1, keepdim=True)], -1)
+    expected = torch.cat([q4 * pv + p4 * qv - torch.linalg.cross(qv, pv),
+                          q4 * p4 - (qv * pv).sum(-1, keepdim=True)], -1)
     torch.testing.assert_close(quat_mul(q, p), expected, rtol=0, atol=1e-15)
 
 

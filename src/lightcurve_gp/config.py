@@ -326,7 +326,8 @@ def _cross_check(cfg: Config) -> None:
     if not lo < hi:
         raise ConfigError(f"evaluation.rmse_window_s: start {lo:g} must be before end {hi:g}")
     if hi > cfg.scenario.duration_s:
-        raise ConfigError(f"evaluation.rmse_window_s: end {hi:g} is after scenario.duration_s {cfg.scenario.duration_s:g}")
+        raise ConfigError(f"evaluation.rmse_window_s: end {hi:g} is after scenario.duration_s "
+                          f"{cfg.scenario.duration_s:g}")
     if cfg.data.t_span_past < cfg.data.dt_s:
         raise ConfigError(f"data.t_span_past: {cfg.data.t_span_past:g} is shorter than data.dt_s {cfg.data.dt_s:g}")
     if not (cfg.device == "cpu" or cfg.device == "cuda" or cfg.device.startswith("cuda:")):

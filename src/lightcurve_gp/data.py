@@ -14,7 +14,8 @@ The set is the product of the initial attitudes (``data.sampling``) and ``data.r
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace as _replace
+from dataclasses import dataclass
+from dataclasses import replace as _replace
 from pathlib import Path
 
 import torch
@@ -74,7 +75,8 @@ def _sign_unique(q: Tensor, tol: float = 1e-12) -> Tensor:
 
 
 def drop_duplicate_attitudes(q: Tensor, decimals: int = 9) -> Tensor:
-    """Remove repeated attitudes ``(A, 4) → (A', 4)``, treating ``q`` and ``−q`` as one; keeps first occurrences in order.
+    """Remove repeated attitudes ``(A, 4) → (A', 4)``, treating ``q`` and ``−q`` as one; keeps first occurrences in
+    order.
 
     The paper's grid repeats attitudes: every Φ = 0 entry is the identity, and axis ``e`` with angle Φ equals
     axis ``−e`` with ``360° − Φ`` up to sign, so its 3852 entries hold 1606 distinct attitudes.
@@ -214,7 +216,8 @@ def data_cache_key(cfg: Config) -> str:
                                                                             "dtype": cfg.dtype})
 
 
-def load_or_generate(cfg: Config, cache_dir: str | Path = "runs/cache", progress: bool = True) -> tuple[TrainingSet, Path, bool]:
+def load_or_generate(cfg: Config, cache_dir: str | Path = "runs/cache",
+                     progress: bool = True) -> tuple[TrainingSet, Path, bool]:
     """Load the training set of ``cfg`` from ``cache_dir`` or generate and cache it atomically.
 
     Returns:

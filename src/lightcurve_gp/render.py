@@ -160,7 +160,8 @@ class Scene:
         return diffuse, specular.expand_as(diffuse) if specular.shape != diffuse.shape else specular
 
     def flux(self, q: Tensor, rho=None) -> Tensor:
-        """``f_obs`` of attitudes ``q (..., 4)``; shape ``broadcast(q.shape[:-1], rho.shape)``. See :meth:`flux_parts`."""
+        """``f_obs`` of attitudes ``q (..., 4)``; shape ``broadcast(q.shape[:-1], rho.shape)``; see
+        :meth:`flux_parts`."""
         diffuse, specular = self.flux_parts(q, rho)
         return diffuse + specular
 

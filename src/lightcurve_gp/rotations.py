@@ -178,7 +178,8 @@ def quat_to_grp(q: Tensor, a: float = 1.0, f: float | None = None) -> Tensor:
 
 
 def grp_to_quat(p: Tensor, a: float = 1.0, f: float | None = None) -> Tensor:
-    """Unit quaternions ``(..., 4)`` of generalised Rodrigues parameters ``p`` ``(..., 3)`` (inverse of :func:`quat_to_grp`).
+    """Unit quaternions ``(..., 4)`` of generalised Rodrigues parameters ``p`` ``(..., 3)`` (inverse of
+    :func:`quat_to_grp`).
 
     ``q4 = (−a |p|² + f √(f² + (1 − a²) |p|²)) / (f² + |p|²)``, ``q̄ = (a + q4) p / f``
     (Crassidis & Markley 2003, eq. 33).

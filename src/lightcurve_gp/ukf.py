@@ -34,7 +34,6 @@ from torch import Tensor
 
 from .rotations import attitude_matrix, grp_to_quat
 
-
 __all__ = [
     "UnscentedWeights",
     "unscented_weights",
@@ -509,8 +508,8 @@ def _usque_loop(model, q_est0: Tensor, P0: Tensor, b0: Tensor | None, observatio
             K = P_xy / P_yy.unsqueeze(-1)
             # where() keeps inf/NaN of refused steps out of the state: the prior becomes the posterior
             dx = torch.where(upd.unsqueeze(-1), K * nu.unsqueeze(-1), zero)
-            P = torch.where(upd.view(B, 1, 1), _symmetrise(P_m - P_yy.view(B, 1, 1) * (K.unsqueeze(-1) * K.unsqueeze(-2))),
-                            P_m)
+            P_post = _symmetrise(P_m - P_yy.view(B, 1, 1) * (K.unsqueeze(-1) * K.unsqueeze(-2)))
+            P = torch.where(upd.view(B, 1, 1), P_post, P_m)
             # 8. reset q̂ ← δq(δp⁺) ⊗ q_0⁻ (the attitude error returns to zero); b̂ keeps its estimate
             q_hat = torch.bmm(R_qm, grp_to_quat(dx[:, :3], a, f).unsqueeze(-1)).squeeze(-1)
             q_hat = q_hat / torch.linalg.vector_norm(q_hat, dim=-1, keepdim=True)

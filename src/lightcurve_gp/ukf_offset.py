@@ -90,7 +90,8 @@ def run_usque_offset(model, q_est0: Tensor, P0: Tensor, b0: Tensor, observations
     1. ``χ_i = x̂⁺ ± cols √((n+λ)(P⁺ + Q̄))`` with ``x̂⁺ = [0, b̂]``; 2-4. the attitude parts propagate through
        ``δ_{k−1}`` and return as GRP errors about the propagated central point; ``b_i`` is unchanged;
     5. ``x̂⁻ = Σ wm χ_i⁻``, ``P⁻ = Σ wc (χ_i⁻ − x̂⁻)(·)ᵀ + Q̄``;
-    6. ``Y_i = h(q_i⁻, m_past) + b_i``, ``Pyy = Σ wc (Y_i − ŷ)² + R (+ Σ wm var_i)``, ``Pxy = Σ wc (χ_i⁻ − x̂⁻)(Y_i − ŷ)``;
+    6. ``Y_i = h(q_i⁻, m_past) + b_i``, ``Pyy = Σ wc (Y_i − ŷ)² + R (+ Σ wm var_i)``,
+       ``Pxy = Σ wc (χ_i⁻ − x̂⁻)(Y_i − ŷ)``;
     7. ``K = Pxy / Pyy``, ``x̂⁺ = x̂⁻ + K ν``, ``P⁺ = P⁻ − K Pyy Kᵀ``;
     8. ``q̂ ← δq(x̂⁺[:3]) ⊗ q_0⁻``, ``b̂ ← x̂⁺[3]``; 9. ``m_past ← (T m_past + ỹ_k)/(T + 1)``.
 

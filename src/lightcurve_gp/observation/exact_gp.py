@@ -15,9 +15,9 @@ Predictive variance (of the latent function) — ``model.variance_mode``:
 * ``"fast"``: the same formula conditioned only on the ``fast_variance_neighbors`` training points nearest (in
   kernel-scaled distance) to the test point. The points along the last batch dimension of a ``(..., S, 4)`` input
   (a filter's sigma points) share one neighbour set when the set's diameter is within ``cluster_radius``
-  lengthscales, so such a set costs one ``k × k`` Cholesky. Conditioning on a subset never lowers a GP's posterior variance, so
-  the fast variance is an upper bound of the exact one (conservative for a filter); :func:`fast_variance_error`
-  measures the gap.
+  lengthscales, so such a set costs one ``k × k`` Cholesky. Conditioning on a subset never lowers a GP's posterior
+  variance, so the fast variance is an upper bound of the exact one (conservative for a filter);
+  :func:`fast_variance_error` measures the gap.
 * ``"none"``: mean only; ``variance`` is returned as ``None``.
 """
 

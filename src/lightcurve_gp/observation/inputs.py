@@ -119,7 +119,8 @@ class InputMap(nn.Module):
         m = cls(state["kind"], state["standardize"])
         shift, scale = state["shift"], state["scale"]
         if shift.shape != (m.dim,) or scale.shape != (m.dim,):
-            raise ValueError(f"input normalisation has shape {tuple(shift.shape)}/{tuple(scale.shape)}, expected ({m.dim},)")
+            raise ValueError(f"input normalisation has shape {tuple(shift.shape)}/{tuple(scale.shape)}, "
+                             f"expected ({m.dim},)")
         m.shift = shift.to(torch.float64)
         m.scale = scale.to(torch.float64)
         return m

@@ -1,4 +1,4 @@
-"""The conventional UKF's observation model: the renderer itself with assumed surface parameters (paper Sec. 2.2, Eq. (8))."""
+"""The conventional UKF's observation model: the renderer itself with assumed surface parameters (paper Eq. (8))."""
 
 from __future__ import annotations
 

@@ -23,8 +23,16 @@ from torch import Tensor
 
 from ..config import ModelConfig, config_to_dict
 from .base import ObservationModel, Prediction
-from .exact_gp import (_check_training, _hyper_start, _scaled, _subset, cross_kernel_cache, exp_neg_sqdist,
-                       kernel_matrix, maximise_mll)
+from .exact_gp import (
+    _check_training,
+    _hyper_start,
+    _scaled,
+    _subset,
+    cross_kernel_cache,
+    exp_neg_sqdist,
+    kernel_matrix,
+    maximise_mll,
+)
 from .inputs import InputMap
 
 __all__ = ["SparseGP", "kmeans", "sgpr_cache"]
