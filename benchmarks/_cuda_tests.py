@@ -100,8 +100,8 @@ def run(out_dir: Path, timeout: float) -> dict | str:
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT / "src"), str(ROOT), os.environ.get("PYTHONPATH", "")]))
     try:
         with open(log_path, "w") as log_file:
-            proc = subprocess.run([sys.executable, __file__, str(result)], check=False, cwd=ROOT, env=env, stdout=log_file,
-                                  stderr=subprocess.STDOUT, timeout=timeout)
+            proc = subprocess.run([sys.executable, __file__, str(result)], check=False, cwd=ROOT, env=env,
+                                  stdout=log_file, stderr=subprocess.STDOUT, timeout=timeout)
     except subprocess.TimeoutExpired:
         return f"timed out after {timeout:.0f} s (see cuda_tests.log)"
     if not result.exists():

@@ -21,8 +21,8 @@ from pathlib import Path
 
 from _common import fmt_seconds, load_average
 
-__all__ = ["NOT_MEASURED", "Budget", "Report", "Row", "best_rate", "footer_lines", "imported_packages", "machine_header",
-           "workload_lines"]
+__all__ = ["NOT_MEASURED", "Budget", "Report", "Row", "best_rate", "footer_lines", "imported_packages",
+           "machine_header", "workload_lines"]
 
 #: the CPU cell of a case the CPU is not asked to run (e.g. B = 10⁵ filters)
 NOT_MEASURED = "not measured"
@@ -187,7 +187,8 @@ def machine_header(device, gflops: dict, memory_cap_gib: float | None) -> list[s
     else:
         lines.append(f"* device: {device} (a CPU-only rehearsal: both columns run on the CPU)")
         lines.append(f"* torch {torch.__version__} (CUDA build: {torch.version.cuda})")
-    lines.append(f"* CPU: {_cpu_model()}, os.cpu_count() = {os.cpu_count()}, torch threads = {torch.get_num_threads()}; "
+    lines.append(f"* CPU: {_cpu_model()}, os.cpu_count() = {os.cpu_count()}, "
+                 f"torch threads = {torch.get_num_threads()}; "
                  f"1024² matrix product {gflops[torch.float64]:.0f} GFLOP/s (float64), "
                  f"{gflops[torch.float32]:.0f} GFLOP/s (float32)")
     lines.append(f"* started {time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime())}, load average "

@@ -62,7 +62,8 @@ def check_args(args) -> torch.device:
     if device.type not in ("cuda", "cpu"):
         fail(f"--device {args.device!r}: only cuda, cuda:N or cpu")
     if device.type == "cuda" and not torch.cuda.is_available():
-        fail(f"--device {args.device}: torch {torch.__version__} sees no CUDA device (CUDA build: {torch.version.cuda})")
+        fail(f"--device {args.device}: torch {torch.__version__} sees no CUDA device "
+             f"(CUDA build: {torch.version.cuda})")
     if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():
         fail(f"--device {args.device}: only {torch.cuda.device_count()} CUDA device(s)")
     missing = [dist for module, dist in REQUIRED.items() if not _importable(module)]

@@ -373,7 +373,8 @@ def main(argv=None) -> int:
             except Exception as error:  # noqa: BLE001 - a section's failure is recorded, the next one runs
                 traceback.print_exc()
                 ctx.failures += 1
-                ctx.report.add(Row(name, "(whole section)", note=f"FAILED: {type(error).__name__}: {first_line(error)}"))
+                note = f"FAILED: {type(error).__name__}: {first_line(error)}"
+                ctx.report.add(Row(name, "(whole section)", note=note))
         status = "finished"
     finally:
         ctx.report.finish(footer_lines(ctx.report.rows, device_type=device.type, aim=AIM_FILTER_STEPS_PER_S,

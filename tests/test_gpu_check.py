@@ -126,9 +126,12 @@ def test_report_rewrites_table_after_each_row(tmp_path):
 
 
 @pytest.mark.parametrize(("test", "expect_cuda", "verdict"), [
-    ({"outcome": "passed", "cuda_peak_bytes": 3 * 2**20}, True, ("passed; CUDA memory peak 3.00 MiB during the test", 0)),
-    ({"outcome": "passed", "cuda_peak_bytes": 0}, True, ("FAILED: passed but allocated no CUDA memory (not a CUDA run)", 1)),
-    ({"outcome": "skipped", "reason": "needs CUDA"}, True, ("FAILED: skipped although CUDA was asked for (needs CUDA)", 1)),
+    ({"outcome": "passed", "cuda_peak_bytes": 3 * 2**20}, True,
+     ("passed; CUDA memory peak 3.00 MiB during the test", 0)),
+    ({"outcome": "passed", "cuda_peak_bytes": 0}, True,
+     ("FAILED: passed but allocated no CUDA memory (not a CUDA run)", 1)),
+    ({"outcome": "skipped", "reason": "needs CUDA"}, True,
+     ("FAILED: skipped although CUDA was asked for (needs CUDA)", 1)),
     ({"outcome": "skipped", "reason": "needs CUDA"}, False, ("skipped: needs CUDA", 0)),
     ({"outcome": "failed", "reason": "E   AssertionError"}, True, ("FAILED (failed): E   AssertionError", 1)),
 ])
