@@ -51,7 +51,7 @@ def batch_map(model, sc: Scenario, cfg, checkpoints: list[int], *, offset: bool,
 
     def predict(x: torch.Tensor) -> torch.Tensor:  # (S, n) -> magnitudes (S, T+1)
         q = propagate_only(quat_mul(rotvec_to_quat(x[:, :3]), sc.q_est0), sc.increments)
-        m, _ = model(q=q, m_past=sc.observations[:, :1].expand(-1, q.shape[1]), with_variance=False)
+        m, _ = model(q=q, m_past=sc.observations[:, :1].expand(-1, q.shape[1]), variance="none")
         return m + x[:, 3:] if offset else m
 
     x0 = torch.zeros(S, n)

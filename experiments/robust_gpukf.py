@@ -89,7 +89,7 @@ def gp_error_on_trajectory(cfg, model, scene: Scene) -> dict:
     from lightcurve_gp.scenario import simulate_scenario
 
     sc = simulate_scenario(cfg, seeds=[0], rho_true=cfg.model.rho_reference, scene=scene)
-    mean, var = model(q=sc.q_true, m_past=sc.m_clean, with_variance=True)
+    mean, var = model(q=sc.q_true, m_past=sc.m_clean, variance=cfg.model.variance)
     err = mean - sc.m_clean
     return {"mean_error": float(err.mean()), "rms_about_mean": float((err - err.mean()).pow(2).mean().sqrt()),
             "rms": float(err.pow(2).mean().sqrt()), "mean_predictive_std": float(var.sqrt().mean())}
