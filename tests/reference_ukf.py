@@ -1,6 +1,6 @@
 """A generic additive-noise UKF for batched vector states: the reference the tests check USQUE against.
 
-The paper's UKF (section 2.5, eqs. 14–25) for any state dimension ``n``, with the update redrawing sigma points from
+The paper's UKF (section 2.5) for any state dimension ``n``, with the update redrawing sigma points from
 the prior like the paper ("computed again") and filterpy. The library's USQUE (:mod:`lightcurve_gp.ukf`) is a
 specialised, faster form of it for attitudes; this module shares only the weights and square roots with it.
 """

@@ -39,7 +39,7 @@ class UnscentedWeights(NamedTuple):
 
 def unscented_weights(n: int, alpha: float, beta: float, kappa: float, lam: float | None = None, *,
                       dtype: torch.dtype | None = None, device=None) -> UnscentedWeights:
-    """Sigma-point weights (paper section 2.5, the weights after eq. 19).
+    """Sigma-point weights (paper section 2.5).
 
     ``w0m = λ/(n+λ)``, ``w0c = λ/(n+λ) + (1 − α² + β)``, ``wim = wic = 1/(2(n+λ))`` for ``i = 1 … 2n``.
 

@@ -124,7 +124,7 @@ class ExactGP(CachedGP):
         return self.x_train.shape[0]
 
     def _predict_sets(self, xs_sets: Tensor, variance: Variance) -> Prediction:
-        """Mean ``k*ᵀα + μ`` (paper eq. 12) and the chosen variance of scaled test sets ``(C, S, d)``."""
+        """Mean ``k*ᵀα + μ`` (paper section 2.4) and the chosen variance of scaled test sets ``(C, S, d)``."""
         e = exp_neg_sqdist(xs_sets.reshape(-1, xs_sets.shape[-1]), self.xs_train_t2, self.xs_sq_neg)  # k*/θ1
         mean = torch.mv(e, self.alpha_scaled).add_(self.y_mean)
         if variance == "none":
