@@ -200,8 +200,8 @@ def cached_gp(cfg, data, kind: str, *, num_inducing: int | None = None, cache_di
     from lightcurve_gp.io import write_json_atomic
     from lightcurve_gp.model_store import get_or_train, store_folder
 
-    mcfg = dataclasses.replace(cfg.model, kind=kind,
-                               num_inducing=num_inducing if num_inducing is not None else cfg.model.num_inducing)
+    sparse = dataclasses.replace(cfg.model.sparse, num_inducing=num_inducing or cfg.model.sparse.num_inducing)
+    mcfg = dataclasses.replace(cfg.model, kind=kind, sparse=sparse)
     cfg_m = dataclasses.replace(cfg, model=mcfg)
     folder = store_folder(cfg_m, cache_dir)
     loaded = (folder / "model.pt").is_file() and not refit

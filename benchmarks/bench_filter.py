@@ -79,8 +79,8 @@ def main() -> None:
     cuda = torch.cuda.is_available()
     seeds = max(batches + ([100] if not args.skip_loop else []))
     sc = simulate_scenario(cfg, seeds=range(seeds), scene=scene)
-    with_var = UsqueParams.from_config(cfg.filter, cfg.data.t_span_past)
-    mean_only = dataclasses.replace(with_var, add_model_variance=False)
+    with_var = UsqueParams.from_config(cfg)
+    mean_only = dataclasses.replace(with_var, variance="none")
 
     def setup(device):
         dev = torch.device(device)
@@ -93,11 +93,11 @@ def main() -> None:
         t = tensors[device]
         rows = torch.arange(start, start + B, device=t["obs"].device) % t["obs"].shape[0]
         obs = t["obs"][rows, :n_steps + 1]
-        return run_usque(model, t["q0"].expand(B, 4), t["P0"], obs, obs[:, 0], t["inc"][:n_steps], params)
+        return run_usque(model=model, q_est0=t["q0"].expand(B, 4), P0=t["P0"], observations=obs, m_past0=obs[:, 0],
+                         increments=t["inc"][:n_steps], params=params)
 
-    exact.variance_mode = "fast"
     # (label, target key, model, filter parameters): "mean only" is the paper's GPUKF (GP mean in the filter);
-    # the other GP rows add the model's predictive variance to Pyy (filter.add_model_variance)
+    # the other GP rows add the model's predictive variance (model.variance = fast) to Pyy
     models = [("ExactGP fast var", "ExactGP", exact, with_var),
               ("ExactGP mean only", "ExactGP", exact, mean_only),
               ("SparseGP M=512", "SparseGP", sparse, with_var),

@@ -101,7 +101,8 @@ def fit_exact(data, cfg, device):
 def fit_sparse(data, cfg, device, num_inducing: int):
     from lightcurve_gp.observation import SparseGP
 
-    mcfg = dataclasses.replace(cfg.model, kind="sparse", num_inducing=num_inducing)
+    mcfg = dataclasses.replace(cfg.model, kind="sparse",
+                               sparse=dataclasses.replace(cfg.model.sparse, num_inducing=num_inducing))
     return SparseGP.from_data(data.q, data.m_past, data.y, mcfg, device=device)
 
 
@@ -145,8 +146,8 @@ def scenario_tensors(cfg, seeds: int, device) -> dict:
 def filter_params(cfg, with_variance: bool):
     from lightcurve_gp.ukf import UsqueParams
 
-    params = UsqueParams.from_config(cfg.filter, cfg.data.t_span_past)
-    return dataclasses.replace(params, add_model_variance=with_variance)
+    params = UsqueParams.from_config(cfg)
+    return dataclasses.replace(params, variance=cfg.model.variance if with_variance else "none")
 
 
 def run_filter(model, tensors: dict, params, batch: int, steps: int):
@@ -155,8 +156,8 @@ def run_filter(model, tensors: dict, params, batch: int, steps: int):
 
     rows = torch.arange(batch, device=tensors["obs"].device) % tensors["obs"].shape[0]
     obs = tensors["obs"][rows, :steps + 1]
-    return run_usque(model, tensors["q0"].expand(batch, 4), tensors["P0"], obs, obs[:, 0], tensors["inc"][:steps],
-                     params)
+    return run_usque(model=model, q_est0=tensors["q0"].expand(batch, 4), P0=tensors["P0"], observations=obs,
+                     m_past0=obs[:, 0], increments=tensors["inc"][:steps], params=params)
 
 
 # ----------------------------------------------------------------------------------------------- shared objects
@@ -337,7 +338,7 @@ def section_sparse_fit(ctx: Context) -> None:
 
     def fit(device):
         seconds, model = ctx.timed(device, lambda: fit_sparse(data, ctx.cfg, device, m))
-        mean, _ = model.predict(probe_q.to(device), probe_m.to(device), with_variance=False)
+        mean, _ = model.predict(probe_q.to(device), probe_m.to(device), variance="none")
         return seconds, "", mean
 
     ctx.case("sparse fit", "SparseGP.from_data", f"M = {m}, N = {len(data)}", lambda: fit(ctx.device),

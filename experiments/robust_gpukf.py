@@ -67,7 +67,8 @@ def goal_check(summary: dict) -> dict:
 def gp_error_on_trajectory(cfg, model, scene: Scene) -> dict:
     """The GP's error against the renderer along the scenario's true trajectory (ρ0, noise-free), in mag."""
     sc = simulate_scenario(cfg, seeds=[0], rho_true=cfg.model.rho_reference, scene=scene)
-    return model_error_on_trajectory(model, q=sc.q_true, m_true=sc.m_clean, m_past=sc.m_clean)
+    return model_error_on_trajectory(model, q=sc.q_true, m_true=sc.m_clean, m_past=sc.m_clean,
+                                     variance=cfg.model.variance)
 
 
 def _goal_line(goal: dict) -> str:

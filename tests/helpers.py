@@ -2,13 +2,13 @@
 
 import torch
 
-from lightcurve_gp.observation.base import ObservationModel
+from lightcurve_gp.observation.base import ObservationModule
 from lightcurve_gp.rotations import attitude_matrix, euler321_to_quat, quat_conj, quat_mul, quat_to_rotvec
 
 DT = torch.float64
 
 
-class ToyModel(ObservationModel):
+class ToyModel(ObservationModule):
     """Scalar ``h(q) = Σ_j a_j · A(q) b_j`` with two body/inertial vector pairs (no rotational symmetry)."""
 
     uses_m_past = False
@@ -19,17 +19,17 @@ class ToyModel(ObservationModel):
         b = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.28, 0.96]], dtype=DT)
         self.register_buffer("a", a)
         self.register_buffer("b", b)
-        self.variance = variance
+        self.constant_variance = variance
         self.m_past_gain = m_past_gain
         self.calls = 0
 
-    def _predict(self, q, m_past, with_variance):
+    def _predict(self, q, m_past, variance):
         self.calls += 1
         A = attitude_matrix(q / torch.linalg.vector_norm(q, dim=-1, keepdim=True))
         mean = torch.einsum("ji,...ik,jk->...", self.a, A, self.b) + self.m_past_gain * m_past
         var = None
-        if with_variance and self.variance is not None:
-            var = torch.full_like(mean, self.variance)
+        if variance != "none" and self.constant_variance is not None:
+            var = torch.full_like(mean, self.constant_variance)
         return mean, var
 
 

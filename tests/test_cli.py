@@ -11,7 +11,7 @@ from lightcurve_gp.observation import load_model
 
 BOXWING = str(Path(__file__).resolve().parents[1] / "configs" / "boxwing.yaml")
 TINY = ["data.icosphere_subdivisions=0", "data.phi_step_deg=120", "data.heldout_size=40", "scenario.duration_s=60",
-        "evaluation.rmse_window_s=[30, 60]", "model.fast_variance_neighbors=32", "name=tiny"]
+        "evaluation.rmse_window_s=[30, 60]", "model.exact.fast_variance_neighbors=32", "name=tiny"]
 
 
 def sets(overrides):
@@ -47,7 +47,7 @@ def test_train_recomputes_its_heldout_metrics_from_the_saved_model(trained):
     cfg = load_config(BOXWING, TINY)
     held = generate_heldout_set(cfg)
     model = load_model(trained / "tiny" / "model.pt")
-    mean, var = model(q=held.q, m_past=held.m_past, with_variance=True)
+    mean, var = model(q=held.q, m_past=held.m_past, variance=cfg.model.variance)
     resid = mean - held.y
     std_y = (var + float(model.noise)).sqrt()  # predictive std of a noisy target
     reported = json.loads((trained / "tiny" / "metrics.json").read_text())["heldout"]
@@ -58,7 +58,9 @@ def test_train_recomputes_its_heldout_metrics_from_the_saved_model(trained):
 
 def test_sparse_model_trains_from_the_command_line(tmp_path):
     assert train.main([BOXWING, "--out", str(tmp_path), "--no-progress",
-                       *sets(TINY + ["model.kind=sparse", "model.num_inducing=20", "model.sparse_iterations=0"])]) == 0
+                       *sets([s for s in TINY if not s.startswith("model.exact.")]  # settings of the exact GP
+                             + ["model.kind=sparse", "model.sparse.num_inducing=20",
+                                "model.sparse.iterations=0"])]) == 0
     metrics = json.loads((tmp_path / "tiny" / "metrics.json").read_text())
     assert metrics["model"] == "sparse" and metrics["fast_variance_vs_exact"] is None
 
@@ -101,7 +103,8 @@ def test_estimate_errors_are_clear(tmp_path, capsys):
 
 
 ROBUST = str(Path(__file__).resolve().parents[1] / "configs" / "boxwing_robust.yaml")
-ROBUST_TINY = ["data.num_random=100", "data.rho_grid=[0.3, 0.5, 0.7]", "data.heldout_size=40", "model.num_inducing=60",
+ROBUST_TINY = ["data.num_random=100", "data.rho_grid=[0.3, 0.5, 0.7]", "data.heldout_size=40",
+               "model.sparse.num_inducing=60",
                "scenario.duration_s=60", "evaluation.rmse_window_s=[30, 60]", "name=robust_tiny"]
 
 
@@ -120,7 +123,7 @@ def test_offset_config_trains_on_normalised_magnitudes_and_estimates_with_the_of
     cfg = load_config(ROBUST, ROBUST_TINY)
     held = generate_heldout_set(cfg)
     model = load_model(run / "model.pt")
-    mean, _ = model(q=held.q, m_past=held.m_past, with_variance=False)
+    mean, _ = model(q=held.q, m_past=held.m_past, variance="none")
     reference = held.y + 2.5 * torch.log10(held.rho / cfg.model.rho_reference)
     assert float((mean - reference).pow(2).mean().sqrt()) == pytest.approx(metrics["heldout"]["rmse"], rel=1e-9)
     raw_rmse = float((mean - held.y).pow(2).mean().sqrt())

@@ -51,7 +51,7 @@ def test_parametric_model_is_the_renderer_and_ignores_m_past():
     mean, var = model(q=q, m_past=torch.full((2, 5), 11.0, dtype=torch.float64))
     assert torch.equal(mean, scene.magnitude(q, rho=0.3))
     assert torch.equal(var, torch.zeros_like(mean))
-    mean2, none = model.predict(q, torch.zeros(2, 5, dtype=torch.float64), with_variance=False)
+    mean2, none = model.predict(q, torch.zeros(2, 5, dtype=torch.float64), variance="none")
     assert none is None and torch.equal(mean, mean2)
     m32, _ = model.to(torch.float32)(q=q.float(), m_past=torch.zeros(2, 5))
     assert m32.dtype == torch.float32 and float((m32.double() - mean).abs().max()) < 1e-4

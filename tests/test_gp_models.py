@@ -3,22 +3,24 @@
 from __future__ import annotations
 
 import copy
-import dataclasses
 import math
 from pathlib import Path
 
 import pytest
 import torch
 
-from lightcurve_gp.config import ModelConfig, load_config
-from lightcurve_gp.observation.exact_gp import (
-    ExactGP,
-    fast_variance_error,
-    gpytorch_exact_model,
-    lengthscale_to_theta2,
-    theta2_to_lengthscale,
+from lightcurve_gp.config import (
+    ConfigError,
+    ExactModelConfig,
+    ModelConfig,
+    SparseModelConfig,
+    config_to_dict,
+    load_config,
 )
+from lightcurve_gp.observation.exact_gp import ExactGP, fast_variance_error
+from lightcurve_gp.observation.fitting import gpytorch_exact_model
 from lightcurve_gp.observation.inputs import InputMap
+from lightcurve_gp.observation.kernels import lengthscale_to_theta2, theta2_to_lengthscale
 from lightcurve_gp.observation.serialization import FORMAT_VERSION, ModelFileError, build_model, load_model, save_model
 from lightcurve_gp.observation.sparse_gp import SparseGP, kmeans
 
@@ -26,10 +28,22 @@ F64 = torch.float64
 PAPER = dict(theta1=1.0, theta2=0.25, noise_std=0.1)
 
 
+BOXWING = Path(__file__).resolve().parents[1] / "configs" / "boxwing.yaml"
+_EXACT_KEYS = {"fit_iterations", "fit_subset", "fast_variance_neighbors"}
+_SPARSE_KEYS = {"num_inducing": "num_inducing", "optimize_inducing": "optimize_inducing",
+                "sparse_iterations": "iterations"}
+
+
 def _cfg(**kw) -> ModelConfig:
-    base = dict(kind="exact", **PAPER, variance="fast", fast_variance_neighbors=64, num_inducing=50)
-    base.update(kw)
-    return ModelConfig(**base)
+    """A model config from flat keywords; those of one GP kind go to its section."""
+    exact = {"fast_variance_neighbors": 64} | {k: kw.pop(k) for k in _EXACT_KEYS & set(kw)}
+    sparse = {"num_inducing": 50} | {_SPARSE_KEYS[k]: kw.pop(k) for k in set(_SPARSE_KEYS) & set(kw)}
+    base = dict(kind="exact", **PAPER, variance="fast") | kw
+    return ModelConfig(**base, exact=ExactModelConfig(**exact), sparse=SparseModelConfig(**sparse))
+
+
+def _variance(model, q, m, choice):
+    return model.predict(q, m, variance=choice)[1]
 
 
 def _data(n: int, seed: int = 0):
@@ -92,7 +106,7 @@ def test_shapes_and_dtypes(which, batch, dtype, exact, sparse):
     assert mean.shape == batch and var.shape == batch
     assert mean.dtype == dtype and var.dtype == dtype
     assert bool((var >= 0).all()) and bool(torch.isfinite(mean).all())
-    mean2, none = model.predict(q, m, with_variance=False)
+    mean2, none = model.predict(q, m, variance="none")
     assert none is None
     torch.testing.assert_close(mean2, mean)
     # m_past broadcasts against q's batch shape
@@ -144,12 +158,12 @@ def test_training_data_checked():
 
 def test_exact_matches_closed_form(exact, train, test_pts):
     mean_ref, var_ref = _closed_form(*train, *test_pts)
-    mean = exact.predict(*test_pts, with_variance=False)[0]
-    var = exact.predict_variance(*test_pts, "exact")
+    mean = exact.predict(*test_pts, variance="none")[0]
+    var = _variance(exact, *test_pts, "exact")
     torch.testing.assert_close(mean, mean_ref, rtol=0, atol=1e-8)
     torch.testing.assert_close(var, var_ref, rtol=0, atol=1e-8)
     # training points too (small variance, near the data)
-    var_tr = exact.predict_variance(train[0][:10], train[1][:10], "exact")
+    var_tr = _variance(exact, train[0][:10], train[1][:10], "exact")
     torch.testing.assert_close(var_tr, _closed_form(*train, train[0][:10], train[1][:10])[1], rtol=0, atol=1e-8)
 
 
@@ -170,7 +184,7 @@ def test_kernel_mapping_matches_gpytorch(exact, train, test_pts):
         latent = model(xt)
         noisy = lik(model(xt))
     mean, var = exact.predict(*test_pts)
-    var = exact.predict_variance(*test_pts, "exact")
+    var = _variance(exact, *test_pts, "exact")
     torch.testing.assert_close(latent.mean + y.mean(), mean, rtol=0, atol=1e-7)
     torch.testing.assert_close(latent.variance, var, rtol=0, atol=1e-7)
     torch.testing.assert_close(noisy.variance, var + 0.01, rtol=0, atol=1e-7)
@@ -188,25 +202,43 @@ def test_fast_variance_close_to_exact_and_an_upper_bound(train):
     mc = m[:4, None].expand(4, 13)
     err_c = fast_variance_error(model, qc, mc)
     assert err_c["max_rel"] < 0.05, err_c
-    fast = model.predict_variance(qc, mc, "fast")
-    ex = model.predict_variance(qc, mc, "exact")
+    fast = _variance(model, qc, mc, "fast")
+    ex = _variance(model, qc, mc, "exact")
     assert bool((fast >= ex - 1e-12).all())
     # a set wider than cluster_radius does not share neighbours: each point as if predicted alone
-    wide = model.predict_variance(q[:12].reshape(3, 4, 4), m[:12].reshape(3, 4), "fast")
-    torch.testing.assert_close(wide.reshape(-1), model.predict_variance(q[:12], m[:12], "fast"), rtol=0, atol=1e-12)
+    wide = _variance(model, q[:12].reshape(3, 4, 4), m[:12].reshape(3, 4), "fast")
+    torch.testing.assert_close(wide.reshape(-1), _variance(model, q[:12], m[:12], "fast"), rtol=0, atol=1e-12)
     # all training points as neighbours: the fast variance is the exact one
     model.neighbors = 200
-    torch.testing.assert_close(model.predict_variance(q, m, "fast"), model.predict_variance(q, m, "exact"),
+    torch.testing.assert_close(_variance(model, q, m, "fast"), _variance(model, q, m, "exact"),
                                rtol=0, atol=1e-9)
 
 
-def test_variance_none_and_exact_modes(train, test_pts):
-    none = ExactGP.from_data(*train, _cfg(variance="none"))
-    assert none.predict(*test_pts)[1] is None
-    ex = ExactGP.from_data(*train, _cfg(variance="exact"))
-    torch.testing.assert_close(ex.predict(*test_pts)[1], _closed_form(*train, *test_pts)[1], rtol=0, atol=1e-8)
+def test_variance_none_and_exact_choices(train, test_pts):
+    ex = ExactGP.from_data(*train, _cfg(variance="none"))  # the config's choice is the filter's, not the model's
+    assert ex.predict(*test_pts, variance="none")[1] is None
+    torch.testing.assert_close(_variance(ex, *test_pts, "exact"), _closed_form(*train, *test_pts)[1], rtol=0, atol=1e-8)
     ex.drop_cholesky()  # recomputed lazily
-    torch.testing.assert_close(ex.predict(*test_pts)[1], _closed_form(*train, *test_pts)[1], rtol=0, atol=1e-8)
+    torch.testing.assert_close(_variance(ex, *test_pts, "exact"), _closed_form(*train, *test_pts)[1], rtol=0, atol=1e-8)
+
+
+@pytest.mark.parametrize("which", ["exact", "sparse"])
+def test_variance_is_chosen_per_call_and_leaves_no_state(which, exact, sparse, test_pts):
+    """The same model answers each choice as asked, in any order; nothing about the choice is stored."""
+    model = exact if which == "exact" else sparse
+    fast, ex = _variance(model, *test_pts, "fast"), _variance(model, *test_pts, "exact")
+    mean_none, var_none = model.predict(*test_pts, variance="none")
+    assert var_none is None
+    assert torch.equal(_variance(model, *test_pts, "fast"), fast)  # not changed by the calls in between
+    assert torch.equal(model(q=test_pts[0], m_past=test_pts[1])[0], mean_none)
+    assert torch.equal(model(q=test_pts[0], m_past=test_pts[1])[1], fast)  # the default choice is "fast"
+    if which == "sparse":  # its variance is exact and cheap: "fast" is the same
+        assert torch.equal(fast, ex)
+    else:  # with 64 of 200 neighbours, the fast variance bounds the exact one from above and differs from it
+        assert bool((fast >= ex - 1e-12).all()) and not torch.equal(fast, ex)
+    assert not any("variance" in name for name in vars(model) if not name.startswith("_"))
+    with pytest.raises(ValueError, match="^variance must be one of none, fast, exact, got 'full'$"):
+        model.predict(*test_pts, variance="full")
 
 
 def test_standardised_inputs(train, test_pts):
@@ -311,8 +343,8 @@ def test_save_load_roundtrip(which, exact, sparse, test_pts, tmp_path):
     m2, v2 = loaded.predict(*test_pts)
     assert torch.equal(m1, m2) and torch.equal(v1, v2)
     if which == "exact":  # lazily recomputed Cholesky gives the same exact variance
-        torch.testing.assert_close(loaded.predict_variance(*test_pts, "exact"),
-                                   model.predict_variance(*test_pts, "exact"), rtol=0, atol=1e-12)
+        torch.testing.assert_close(_variance(loaded, *test_pts, "exact"),
+                                   _variance(model, *test_pts, "exact"), rtol=0, atol=1e-12)
 
 
 def test_model_file_errors(exact, tmp_path):
@@ -341,15 +373,15 @@ def test_model_file_errors(exact, tmp_path):
 
 
 def test_config_dict_is_stored_and_build_model_dispatches(exact, train):
-    assert exact.config == dataclasses.asdict(_cfg())
+    assert exact.config == config_to_dict(_cfg()) and "sparse" not in exact.config
     assert isinstance(build_model(*train, _cfg(kind="sparse", num_inducing=10)), SparseGP)
     assert isinstance(build_model(*train, _cfg(variance="none")), ExactGP)
 
 
 def test_shared_lengthscale_fit_runs_from_the_config_start():
     """fit_hyperparameters with ard = false starts from the paper's θ2 and fits one shared lengthscale."""
-    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "boxwing.yaml",
-                      ["model.fit_hyperparameters=true", "model.ard=false", "model.fit_iterations=5"]).model
+    cfg = load_config(BOXWING,
+                      ["model.fit_hyperparameters=true", "model.ard=false", "model.exact.fit_iterations=5"]).model
     gen = torch.Generator().manual_seed(0)
     q = torch.nn.functional.normalize(torch.randn(60, 4, generator=gen, dtype=torch.float64), dim=-1)
     m_past = 12 + torch.rand(60, generator=gen, dtype=torch.float64)
@@ -358,3 +390,63 @@ def test_shared_lengthscale_fit_runs_from_the_config_start():
     ls = model.lengthscale
     assert torch.allclose(ls, ls[:1].expand_as(ls))  # one shared value
     assert model.fit_history[-1] > model.fit_history[0]
+
+
+@pytest.mark.parametrize("which", ["exact", "sparse"])
+def test_files_written_with_a_stored_variance_choice_still_load(which, exact, sparse, test_pts, tmp_path):
+    """Model files of the format before the variance became a per-call choice carry a ``variance_mode`` (exact)
+    or ``with_variance`` (sparse) and a flat model config: they load and predict the same."""
+    model = exact if which == "exact" else sparse
+    payload = torch.load(save_model(model, tmp_path / "new.pt"), weights_only=True)
+    old_key = {"exact": ("variance_mode", "none"), "sparse": ("with_variance", False)}[which]
+    flat_config = {"kind": which, "inputs": "quaternion", "target": "magnitude", **PAPER, "variance": "none",
+                   "num_inducing": 50, "sparse_iterations": 200}
+    torch.save(dict(payload, state=dict(payload["state"], **dict([old_key])), config=flat_config), tmp_path / "old.pt")
+    loaded = load_model(tmp_path / "old.pt")
+    assert loaded.config["target"] == "magnitude"
+    for choice in ("none", "fast", "exact"):
+        m1, v1 = model.predict(*test_pts, variance=choice)
+        m2, v2 = loaded.predict(*test_pts, variance=choice)
+        assert torch.equal(m1, m2) and (v1 is None if choice == "none" else torch.allclose(v1, v2, rtol=0, atol=1e-12))
+
+
+@pytest.mark.parametrize("override, message", [
+    ("model.sparse.num_inducing=64",
+     "model.sparse: settings of the sparse GP (num_inducing) do not apply to model.kind exact"),
+    ("model.num_inducing=64",
+     "model.num_inducing: a setting of the sparse GP only; give it as model.sparse.num_inducing"),
+    ("model.sparse_iterations=5",
+     "model.sparse_iterations: a setting of the sparse GP only; give it as model.sparse.iterations"),
+    ("model.fit_subset=100", "model.fit_subset: a setting of the exact GP only; give it as model.exact.fit_subset"),
+    ("model.exact.num_inducing=64",
+     "model.exact.num_inducing: unknown key (known keys: fit_iterations, fit_subset, fast_variance_neighbors)"),
+])
+def test_a_setting_given_to_the_wrong_model_kind_is_a_config_error(override, message):
+    with pytest.raises(ConfigError) as err:
+        load_config(BOXWING, [override])
+    assert str(err.value) == message
+
+
+def test_kind_sections_apply_to_their_kind():
+    """Switching kind needs nothing else; a section given with its kind is read; the exact section with the
+    sparse kind is refused."""
+    sparse = load_config(BOXWING, ["model.kind=sparse", "model.sparse.num_inducing=64", "model.sparse.iterations=3"])
+    assert (sparse.model.sparse.num_inducing, sparse.model.sparse.iterations) == (64, 3)
+    assert sparse.model.exact == ExactModelConfig()  # defaults, unused by this kind
+    exact = load_config(BOXWING, ["model.exact.fast_variance_neighbors=32"])
+    assert exact.model.exact.fast_variance_neighbors == 32
+    with pytest.raises(ConfigError) as err:
+        load_config(BOXWING, ["model.kind=sparse", "model.exact.fit_subset=100"])
+    assert str(err.value) == "model.exact: settings of the exact GP (fit_subset) do not apply to model.kind sparse"
+
+
+@pytest.mark.parametrize("kind", ["exact", "sparse"])
+def test_a_config_written_as_a_dict_reads_back(kind):
+    """config_to_dict keeps only the settings of the model's kind, so that config_from_dict accepts it again."""
+    from lightcurve_gp.config import config_from_dict
+
+    cfg = load_config(BOXWING, [f"model.kind={kind}"])
+    raw = config_to_dict(cfg)
+    assert [s for s in ("exact", "sparse") if s in raw["model"]] == [kind]
+    assert config_from_dict(raw) == cfg
+    assert kind in config_to_dict(cfg.model) and ({"exact", "sparse"} - {kind}).isdisjoint(config_to_dict(cfg.model))

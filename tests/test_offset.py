@@ -14,7 +14,7 @@ from lightcurve_gp.observation.inputs import INPUT_KINDS, InputMap, attitude_mat
 from lightcurve_gp.render import Scene
 from lightcurve_gp.rotations import attitude_matrix, quat_conj, quat_mul
 from lightcurve_gp.ukf import UsqueParams, run_usque
-from lightcurve_gp.ukf_offset import initial_offset, offset_covariance, offset_to_rho, rho_to_offset, run_usque_offset
+from lightcurve_gp.ukf_offset import initial_offset, offset_covariance, offset_to_rho, rho_to_offset
 
 from helpers import ToyModel, err_deg, scenario
 
@@ -76,12 +76,12 @@ def test_known_offset_reduces_to_usque_with_matching_sigma_spread():
     USQUE with n = 3 and λ = 1 (the two b sigma points coincide with the centre): same estimates."""
     q_true, y, q_est0, inc = scenario(B=3, T=60, noise=0.01)
     b_true = 0.8
-    base = dict(Q=1e-8, R=1e-4, add_model_variance=False)
-    h3 = run_usque(ToyModel(), q_est0, 1e-2 * torch.eye(3, dtype=DT), y, y[:, 0], inc,
-                   UsqueParams(lam=1.0, **base))
+    base = dict(Q=1e-8, R=1e-4, variance="none")
+    h3 = run_usque(model=ToyModel(), q_est0=q_est0, P0=1e-2 * torch.eye(3, dtype=DT), observations=y, m_past0=y[:, 0],
+                   increments=inc, params=UsqueParams(lam=1.0, **base))
     P0 = offset_covariance(math.degrees(0.1), 1e-7, dtype=DT)
-    h4 = run_usque_offset(ToyModel(), q_est0, P0, torch.tensor(b_true, dtype=DT), y + b_true, y[:, 0], inc,
-                          UsqueParams(lam=0.0, **base))
+    h4 = run_usque(model=ToyModel(), q_est0=q_est0, P0=P0, offset0=torch.tensor(b_true, dtype=DT),
+                   observations=y + b_true, m_past0=y[:, 0], increments=inc, params=UsqueParams(lam=0.0, **base))
     assert torch.allclose(h4.q_est, h3.q_est, atol=1e-6)
     assert torch.allclose(h4.y_pred[:, 1:] - b_true, h3.y_pred[:, 1:], atol=1e-6)
     assert torch.allclose(h4.offset, torch.full_like(h4.offset, b_true), atol=1e-6)
@@ -98,27 +98,30 @@ def test_unknown_offset_is_learned_and_a_blind_filter_is_not():
     b0 = initial_offset(model, q_est0, obs[:, 0], obs[:, 0])
     assert torch.allclose(b0, b_true, atol=0.05)  # ỹ_0 − h(q̂_0): only the noise separates them
     P0 = offset_covariance(0.1, 1.0, dtype=DT)
-    params = UsqueParams(Q=1e-10, R=1e-4, add_model_variance=False)
-    h = run_usque_offset(model, q_est0, P0, torch.zeros(4, dtype=DT), obs, obs[:, 0], inc, params)
+    params = UsqueParams(Q=1e-10, R=1e-4, variance="none")
+    h = run_usque(model=model, q_est0=q_est0, P0=P0, offset0=torch.zeros(4, dtype=DT), observations=obs,
+                  m_past0=obs[:, 0], increments=inc, params=params)
     err_b = (h.offset[:, -1] - b_true).abs()
     assert bool((err_b < 4 * h.offset_var[:, -1].sqrt()).all()) and float(err_b.max()) < 0.01
     assert float(err_deg(q_true[:, -1], h.q_est[:, -1]).max()) < 0.5
     assert h.P.shape == (4, 151, 3, 3) and torch.equal(h.P, h.P_full[..., :3, :3])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        blind = run_usque(model, q_est0, P0[:3, :3], obs, obs[:, 0], inc, params)
+        blind = run_usque(model=model, q_est0=q_est0, P0=P0[:3, :3], observations=obs, m_past0=obs[:, 0],
+                          increments=inc, params=params)
     assert float(err_deg(q_true[-1:, -1], blind.q_est[-1:, -1]).max()) > 5.0
 
 
 def test_bad_inputs_name_the_argument():
     q_true, y, q_est0, inc = scenario(B=2, T=5)
     with pytest.raises(ValueError, match="P0"):
-        run_usque_offset(ToyModel(), q_est0, torch.eye(3, dtype=DT), torch.zeros(2, dtype=DT), y, y[:, 0], inc)
-    with pytest.raises(ValueError, match="b0"):
-        run_usque_offset(ToyModel(), q_est0, torch.eye(4, dtype=DT), torch.zeros(3, dtype=DT), y, y[:, 0], inc)
-    with pytest.raises(ValueError, match="offset_process_noise"):
-        run_usque_offset(ToyModel(), q_est0, torch.eye(4, dtype=DT), torch.zeros(2, dtype=DT), y, y[:, 0], inc,
-                         offset_process_noise=-1.0)
+        run_usque(model=ToyModel(), q_est0=q_est0, P0=torch.eye(3, dtype=DT), offset0=torch.zeros(2, dtype=DT),
+                  observations=y, m_past0=y[:, 0], increments=inc)
+    with pytest.raises(ValueError, match="offset0"):
+        run_usque(model=ToyModel(), q_est0=q_est0, P0=torch.eye(4, dtype=DT), offset0=torch.zeros(3, dtype=DT),
+                  observations=y, m_past0=y[:, 0], increments=inc)
+    with pytest.raises(ValueError, match="^offset_process_noise must be >= 0, got -1.0$"):
+        UsqueParams(offset_process_noise=-1.0)
 
 
 def test_paper_config_keeps_the_paper_behaviour_and_robust_config_enables_the_offset():

@@ -240,3 +240,15 @@ def test_gradients_flow():
     # the identity is a smooth point of the rotation-vector map
     r = torch.zeros(2, 3, dtype=F64, requires_grad=True)
     assert torch.autograd.gradcheck(rotvec_to_quat, (r,))
+
+
+def test_product_matrices_are_the_papers_product():
+    """``q ⊗ p = L(q) p = R(p) q`` for batches of arbitrary (not unit) quaternions."""
+    from lightcurve_gp.rotations import quat_left_matrix, quat_right_matrix
+
+    g = torch.Generator().manual_seed(11)
+    q, p = torch.randn(2, 6, 4, generator=g, dtype=torch.float64)
+    qp = quat_mul(q, p)
+    torch.testing.assert_close((quat_left_matrix(q) @ p.unsqueeze(-1)).squeeze(-1), qp, rtol=0, atol=1e-15)
+    torch.testing.assert_close((quat_right_matrix(p) @ q.unsqueeze(-1)).squeeze(-1), qp, rtol=0, atol=1e-15)
+    assert quat_left_matrix(q).shape == (6, 4, 4)

@@ -46,7 +46,7 @@ def _predict(model: ObservationModel, x: Tensor, q_est0: Tensor, increments: Ten
              offset: bool) -> Tensor:
     """Magnitudes ``(S, T+1)`` of states ``x (S, 3 | 4)`` along the known dynamics."""
     q = propagate_only(quat_mul(rotvec_to_quat(x[:, :3]), q_est0), increments)
-    m, _ = model(q=q, m_past=m_past.expand(-1, q.shape[1]), with_variance=False)
+    m, _ = model(q=q, m_past=m_past.expand(-1, q.shape[1]), variance="none")
     return m + x[:, 3:] if offset else m
 
 

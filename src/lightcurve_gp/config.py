@@ -35,6 +35,8 @@ __all__ = [
     "SurfaceConfig",
     "DataConfig",
     "ModelConfig",
+    "ExactModelConfig",
+    "SparseModelConfig",
     "ScenarioConfig",
     "FilterConfig",
     "EvaluationConfig",
@@ -122,8 +124,36 @@ class DataConfig:
 
 
 @dataclass(kw_only=True)
+class ExactModelConfig:
+    """Settings of the exact GP only (``model.kind: exact``)."""
+
+    fit_iterations: int = _spec(100, lo=0, doc="Adam steps of the hyperparameter fit on the exact evidence")
+    fit_subset: int = _spec(2000, lo=1, doc="points the evidence is fitted on (seeded random subset)")
+    fast_variance_neighbors: int = _spec(256, lo=1, doc="training points each fast variance is conditioned on")
+
+
+@dataclass(kw_only=True)
+class SparseModelConfig:
+    """Settings of the inducing-point GP only (``model.kind: sparse``)."""
+
+    num_inducing: int = _spec(512, lo=1)
+    optimize_inducing: bool = _spec(False, doc="move the inducing inputs to maximise the collapsed bound")
+    iterations: int = _spec(200, lo=0, doc="Adam steps on the SGPR bound (inducing inputs and/or hyperparameters)")
+
+
+#: the sections of ``model`` that hold the settings of one model kind
+MODEL_KIND_SECTIONS = ("exact", "sparse")
+
+
+@dataclass(kw_only=True)
 class ModelConfig:
-    """Observation model: the paper's GP (exact or inducing-point) and its prediction options."""
+    """Observation model: the paper's GP (exact or inducing-point) and its prediction options.
+
+    The settings here apply to both GP kinds; those of one kind live in its section (``model.exact``,
+    ``model.sparse``), which may only be given when ``model.kind`` is that kind. The parametric model of the
+    conventional UKF has no settings here: it is the renderer with ``filter.rho_assumed`` (or ``rho_reference``
+    for the offset filter).
+    """
 
     kind: str = _spec(choices=("exact", "sparse"))
     inputs: str = _spec("quaternion", choices=("quaternion", "attitude_matrix"),
@@ -138,16 +168,12 @@ class ModelConfig:
     standardize_inputs: bool = _spec(False)
     ard: bool = _spec(False)
     fit_hyperparameters: bool = _spec(False, doc="fit (theta1, lengthscale, sigma): exact GP on its evidence over "
-                                                 "fit_subset points, sparse GP on its collapsed bound")
-    fit_iterations: int = _spec(100, lo=0, doc="Adam steps of the exact GP's hyperparameter fit")
-    fit_lr: float = _spec(0.05, lo=0.0, lo_open=True)
-    fit_subset: int = _spec(2000, lo=1)
-    variance: str = _spec("fast", choices=("fast", "exact", "none"))
-    fast_variance_neighbors: int = _spec(256, lo=1)
-    num_inducing: int = _spec(512, lo=1)
-    optimize_inducing: bool = _spec(False)
-    sparse_iterations: int = _spec(200, lo=0, doc="Adam steps on the SGPR bound (inducing inputs and/or "
-                                                  "hyperparameters)")
+                                                 "exact.fit_subset points, sparse GP on its collapsed bound")
+    fit_lr: float = _spec(0.05, lo=0.0, lo_open=True, doc="Adam learning rate of either fit")
+    variance: str = _spec("fast", choices=("fast", "exact", "none"),
+                          doc="variance the filter asks of the model: fast differs from exact for the exact GP only")
+    exact: ExactModelConfig = field(default_factory=ExactModelConfig)
+    sparse: SparseModelConfig = field(default_factory=SparseModelConfig)
 
 
 @dataclass(kw_only=True)
@@ -342,16 +368,47 @@ def _cross_check(cfg: Config) -> None:
                           f"(got {cfg.model.target})")
 
 
+#: settings that belonged to the flat ``model`` section before it was split by kind: their place now
+_MOVED_MODEL_KEYS = {"fit_iterations": "exact.fit_iterations", "fit_subset": "exact.fit_subset",
+                     "fast_variance_neighbors": "exact.fast_variance_neighbors", "num_inducing": "sparse.num_inducing",
+                     "optimize_inducing": "sparse.optimize_inducing", "sparse_iterations": "sparse.iterations"}
+
+
+def _check_model_kinds(raw_model: Any) -> None:
+    """A setting given to a model kind it does not apply to is an error (before the generic validation)."""
+    if not isinstance(raw_model, dict):
+        return
+    for key, moved in _MOVED_MODEL_KEYS.items():
+        if key in raw_model:
+            section = moved.split(".")[0]
+            raise ConfigError(f"model.{key}: a setting of the {section} GP only; give it as model.{moved}")
+    kind = raw_model.get("kind")
+    for section in MODEL_KIND_SECTIONS:
+        given = raw_model.get(section)
+        if given is not None and kind in MODEL_KIND_SECTIONS and section != kind:
+            keys = ", ".join(sorted(given)) if isinstance(given, dict) else _fmt(given)
+            raise ConfigError(f"model.{section}: settings of the {section} GP ({keys}) do not apply to "
+                              f"model.kind {kind}")
+
+
 def config_from_dict(raw: dict) -> Config:
     """Validate a plain mapping (as read from YAML) into a :class:`Config`; raises :class:`ConfigError`."""
+    if isinstance(raw, dict):
+        _check_model_kinds(raw.get("model"))
     cfg = _build(Config, raw)
     _cross_check(cfg)
     return cfg
 
 
 def config_to_dict(cfg: Any) -> dict:
-    """Plain nested ``dict`` of a config or one of its sections (YAML/JSON serialisable)."""
-    return dataclasses.asdict(cfg)
+    """Plain nested ``dict`` of a config or one of its sections (YAML/JSON serialisable) that
+    :func:`config_from_dict` reads back: the model section keeps only the settings of its own kind."""
+    out = dataclasses.asdict(cfg)
+    model = out.get("model") if isinstance(cfg, Config) else out if isinstance(cfg, ModelConfig) else None
+    for section in MODEL_KIND_SECTIONS if model is not None else ():
+        if section != model["kind"]:
+            del model[section]
+    return out
 
 
 def parse_override(text: str) -> tuple[list[str], Any]:

@@ -34,7 +34,7 @@ from .reporting import quantiles
 from .rotations import quat_mul, quat_normalize
 from .scenario import Scenario, simulate_scenario
 from .ukf import FilterHistory, UsqueParams, initial_covariance, run_usque
-from .ukf_offset import OffsetFilterHistory, initial_offset, offset_covariance, run_usque_offset
+from .ukf_offset import initial_offset, offset_covariance
 
 __all__ = ["ESTIMATORS", "DEFAULT_ESTIMATORS", "EstimatorResult", "ScenarioResult", "propagate_only",
            "run_offset_filter", "run_estimators", "score_estimator"]
@@ -141,14 +141,13 @@ def score_estimator(sc: Scenario, q_est: Tensor, window, history: FilterHistory 
 
 
 def run_offset_filter(cfg: Config, model: ObservationModel, observations: Tensor, q_est0: Tensor,
-                      increments: Tensor) -> OffsetFilterHistory:
-    """One batched offset-augmented USQUE run with the tuning of ``cfg.filter`` (``b0 = ỹ_0 − h(q̂_0)``)."""
-    params = UsqueParams.from_config(cfg.filter, cfg.data.t_span_past)
+                      increments: Tensor) -> FilterHistory:
+    """One batched offset-augmented USQUE run with the tuning of ``cfg`` (``b0 = ỹ_0 − h(q̂_0)``)."""
     m_past0 = observations[:, 0]
     b0 = initial_offset(model, q_est0, observations[:, 0], m_past0)
     P0 = offset_covariance(cfg.filter.p0_deg, cfg.filter.offset_prior_std, dtype=q_est0.dtype, device=q_est0.device)
-    return run_usque_offset(model, q_est0, P0, b0, observations, m_past0, increments, params,
-                            offset_process_noise=cfg.filter.offset_process_noise)
+    return run_usque(model=model, q_est0=q_est0, P0=P0, observations=observations, m_past0=m_past0,
+                     increments=increments, params=UsqueParams.from_config(cfg), offset0=b0)
 
 
 def run_estimators(cfg: Config, gp_model: ObservationModel | None = None, *, seeds: Sequence[int] | None = None,
@@ -178,7 +177,7 @@ def run_estimators(cfg: Config, gp_model: ObservationModel | None = None, *, see
     sc = simulate_scenario(cfg, seeds=seeds, rho_true=rho_true, scene=scene)
     window = tuple(cfg.evaluation.rmse_window_s)
     S = len(sc.seeds)
-    params = UsqueParams.from_config(cfg.filter, cfg.data.t_span_past)
+    params = UsqueParams.from_config(cfg)
     P0 = initial_covariance(cfg.filter.p0_deg, dtype=dtype, device=device)
     q_est0 = sc.q_est0.expand(S, 4)
     models = {"gpukf": gp_model, "ukf": Parametric(scene, cfg.filter.rho_assumed),
@@ -194,8 +193,8 @@ def run_estimators(cfg: Config, gp_model: ObservationModel | None = None, *, see
             if name in with_offset:
                 history = run_offset_filter(cfg, model, sc.observations, q_est0, sc.increments)
             else:
-                history = run_usque(model, q_est0, P0, sc.observations, sc.observations[:, 0], sc.increments,
-                                    params)
+                history = run_usque(model=model, q_est0=q_est0, P0=P0, observations=sc.observations,
+                                    m_past0=sc.observations[:, 0], increments=sc.increments, params=params)
             q_est = history.q_est
         out.results[name] = score_estimator(sc, q_est, window, history, time.perf_counter() - start)
     return out

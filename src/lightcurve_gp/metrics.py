@@ -152,20 +152,22 @@ def chi2_band(dof: int, n_samples: int, confidence: float = 0.95) -> tuple[float
     return float(lo / n_samples), float(hi / n_samples)
 
 
-def model_error_on_trajectory(model, *, q: Tensor, m_true: Tensor, m_past: Tensor) -> dict[str, float]:
+def model_error_on_trajectory(model, *, q: Tensor, m_true: Tensor, m_past: Tensor,
+                              variance: str = "fast") -> dict[str, float]:
     """An observation model's error against the true light curve along one trajectory (all in mag).
 
     Args:
-        model: an :class:`~lightcurve_gp.observation.base.ObservationModel` (called with its variance).
+        model: an :class:`~lightcurve_gp.observation.base.ObservationModel`.
         q: attitudes ``(T, 4)`` of the trajectory.
         m_true: the noise-free magnitudes ``(T,)`` there (e.g. the renderer's at the model's reference ρ).
         m_past: the model's ``m_past`` input ``(T,)``.
+        variance: the model's variance choice (``"fast"`` or ``"exact"``).
 
     Returns:
         ``mean_error`` (mean of prediction − truth), ``rms_about_mean`` (its spread), ``rms`` and
         ``mean_predictive_std`` (mean of the model's predictive standard deviation).
     """
-    mean, var = model(q=q, m_past=m_past, with_variance=True)
+    mean, var = model(q=q, m_past=m_past, variance=variance)
     err = mean - m_true
     return {"mean_error": float(err.mean()), "rms_about_mean": float((err - err.mean()).pow(2).mean().sqrt()),
             "rms": float(err.pow(2).mean().sqrt()), "mean_predictive_std": float(var.sqrt().mean())}

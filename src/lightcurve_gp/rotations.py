@@ -19,6 +19,8 @@ from torch import Tensor
 
 __all__ = [
     "quat_mul",
+    "quat_left_matrix",
+    "quat_right_matrix",
     "quat_conj",
     "quat_inv",
     "quat_normalize",
@@ -52,6 +54,27 @@ def quat_mul(q: Tensor, p: Tensor) -> Tensor:
     vec = q4 * pv + p4 * qv - torch.linalg.cross(qv, pv, dim=-1)
     sca = q4 * p4 - (qv * pv).sum(-1, keepdim=True)
     return torch.cat([vec, sca], dim=-1)
+
+
+# q ⊗ p = L(q) p = R(p) q: each 4×4 matrix is a signed gather of the four components (row-major index lists)
+_LEFT_INDEX = (3, 2, 1, 0, 2, 3, 0, 1, 1, 0, 3, 2, 0, 1, 2, 3)
+_LEFT_SIGN = (1, 1, -1, 1, -1, 1, 1, 1, 1, -1, 1, 1, -1, -1, -1, 1)
+_RIGHT_SIGN = (1, -1, 1, 1, 1, 1, -1, 1, -1, 1, 1, 1, -1, -1, -1, 1)
+
+
+def _signed_gather(q: Tensor, sign: tuple[int, ...]) -> Tensor:
+    index = torch.tensor(_LEFT_INDEX, device=q.device)
+    return (q.index_select(-1, index) * torch.tensor(sign, dtype=q.dtype, device=q.device)).unflatten(-1, (4, 4))
+
+
+def quat_left_matrix(q: Tensor) -> Tensor:
+    """``L(q)`` ``(..., 4, 4)`` with ``q ⊗ p = L(q) p`` for any ``p`` (the paper's product)."""
+    return _signed_gather(q, _LEFT_SIGN)
+
+
+def quat_right_matrix(p: Tensor) -> Tensor:
+    """``R(p)`` ``(..., 4, 4)`` with ``q ⊗ p = R(p) q`` for any ``q`` (the paper's product)."""
+    return _signed_gather(p, _RIGHT_SIGN)
 
 
 def quat_conj(q: Tensor) -> Tensor:

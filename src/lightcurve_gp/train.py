@@ -42,7 +42,7 @@ from .config import Config, config_to_dict, load_config
 from .data import TrainingSet, generate_heldout_set, load_or_generate, model_targets
 from .io import RunFolder, file_sha256, write_json_atomic, write_text_atomic
 from .model_store import model_key, model_record
-from .observation.base import ObservationModel
+from .observation.base import ObservationModel, Variance
 from .observation.exact_gp import ExactGP, fast_variance_error
 from .observation.serialization import build_model, save_model
 from .plots import prediction_scatter, residual_histogram
@@ -72,10 +72,11 @@ def heldout_metrics(mean: Tensor, var: Tensor | None, y: Tensor, noise_var: floa
     }
 
 
-def evaluate_model(model: ObservationModel, data: TrainingSet, noise_var: float) -> dict[str, float]:
-    """:func:`heldout_metrics` of ``model``'s predictions on ``data``."""
+def evaluate_model(model: ObservationModel, data: TrainingSet, noise_var: float, *,
+                   variance: Variance = "fast") -> dict[str, float]:
+    """:func:`heldout_metrics` of ``model``'s predictions (with the ``variance`` choice) on ``data``."""
     with torch.no_grad():
-        mean, var = model(q=data.q, m_past=data.m_past, with_variance=True)
+        mean, var = model(q=data.q, m_past=data.m_past, variance=variance)
     return heldout_metrics(mean, var, data.y, noise_var)
 
 
@@ -103,9 +104,9 @@ def _fit(cfg: Config, cache_dir: Path, progress: bool, timings: dict,
     return model, data
 
 
-def _predict(model: ObservationModel, heldout: TrainingSet) -> tuple[Tensor, Tensor | None]:
+def _predict(model: ObservationModel, heldout: TrainingSet, variance: Variance) -> tuple[Tensor, Tensor | None]:
     with torch.no_grad():
-        return model(q=heldout.q, m_past=heldout.m_past, with_variance=True)
+        return model(q=heldout.q, m_past=heldout.m_past, variance=variance)
 
 
 def _evaluate(model: ObservationModel, cfg: Config, progress: bool, timings: dict,
@@ -114,12 +115,12 @@ def _evaluate(model: ObservationModel, cfg: Config, progress: bool, timings: dic
     heldout = model_targets(generate_heldout_set(cfg), cfg.model)
     timings["heldout_data_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    mean, var = run_interruptible(lambda: _predict(model, heldout), progress=progress,
+    mean, var = run_interruptible(lambda: _predict(model, heldout, cfg.model.variance), progress=progress,
                                   status=f"held-out prediction ({len(heldout)} points)")
     metrics = heldout_metrics(mean, var, heldout.y, _noise_var(model))
     timings["heldout_predict_s"] = time.perf_counter() - t0
     variance_check = None
-    if isinstance(model, ExactGP) and model.variance_mode == "fast":
+    if isinstance(model, ExactGP) and cfg.model.variance == "fast":
         k = min(variance_check_points, len(heldout))
         variance_check = run_interruptible(lambda: fast_variance_error(model, heldout.q[:k], heldout.m_past[:k]),
                                            status="fast-vs-exact variance check", progress=progress)

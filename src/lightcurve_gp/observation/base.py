@@ -1,22 +1,65 @@
 """The one interface every observation model implements (paper Sec. 3.1, Eq. (49)).
 
-An observation model maps an attitude ``q`` and the filter's running mean of past magnitudes ``m_past``
-to a predictive distribution of the apparent magnitude: ``m_app ~ N(mean, variance)``.
-The unscented filter only ever calls :meth:`ObservationModel.predict` (or the module's ``forward``), so
-an exact GP, an inducing-point GP and the parametric renderer are interchangeable.
+An observation model maps an attitude ``q`` and the filter's running mean of past magnitudes ``m_past`` to a
+predictive distribution of the apparent magnitude: ``m_app ~ N(mean, variance)``. The unscented filter only ever
+calls it as ``model(q=..., m_past=..., variance=...)`` (:class:`ObservationModel`), so an exact GP, an
+inducing-point GP and the parametric renderer are interchangeable.
+
+The variance choice is passed with every call, never stored in the model:
+
+* ``"none"``: the mean only; the variance is returned as ``None``;
+* ``"fast"``: the cheapest variance the model offers that is never below the exact one — for the exact GP its
+  local (nearest-neighbour) variance, for the other models their exact variance;
+* ``"exact"``: the exact predictive variance of the latent function.
+
+Batched inputs ``(..., S, 4)`` are sigma-point sets: the points along the last batch dimension may be treated as
+one set (the exact GP's fast variance conditions a tight set on one shared neighbour set), so a point's fast
+variance can depend on which points share its set. Means, exact variances and 1-D batches ``(P, 4)`` (sets of one
+point) do not depend on the batch layout.
 """
 
 from __future__ import annotations
 
 import math
+from typing import Literal, Protocol, runtime_checkable
 
 import torch
 from torch import Tensor, nn
 
-__all__ = ["ObservationModel", "Prediction", "check_inputs"]
+__all__ = [
+    "VARIANCES",
+    "ObservationModel",
+    "ObservationModule",
+    "Prediction",
+    "Variance",
+    "check_inputs",
+    "check_variance",
+]
 
 Prediction = tuple[Tensor, Tensor | None]
-"""``(mean, variance)``; ``variance`` is ``None`` when the caller asked for the mean only."""
+"""``(mean, variance)``; ``variance`` is ``None`` when the caller asked for ``variance="none"``."""
+
+Variance = Literal["none", "fast", "exact"]
+VARIANCES: tuple[str, ...] = ("none", "fast", "exact")
+
+
+@runtime_checkable
+class ObservationModel(Protocol):
+    """What the filters need of an observation model (see the module docstring for the variance and set rules)."""
+
+    #: whether the prediction depends on ``m_past`` (the parametric renderer ignores it)
+    uses_m_past: bool
+
+    def __call__(self, *, q: Tensor, m_past: Tensor, variance: Variance = "fast") -> Prediction:
+        """``q (..., 4)`` scalar last, ``m_past (...)`` in mag → ``mean (...)`` in mag, ``variance (...)`` in mag²."""
+        ...
+
+
+def check_variance(variance: str) -> str:
+    """Return ``variance`` when it is one of :data:`VARIANCES`; raise :class:`ValueError` otherwise."""
+    if variance not in VARIANCES:
+        raise ValueError(f"variance must be one of {', '.join(VARIANCES)}, got {variance!r}")
+    return variance
 
 
 def check_inputs(q: Tensor, m_past: Tensor) -> tuple[Tensor, Tensor]:
@@ -54,33 +97,33 @@ def check_inputs(q: Tensor, m_past: Tensor) -> tuple[Tensor, Tensor]:
     return q.expand(*batch, 4), m_past.expand(batch)
 
 
-class ObservationModel(nn.Module):
-    """Base class: predictive mean and variance of ``m_app`` given ``(q, m_past)``.
+class ObservationModule(nn.Module):
+    """Base class of the library's models: validates inputs and the variance choice, then calls :meth:`_predict`.
 
-    Subclasses implement :meth:`_predict` on already validated, broadcast inputs and keep every tensor
-    they need as buffers, so ``model.to(device, dtype)`` moves them like any ``nn.Module``.
+    Subclasses implement :meth:`_predict` on already validated, broadcast inputs and keep every tensor they need as
+    buffers, so ``model.to(device, dtype)`` moves them like any ``nn.Module``.
     """
 
-    #: whether the prediction depends on ``m_past`` (the parametric renderer ignores it)
     uses_m_past: bool = True
 
-    def forward(self, *, q: Tensor, m_past: Tensor, with_variance: bool = True) -> Prediction:
+    def forward(self, *, q: Tensor, m_past: Tensor, variance: Variance = "fast") -> Prediction:
         """Predict the apparent magnitude.
 
         Args:
-            q: quaternions ``(..., 4)``, scalar last.
+            q: quaternions ``(..., 4)``, scalar last; the last batch dimension is a sigma-point set (module doc).
             m_past: running mean of past magnitudes ``(...)`` in mag, broadcast against ``q[..., 0]``.
-            with_variance: also return the predictive variance (of the latent function, mag²).
+            variance: ``"none"``, ``"fast"`` or ``"exact"`` (module docstring).
 
         Returns:
-            ``mean (...)`` in mag and ``variance (...)`` in mag² (``None`` when ``with_variance`` is false).
+            ``mean (...)`` in mag and the latent ``variance (...)`` in mag² (``None`` for ``variance="none"``).
         """
+        check_variance(variance)
         q, m_past = check_inputs(q, m_past)
-        return self._predict(q, m_past, with_variance)
+        return self._predict(q, m_past, variance)
 
-    def predict(self, q: Tensor, m_past: Tensor, *, with_variance: bool = True) -> Prediction:
+    def predict(self, q: Tensor, m_past: Tensor, *, variance: Variance = "fast") -> Prediction:
         """Positional-argument alias of :meth:`forward` for library users."""
-        return self(q=q, m_past=m_past, with_variance=with_variance)
+        return self(q=q, m_past=m_past, variance=variance)
 
-    def _predict(self, q: Tensor, m_past: Tensor, with_variance: bool) -> Prediction:
+    def _predict(self, q: Tensor, m_past: Tensor, variance: Variance) -> Prediction:
         raise NotImplementedError

@@ -9,16 +9,22 @@ mean/std come from the training inputs and are stored as buffers (so they move w
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import torch
 from torch import Tensor, nn
 
 from ..rotations import attitude_matrix, quat_normalize
 
-__all__ = ["InputKind", "InputMap", "INPUT_KINDS", "register_input_kind", "quaternion_features",
-           "attitude_matrix_features"]
+__all__ = [
+    "INPUT_KINDS",
+    "InputKind",
+    "InputMap",
+    "attitude_matrix_features",
+    "quaternion_features",
+    "register_input_kind",
+]
 
 
 @dataclass(frozen=True)
@@ -115,7 +121,7 @@ class InputMap(nn.Module):
                 "shift": self.shift.detach().cpu().clone(), "scale": self.scale.detach().cpu().clone()}
 
     @classmethod
-    def from_file_state(cls, state: dict) -> "InputMap":
+    def from_file_state(cls, state: dict) -> InputMap:
         m = cls(state["kind"], state["standardize"])
         shift, scale = state["shift"], state["scale"]
         if shift.shape != (m.dim,) or scale.shape != (m.dim,):

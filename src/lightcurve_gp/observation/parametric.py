@@ -6,16 +6,17 @@ import torch
 from torch import Tensor
 
 from ..render import Scene
-from .base import ObservationModel, Prediction
+from .base import ObservationModule, Prediction, Variance
 
 __all__ = ["Parametric"]
 
 
-class Parametric(ObservationModel):
+class Parametric(ObservationModule):
     """``m_app = −26.7 − 2.5 log10(f_obs(q; ρ) / r_obs²)`` with an assumed ρ; ignores ``m_past``.
 
-    The renderer is exact given its parameters, so the predictive variance is zero. Magnitudes of attitudes
-    with zero flux are NaN (the renderer's policy); the filter refuses such an update and counts it.
+    The renderer is exact given its parameters, so the predictive variance (``"fast"`` or ``"exact"``) is zero.
+    Magnitudes of attitudes with zero flux are NaN (the renderer's policy); the filter refuses such an update and
+    counts it.
 
     Args:
         scene: renderer holding the facets (material ``f0``, ``n_u``, ``n_v``) and the Sun/observer geometry.
@@ -37,9 +38,9 @@ class Parametric(ObservationModel):
         self.scene = self.scene.to(device=probe.device, dtype=probe.dtype)
         return super()._apply(fn, recurse)
 
-    def _predict(self, q: Tensor, m_past: Tensor, with_variance: bool) -> Prediction:
+    def _predict(self, q: Tensor, m_past: Tensor, variance: Variance) -> Prediction:
         mean = self.scene.magnitude(q.to(self.scene.sun.dtype), rho=self.rho)
-        return mean, (torch.zeros_like(mean) if with_variance else None)
+        return mean, (None if variance == "none" else torch.zeros_like(mean))
 
     def extra_repr(self) -> str:
         return f"rho={self.rho:g}, facets={len(self.scene.facets)}"

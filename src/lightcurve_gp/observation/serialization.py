@@ -26,8 +26,16 @@ from .exact_gp import ExactGP
 from .inputs import InputMap
 from .sparse_gp import SparseGP
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "MODEL_KINDS", "ModelFileError", "build_model", "save_model", "load_model",
-           "read_model_file"]
+__all__ = [
+    "FORMAT",
+    "FORMAT_VERSION",
+    "MODEL_KINDS",
+    "ModelFileError",
+    "build_model",
+    "load_model",
+    "read_model_file",
+    "save_model",
+]
 
 FORMAT = "lightcurve-gp-model"
 FORMAT_VERSION = 1

@@ -1,0 +1,171 @@
+"""Hyperparameter fitting of the GP observation models with GPyTorch (paper section 3.2).
+
+The exact GP maximises its log marginal likelihood (the evidence) on a seeded subset of the training points; the
+inducing-point GP maximises Titsias' collapsed bound — GPyTorch's ``InducingPointKernel`` under
+``ExactMarginalLogLikelihood`` (its added loss term is the bound's trace term) — over its inducing inputs and/or
+hyperparameters. Both run the one Adam loop :func:`maximise_mll` with a progress bar. GPyTorch is used for fitting
+only; predictions are plain torch on cached tensors (:mod:`.exact_gp`, :mod:`.sparse_gp`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from .kernels import theta2_to_lengthscale
+
+__all__ = [
+    "fit_hyperparameters",
+    "fit_sgpr",
+    "gpytorch_exact_model",
+    "gpytorch_sgpr_model",
+    "hyper_start",
+    "maximise_mll",
+    "seeded_subset",
+]
+
+
+def hyper_start(cfg: Any, dim: int) -> tuple[float, Tensor, float]:
+    """The paper's ``(θ1, ℓ (dim,), σ²)`` of a model config section (float64, CPU)."""
+    return cfg.theta1, torch.full((dim,), theta2_to_lengthscale(cfg.theta2), dtype=torch.float64), cfg.noise_std**2
+
+
+def seeded_subset(n: int, size: int, seed: int, device: torch.device) -> Tensor:
+    """A seeded random subset of ``min(size, n)`` indices (all of them, in order, when ``size ≥ n``)."""
+    if size >= n:
+        return torch.arange(n, device=device)
+    gen = torch.Generator().manual_seed(seed)
+    return torch.randperm(n, generator=gen)[:size].to(device)
+
+
+def _rbf(dim: int, ard: bool):
+    import gpytorch
+
+    return gpytorch.kernels.ScaleKernel(gpytorch.kernels.RBFKernel(ard_num_dims=dim if ard else None))
+
+
+def _set_hyperparameters(scale_kernel, likelihood, x: Tensor, outputscale: float, lengthscale: Tensor | float,
+                         noise: float, ard: bool) -> None:
+    likelihood.noise = torch.as_tensor(noise, dtype=x.dtype)
+    scale_kernel.outputscale = torch.as_tensor(outputscale, dtype=x.dtype)
+    ls = torch.as_tensor(lengthscale, dtype=x.dtype, device=x.device)
+    if not ard and ls.numel() > 1 and not bool((ls == ls.reshape(-1)[0]).all()):
+        raise ValueError("a shared (non-ARD) lengthscale needs equal per-dimension start values")
+    scale_kernel.base_kernel.lengthscale = ls.expand(x.shape[-1]) if ard else ls.reshape(-1)[:1]
+
+
+def _exact_gp_class():
+    import gpytorch
+
+    class _Model(gpytorch.models.ExactGP):
+        def __init__(self, train_x, train_y, likelihood, covar_module):
+            super().__init__(train_x, train_y, likelihood)
+            self.mean_module = gpytorch.means.ZeroMean()
+            self.covar_module = covar_module
+
+        def forward(self, xx):
+            return gpytorch.distributions.MultivariateNormal(self.mean_module(xx), self.covar_module(xx))
+
+    return _Model
+
+
+def _likelihood(x: Tensor):
+    import gpytorch
+
+    return gpytorch.likelihoods.GaussianLikelihood(noise_constraint=gpytorch.constraints.GreaterThan(1e-8)).to(x)
+
+
+def gpytorch_exact_model(x: Tensor, y_centred: Tensor, outputscale: float, lengthscale: Tensor | float,
+                         noise: float, ard: bool = False):
+    """The equivalent GPyTorch exact GP ``(model, likelihood)`` (zero mean on centred outputs) for mapped inputs
+    ``x (N, d)``. Used for marginal-likelihood fitting and to check the kernel mapping; never on the prediction
+    path."""
+    likelihood = _likelihood(x)
+    model = _exact_gp_class()(x, y_centred, likelihood, _rbf(x.shape[-1], ard)).to(x)
+    _set_hyperparameters(model.covar_module, likelihood, x, outputscale, lengthscale, noise, ard)
+    return model, likelihood
+
+
+def gpytorch_sgpr_model(x: Tensor, r: Tensor, z: Tensor, outputscale: float, lengthscale: Tensor, noise: float,
+                        ard: bool):
+    """GPyTorch's SGPR ``(model, likelihood)``: an exact GP whose kernel is an ``InducingPointKernel`` on the
+    inducing inputs ``z (M, d)`` (its marginal likelihood is the collapsed bound); ``model.base_covar`` holds
+    ``θ1`` and ``ℓ``."""
+    import gpytorch
+
+    likelihood = _likelihood(x)
+    base = _rbf(x.shape[-1], ard)
+    covar = gpytorch.kernels.InducingPointKernel(base, inducing_points=z.clone(), likelihood=likelihood)
+    model = _exact_gp_class()(x, r, likelihood, covar).to(x)
+    model.base_covar = base
+    _set_hyperparameters(base, likelihood, x, outputscale, lengthscale.to(x), noise, ard)
+    return model, likelihood
+
+
+def maximise_mll(model, likelihood, x: Tensor, y: Tensor, params: list, *, iterations: int, lr: float,
+                 progress: bool = False, desc: str = "GP hyperparameters") -> list[float]:
+    """Adam on ``params`` of a GPyTorch ``ExactGP`` model (exact Cholesky, any size) against its
+    ``ExactMarginalLogLikelihood`` — the exact evidence, or the collapsed SGPR bound when the model's kernel is an
+    ``InducingPointKernel``. Returns the objective per point before each step and after the last
+    (``iterations + 1`` values); ``progress`` shows a bar with the current value."""
+    import gpytorch
+    from tqdm.auto import tqdm
+
+    model.train()
+    likelihood.train()
+    mll = gpytorch.mlls.ExactMarginalLogLikelihood(likelihood, model)
+    opt = torch.optim.Adam(params, lr=lr)
+    history: list[float] = []
+    with gpytorch.settings.max_cholesky_size(10**9), tqdm(total=iterations, desc=desc, disable=not progress,
+                                                          leave=False) as bar:
+        for _ in range(iterations):
+            opt.zero_grad()
+            loss = -mll(model(x), y)
+            history.append(-loss.item())
+            loss.backward()
+            opt.step()
+            bar.set_postfix(objective=f"{history[-1]:.4f}", refresh=False)
+            bar.update()
+        with torch.no_grad():
+            history.append(float(mll(model(x), y)))
+    return history
+
+
+def _fitted_lengthscale(scale_kernel, dim: int) -> Tensor:
+    return scale_kernel.base_kernel.lengthscale.detach().reshape(-1).expand(dim).clone()
+
+
+def fit_hyperparameters(x: Tensor, y_centred: Tensor, outputscale: float, lengthscale: Tensor | float, noise: float,
+                        *, ard: bool, iterations: int, lr: float,
+                        progress: bool = False) -> tuple[float, Tensor, float, list[float]]:
+    """Maximise the exact log marginal likelihood (GPyTorch, Adam, exact Cholesky) from the given start.
+
+    Returns ``(θ1, ℓ (d,), σ², mll per point history)``; the history has ``iterations + 1`` entries (before each
+    step and after the last).
+    """
+    model, likelihood = gpytorch_exact_model(x, y_centred, outputscale, lengthscale, noise, ard)
+    history = maximise_mll(model, likelihood, x, y_centred, list(model.parameters()), iterations=iterations, lr=lr,
+                           progress=progress, desc="exact GP hyperparameters")
+    return (float(model.covar_module.outputscale.detach()), _fitted_lengthscale(model.covar_module, x.shape[-1]),
+            float(likelihood.noise.detach()), history)
+
+
+def fit_sgpr(x: Tensor, r: Tensor, z: Tensor, outputscale: float, lengthscale: Tensor, noise: float, *,
+             optimize_inducing: bool, fit_hyper: bool, ard: bool, iterations: int, lr: float,
+             progress: bool = False) -> tuple[Tensor, float, Tensor, float, list[float]]:
+    """Adam on GPyTorch's collapsed SGPR bound over the inducing inputs ``z (M, d)`` (``optimize_inducing``) and/or
+    ``(θ1, ℓ, σ²)`` (``fit_hyper``); returns ``(Z, θ1, ℓ (d,), σ², bound-per-point history)``."""
+    model, likelihood = gpytorch_sgpr_model(x, r, z, outputscale, lengthscale, noise, ard)
+    params = []
+    if optimize_inducing:
+        params.append(model.covar_module.inducing_points)
+    if fit_hyper:
+        params += list(model.base_covar.parameters()) + list(likelihood.parameters())
+    history: list[float] = []
+    if params and iterations > 0:
+        history = maximise_mll(model, likelihood, x, r, params, iterations=iterations, lr=lr, progress=progress,
+                               desc="SGPR bound")
+    return (model.covar_module.inducing_points.detach().clone(), float(model.base_covar.outputscale.detach()),
+            _fitted_lengthscale(model.base_covar, x.shape[-1]), float(likelihood.noise.detach()), history)

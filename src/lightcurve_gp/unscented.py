@@ -1,0 +1,120 @@
+"""Sigma-point weights and robust batched matrix square roots of the unscented transform (paper section 2.5).
+
+:func:`unscented_weights` gives ``(λ, wm, wc)`` with λ given directly (the paper's ``λ = 0``) or derived as
+``λ = α² (n + κ) − n``; :func:`matrix_sqrt` the lower Cholesky factor of a symmetrised covariance with a
+per-matrix eigendecomposition fallback (clipped eigenvalues) that is counted, never a silent NaN.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from typing import NamedTuple
+
+import torch
+from torch import Tensor
+
+__all__ = [
+    "SqrtFallbackWarning",
+    "UnscentedWeights",
+    "matrix_sqrt",
+    "sqrt_psd",
+    "symmetrise",
+    "unscented_weights",
+    "warn_fallbacks",
+]
+
+
+class SqrtFallbackWarning(RuntimeWarning):
+    """A covariance was not positive definite: its square root came from a clipped eigendecomposition."""
+
+
+class UnscentedWeights(NamedTuple):
+    """Scaling parameter and weights of the ``2n + 1`` sigma points (unpacks as ``lam, wm, wc``)."""
+
+    lam: float
+    wm: Tensor  #: mean weights ``(2n+1,)``
+    wc: Tensor  #: covariance weights ``(2n+1,)``
+
+
+def unscented_weights(n: int, alpha: float, beta: float, kappa: float, lam: float | None = None, *,
+                      dtype: torch.dtype | None = None, device=None) -> UnscentedWeights:
+    """Sigma-point weights (paper section 2.5).
+
+    ``w0m = λ/(n+λ)``, ``w0c = λ/(n+λ) + (1 − α² + β)``, ``wim = wic = 1/(2(n+λ))`` for ``i = 1 … 2n``.
+
+    Args:
+        n: state dimension.
+        alpha, beta, kappa: the usual tuning parameters (``kappa`` only enters a derived λ).
+        lam: λ given directly (the paper uses ``λ = 0``, which no ``α, κ`` formula yields);
+            ``None`` derives ``λ = α² (n + κ) − n`` (Merwe's scaled sigma points, filterpy).
+        dtype, device: of the returned weight tensors (default dtype, CPU).
+
+    Returns:
+        ``UnscentedWeights(lam, wm (2n+1,), wc (2n+1,))``.
+
+    Raises:
+        ValueError: ``n + λ ≤ 0`` (no real sigma-point spread).
+    """
+    if n < 1:
+        raise ValueError(f"state dimension must be >= 1, got {n}")
+    lam = alpha * alpha * (n + kappa) - n if lam is None else float(lam)
+    if not n + lam > 0:
+        raise ValueError(f"n + lambda must be positive, got n={n}, lambda={lam:g}")
+    dtype = dtype or torch.get_default_dtype()
+    wm = torch.full((2 * n + 1,), 1.0 / (2.0 * (n + lam)), dtype=dtype, device=device)
+    wc = wm.clone()
+    wm[0] = lam / (n + lam)
+    wc[0] = lam / (n + lam) + (1.0 - alpha * alpha + beta)
+    return UnscentedWeights(lam, wm, wc)
+
+
+def symmetrise(a: Tensor) -> Tensor:
+    """``(A + Aᵀ) / 2`` of matrices ``(..., n, n)``."""
+    return 0.5 * (a + a.transpose(-1, -2))
+
+
+def matrix_sqrt(a: Tensor) -> tuple[Tensor, Tensor]:
+    """Square roots ``S`` with ``S Sᵀ = A`` of symmetric matrices ``(..., n, n)``, batched and per matrix robust.
+
+    ``A`` is symmetrised first. Matrices whose Cholesky factorisation succeeds get their lower factor (the same
+    sigma points as filterpy's default ``scipy.linalg.cholesky``, whose upper factor's rows are these columns);
+    the others get ``V diag(√max(λ_i, 0))`` from an eigendecomposition, so ``S Sᵀ`` is ``A`` with its negative
+    eigenvalues clipped to zero. Non-finite matrices stay non-finite (they are the caller's bug to report).
+
+    Returns:
+        ``(S (..., n, n), failed (...) bool)`` — ``failed`` marks the matrices that took the fallback.
+
+    Note:
+        Checking whether any factorisation failed reads one boolean back from the device (one sync per call).
+    """
+    a = symmetrise(a)
+    s, info = torch.linalg.cholesky_ex(a)
+    failed = info != 0
+    if bool(failed.any()):
+        bad = a[failed]
+        finite = torch.isfinite(bad).all(-1).all(-1)
+        evals, evecs = torch.linalg.eigh(torch.where(finite[:, None, None], bad, torch.zeros_like(bad)))
+        root = evecs * evals.clamp_min(0.0).sqrt().unsqueeze(-2)
+        s = s.clone()
+        s[failed] = torch.where(finite[:, None, None], root, torch.full_like(root, math.nan))
+    return s, failed
+
+
+def sqrt_psd(a: Tensor) -> tuple[Tensor, Tensor]:
+    """:func:`matrix_sqrt` for matrices already symmetric (the common path costs one Cholesky and one sync)."""
+    s, info = torch.linalg.cholesky_ex(a)
+    failed = info != 0
+    if bool(failed.any()):
+        s, failed = matrix_sqrt(a)
+    return s, failed
+
+
+def warn_fallbacks(count: int, total: int, where: str) -> None:
+    """Emit one :class:`SqrtFallbackWarning`: ``count`` of ``total`` filters needed the fallback in ``where``."""
+    warnings.warn(
+        f"{where}: covariance not positive definite for {count} of {total} filters; used the eigendecomposition "
+        "square root with clipped eigenvalues",
+        SqrtFallbackWarning,
+        stacklevel=3,
+    )
