@@ -1,0 +1,216 @@
+"""The sections of an experiment's configuration: typed dataclasses whose field metadata states each constraint.
+
+:mod:`lightcurve_gp.config` reads YAML into these classes and checks the constraints; this module only declares
+them (names, types, defaults, ranges, allowed strings, list lengths).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+__all__ = [
+    "ConfigError",
+    "Config",
+    "GeometryConfig",
+    "ShapeConfig",
+    "SurfaceConfig",
+    "DataConfig",
+    "ModelConfig",
+    "ExactModelConfig",
+    "SparseModelConfig",
+    "ScenarioConfig",
+    "FilterConfig",
+    "EvaluationConfig",
+    "MODEL_KIND_SECTIONS",
+]
+
+
+class ConfigError(ValueError):
+    """A configuration value is missing, unknown, of the wrong type or out of range; the message names its key path."""
+
+
+def _spec(default: Any = dataclasses.MISSING, *, lo: float | None = None, hi: float | None = None,
+          lo_open: bool = False, choices: tuple | None = None, length: int | None = None,
+          min_length: int | None = None, doc: str = "") -> Any:
+    """A dataclass field with its validation rule stored in ``metadata``.
+
+    ``lo``/``hi`` bound numbers (and every element of number lists); ``lo_open`` makes the lower bound
+    strict; ``choices`` lists allowed strings; ``length``/``min_length`` constrain lists.
+    """
+    meta = dict(lo=lo, hi=hi, lo_open=lo_open, choices=choices, length=length, min_length=min_length, doc=doc)
+    if isinstance(default, list):
+        return field(default_factory=lambda d=tuple(default): list(d), metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+@dataclass(kw_only=True)
+class GeometryConfig:
+    """Fixed object–observer–Sun geometry in the inertial frame, object at the origin (paper Table 3)."""
+
+    observer_km: list[float] = _spec(length=3, doc="observer position (km)")
+    sun_km: list[float] = _spec(length=3, doc="Sun position (km)")
+
+
+@dataclass(kw_only=True)
+class ShapeConfig:
+    """Facet model of the object: the paper's box-wing or any mesh trimesh reads."""
+
+    kind: str = _spec(choices=("box_wing", "mesh"))
+    mesh_path: str | None = _spec(None, doc="mesh file; a relative path in a config file is relative to that "
+                                            "file's folder, one given by --set to the working directory")
+    box_m: list[float] = _spec(lo=0.0, lo_open=True, length=3)
+    box_grid: int = _spec(lo=1)
+    wing_m: list[float] = _spec(lo=0.0, lo_open=True, length=3)
+    wing_grid: int = _spec(lo=1)
+    inertia_kg_m2: list[float] = _spec(lo=0.0, lo_open=True, length=3)
+
+
+@dataclass(kw_only=True)
+class SurfaceConfig:
+    """Ashikhmin–Shirley surface parameters shared by every rendering (paper Table 4).
+
+    The diffuse reflectance ρ is not here: it is what varies (``data.rho_grid``, ``scenario.rho_true``,
+    ``filter.rho_assumed``).
+    """
+
+    f0: float = _spec(lo=0.0, hi=1.0, doc="Fresnel reflectance at normal incidence")
+    n_u: float = _spec(lo=0.0, doc="specular lobe exponent along u")
+    n_v: float = _spec(lo=0.0, doc="specular lobe exponent along v")
+
+
+@dataclass(kw_only=True)
+class DataConfig:
+    """Training set of the GP observation model (paper section 3.2)."""
+
+    rho_grid: list[float] = _spec(lo=0.0, lo_open=True, hi=1.0, min_length=1)
+    sampling: str = _spec(choices=("grid", "random", "sobol"))
+    icosphere_subdivisions: int = _spec(lo=0, hi=7)
+    phi_step_deg: float = _spec(lo=0.0, lo_open=True, hi=360.0)
+    num_random: int = _spec(3852, lo=1)
+    seed: int = _spec(0, lo=0)
+    drop_duplicates: bool = _spec(False)
+    quaternion_sign: str = _spec("as_is", choices=("as_is", "canonical", "both"))
+    omega0_deg_s: list[float] = _spec(length=3)
+    dt_s: float = _spec(lo=0.0, lo_open=True)
+    t_span_past: float = _spec(lo=0.0, lo_open=True, doc="seconds averaged into m_app_past")
+    heldout_size: int = _spec(2000, lo=1)
+
+
+@dataclass(kw_only=True)
+class ExactModelConfig:
+    """Settings of the exact GP only (``model.kind: exact``)."""
+
+    fit_iterations: int = _spec(100, lo=0, doc="Adam steps of the hyperparameter fit on the exact evidence")
+    fit_subset: int = _spec(2000, lo=1, doc="points the evidence is fitted on (seeded random subset)")
+    fast_variance_neighbors: int = _spec(256, lo=1, doc="training points each fast variance is conditioned on")
+
+
+@dataclass(kw_only=True)
+class SparseModelConfig:
+    """Settings of the inducing-point GP only (``model.kind: sparse``)."""
+
+    num_inducing: int = _spec(512, lo=1)
+    optimize_inducing: bool = _spec(False, doc="move the inducing inputs to maximise the collapsed bound")
+    iterations: int = _spec(200, lo=0, doc="Adam steps on the SGPR bound (inducing inputs and/or hyperparameters)")
+
+
+#: the sections of ``model`` that hold the settings of one model kind
+MODEL_KIND_SECTIONS = ("exact", "sparse")
+
+
+@dataclass(kw_only=True)
+class ModelConfig:
+    """Observation model: the paper's GP (exact or inducing-point) and its prediction options.
+
+    The settings here apply to both GP kinds; those of one kind live in its section (``model.exact``,
+    ``model.sparse``), which may only be given when ``model.kind`` is that kind. The parametric model of the
+    conventional UKF has no settings here: it is the renderer with ``filter.rho_assumed`` (or ``rho_reference``
+    for the offset filter).
+    """
+
+    kind: str = _spec(choices=("exact", "sparse"))
+    inputs: str = _spec("quaternion", choices=("quaternion", "attitude_matrix"),
+                        doc="GP input map: quaternion = [q, m_past] (paper); attitude_matrix = A(q), sign-invariant")
+    target: str = _spec("magnitude", choices=("magnitude", "rho_normalised"),
+                        doc="GP output: m_app as rendered (paper) or m_app + 2.5 log10(rho / rho_reference)")
+    rho_reference: float = _spec(0.5, lo=0.0, lo_open=True, hi=1.0,
+                                 doc="reflectance the rho_normalised target refers to")
+    theta1: float = _spec(lo=0.0, lo_open=True)
+    theta2: float = _spec(lo=0.0, lo_open=True)
+    noise_std: float = _spec(lo=0.0, lo_open=True)
+    standardize_inputs: bool = _spec(False)
+    ard: bool = _spec(False)
+    fit_hyperparameters: bool = _spec(False, doc="fit (theta1, lengthscale, sigma): exact GP on its evidence over "
+                                                 "exact.fit_subset points, sparse GP on its collapsed bound")
+    fit_lr: float = _spec(0.05, lo=0.0, lo_open=True, doc="Adam learning rate of either fit")
+    variance: str = _spec("fast", choices=("fast", "exact", "none"),
+                          doc="variance the filter asks of the model: fast differs from exact for the exact GP only")
+    exact: ExactModelConfig = field(default_factory=ExactModelConfig)
+    sparse: SparseModelConfig = field(default_factory=SparseModelConfig)
+
+
+@dataclass(kw_only=True)
+class ScenarioConfig:
+    """Truth trajectory and its noisy light curve (paper section 4)."""
+
+    q0: list[float] = _spec(length=4)
+    omega0_deg_s: list[float] = _spec(length=3)
+    dt_s: float = _spec(lo=0.0, lo_open=True)
+    duration_s: float = _spec(lo=0.0, lo_open=True)
+    rho_true: float = _spec(lo=0.0, lo_open=True, hi=1.0, doc="a reflectance of 0 renders no diffuse light")
+    noise_var: float = _spec(lo=0.0, doc="variance of the magnitude noise (mag^2)")
+    initial_error_deg: list[float] = _spec(length=3)
+    seeds: int = _spec(lo=1)
+
+
+@dataclass(kw_only=True)
+class FilterConfig:
+    """USQUE parameters (paper section 2.5; Crassidis & Markley 2003)."""
+
+    alpha: float = _spec(lo=0.0, lo_open=True)
+    beta: float = _spec()
+    kappa: float = _spec()
+    lam: float | None = _spec(doc="lambda given directly; null derives alpha^2 (n + kappa) - n")
+    grp_a: float = _spec(lo=0.0, hi=1.0)
+    grp_f: float = _spec(lo=0.0, lo_open=True)
+    process_noise: float = _spec(lo=0.0)
+    measurement_noise: float = _spec(lo=0.0)
+    p0_deg: float = _spec(lo=0.0, lo_open=True)
+    add_model_variance: bool = _spec(True)
+    rho_assumed: float = _spec(lo=0.0, lo_open=True, hi=1.0)
+    estimate_offset: bool = _spec(False, doc="carry a magnitude offset b in the state: y = h(q) + b")
+    offset_prior_std: float = _spec(1.0, lo=0.0, lo_open=True, doc="prior std of b around y_0 - h(q_0) (mag)")
+    offset_process_noise: float = _spec(0.0, lo=0.0, doc="random-walk variance of b per step (mag^2)")
+
+
+@dataclass(kw_only=True)
+class EvaluationConfig:
+    """Scoring windows and evaluation options."""
+
+    rmse_window_s: list[float] = _spec(lo=0.0, length=2)
+
+
+@dataclass(kw_only=True)
+class Config:
+    """The whole experiment; see ``configs/boxwing.yaml`` for the paper's values."""
+
+    name: str = _spec(doc="run name: one safe folder name (letters, digits, '.', '_', '-'; no leading '.')")
+    dtype: str = _spec("float64", choices=("float64", "float32"))
+    device: str = _spec("cpu")
+    geometry: GeometryConfig
+    shape: ShapeConfig
+    surface: SurfaceConfig
+    data: DataConfig
+    model: ModelConfig
+    scenario: ScenarioConfig
+    filter: FilterConfig
+    evaluation: EvaluationConfig
+
+    @property
+    def torch_dtype(self):
+        """The ``torch.dtype`` named by :attr:`dtype`."""
+        import torch
+
+        return getattr(torch, self.dtype)
