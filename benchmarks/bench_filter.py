@@ -36,7 +36,7 @@ WHOLE_TARGET = 1.0
 N_SIGMA = 7
 
 
-def main() -> None:
+def parse_args() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="1260 training points, 20 steps, B up to 1000")
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1; 0 = torch's default)")
@@ -49,60 +49,162 @@ def main() -> None:
     parser.add_argument("--refit", action="store_true", help="retrain the models even when cached")
     parser.add_argument("--cache-dir", default=str(C.ROOT / "runs" / "bench"), help="trained-model cache")
     parser.add_argument("--out", help="also write the tables to this file (.json: JSON, else markdown)")
-    args = parser.parse_args()
-    batches = [int(b) for b in (args.batches or ("1,100,1000" if args.quick else "1,100,1000,10000")).split(",")]
-    steps = args.steps or (20 if args.quick else 50)
+    return parser.parse_args()
 
-    import torch
 
-    from lightcurve_gp.data import load_or_generate
-    from lightcurve_gp.observation.parametric import Parametric
-    from lightcurve_gp.render import Scene
-    from lightcurve_gp.scenario import simulate_scenario
-    from lightcurve_gp.ukf import UsqueParams, initial_covariance, run_usque
+@dataclasses.dataclass
+class Bench:
+    """The scenario's tensors per device and the timing settings shared by every case."""
 
-    C.set_threads(args.threads)
-    cfg = C.load_cfg(C.quick_overrides(args.quick))
-    dtype = cfg.torch_dtype
-    info = C.machine_info(dtype, cfg.device)
-    print(C.machine_line(info))
+    cfg: object
+    scenario: object
+    steps: int
+    repeats: int
+    budget: float
+    tensors: dict = dataclasses.field(default_factory=dict)
 
-    data, _, _ = load_or_generate(cfg, C.ROOT / "runs" / "cache", progress=False)
-    exact, ex_extra, ex_cached = C.cached_gp(cfg, data, "exact", cache_dir=args.cache_dir, refit=args.refit,
-                                             after_fit=C.exact_variance_check(data))
-    sparse, sp_extra, _ = C.cached_gp(cfg, data, "sparse", num_inducing=512, cache_dir=args.cache_dir,
-                                      refit=args.refit)
-    scene = Scene.from_config(cfg)
-    print(f"training set N = {len(data)}; ExactGP {'loaded' if ex_cached else 'trained'} "
-          f"(conditioning {ex_extra['fit_s']:.1f} s), SparseGP M = {sparse.num_inducing}", flush=True)
+    def add_device(self, device: str) -> None:
+        import torch
 
-    cuda = torch.cuda.is_available()
-    seeds = max(batches + ([100] if not args.skip_loop else []))
-    sc = simulate_scenario(cfg, seeds=range(seeds), scene=scene)
-    with_var = UsqueParams.from_config(cfg)
-    mean_only = dataclasses.replace(with_var, variance="none")
+        from lightcurve_gp.ukf import initial_covariance
 
-    def setup(device):
-        dev = torch.device(device)
-        return {"P0": initial_covariance(cfg.filter.p0_deg, dtype=dtype, device=dev),
-                "obs": sc.observations.to(dev), "inc": sc.increments.to(dev), "q0": sc.q_est0.to(dev)}
+        dev, sc = torch.device(device), self.scenario
+        P0 = initial_covariance(self.cfg.filter.p0_deg, dtype=self.cfg.torch_dtype, device=dev)
+        self.tensors[device] = {"P0": P0,
+                                "obs": sc.observations.to(dev), "inc": sc.increments.to(dev), "q0": sc.q_est0.to(dev)}
 
-    tensors = {"cpu": setup("cpu")}
+    def run(self, model, params, B, n_steps, device="cpu", start=0):
+        """``B`` filters over the first ``n_steps`` steps, on the noise seeds ``start, start + 1, ...`` (cycled)."""
+        import torch
 
-    def run(model, params, B, n_steps, device="cpu", start=0):
-        t = tensors[device]
+        from lightcurve_gp.ukf import run_usque
+
+        t = self.tensors[device]
         rows = torch.arange(start, start + B, device=t["obs"].device) % t["obs"].shape[0]
         obs = t["obs"][rows, :n_steps + 1]
         return run_usque(model=model, q_est0=t["q0"].expand(B, 4), P0=t["P0"], observations=obs, m_past0=obs[:, 0],
                          increments=t["inc"][:n_steps], params=params)
 
-    # (label, target key, model, filter parameters): "mean only" is the paper's GPUKF (GP mean in the filter);
-    # the other GP rows add the model's predictive variance (model.variance = fast) to Pyy
+    def time_case(self, model, params, B, device):
+        """Median seconds per step of ``B`` filters, steps and runs timed."""
+        sync = C.synchronizer(device)
+        _, warm = C.timed(lambda: (self.run(model, params, B, 2, device), sync()))
+        per_step = warm / 2
+        n_steps = max(5, min(self.steps, int(self.budget / (per_step * (self.repeats + 1)))))
+        runs = max(1, min(self.repeats, int(self.budget / (per_step * n_steps))))
+        res = C.time_call(lambda: self.run(model, params, B, n_steps, device), repeats=runs, warmup=0, sync=sync)
+        return res["median"] / n_steps, n_steps, runs
+
+
+def load_models(cfg, args):
+    """(label, target key, model, filter parameters) per row, and the scene: "mean only" is the paper's GPUKF (GP
+    mean in the filter); the other GP rows add the model's predictive variance (model.variance = fast) to Pyy."""
+    from lightcurve_gp.data import load_or_generate
+    from lightcurve_gp.observation.parametric import Parametric
+    from lightcurve_gp.render import Scene
+    from lightcurve_gp.ukf import UsqueParams
+
+    data, _, _ = load_or_generate(cfg, C.ROOT / "runs" / "cache", progress=False)
+    exact, ex_extra, ex_cached = C.cached_gp(cfg, data, "exact", cache_dir=args.cache_dir, refit=args.refit,
+                                             after_fit=C.exact_variance_check(data))
+    sparse, _, _ = C.cached_gp(cfg, data, "sparse", num_inducing=512, cache_dir=args.cache_dir,
+                                      refit=args.refit)
+    scene = Scene.from_config(cfg)
+    print(f"training set N = {len(data)}; ExactGP {'loaded' if ex_cached else 'trained'} "
+          f"(conditioning {ex_extra['fit_s']:.1f} s), SparseGP M = {sparse.num_inducing}", flush=True)
+    with_var = UsqueParams.from_config(cfg)
+    mean_only = dataclasses.replace(with_var, variance="none")
     models = [("ExactGP fast var", "ExactGP", exact, with_var),
               ("ExactGP mean only", "ExactGP", exact, mean_only),
               ("SparseGP M=512", "SparseGP", sparse, with_var),
               ("SparseGP M=512 mean only", "SparseGP", sparse, mean_only),
               ("Parametric", "Parametric", Parametric(scene, cfg.filter.rho_assumed), with_var)]
+    return models, scene
+
+
+def measure_batches(bench: Bench, row, batches, *, step_tab, loop_tab, with_loop: bool) -> None:
+    """One model's step time for each B on the CPU (skipping B projected over the budget); at B = 100 also the
+    Python loop over 100 single-filter runs."""
+    label, target_key, model, params = row
+    last = None  # (B, seconds per filter-step) of the previous batch size
+    for B in batches:
+        projected = last[1] * B if last is not None else 0.0
+        if projected * 2 > bench.budget:
+            step_tab.add([label, "cpu", B, "—", "—", "—", "", "skipped"],
+                         {"model": label, "B": B, "skipped": f"projected {projected:.2g} s per step"})
+            step_tab.note(f"{label} at B = {B} skipped: projected {projected:.3g} s per step from "
+                          f"B = {last[0]} (> --budget {bench.budget:g} s for a warm-up and one run)")
+            continue
+        per_step, n_steps, runs = bench.time_case(model, params, B, "cpu")
+        last = (B, per_step / B)
+        t = TARGETS.get((target_key, B))
+        status = "" if t is None else ("ok" if per_step / B <= t else "MISS")
+        step_tab.add([label, "cpu", B, f"{n_steps} x {runs}", f"{per_step * 1e3:.3g}",
+                      f"{per_step / B * 1e6:.3g}", "" if t is None else f"≤ {C.fmt_seconds(t)}", status],
+                     {"model": label, "device": "cpu", "B": B, "steps": n_steps, "runs": runs,
+                      "s_per_step": per_step, "s_per_filter_step": per_step / B, "target": t, "status": status})
+        if B == 100 and with_loop:
+            n_loop = min(n_steps, 20)
+            _, loop_s = C.timed(lambda: [bench.run(model, params, 1, n_loop, start=b) for b in range(100)])
+            loop_step = loop_s / n_loop
+            loop_tab.add([label, f"{per_step * 1e3:.3g}", f"{loop_step * 1e3:.3g}", f"{loop_step / per_step:.3g}x"],
+                         {"model": label, "batched_s_per_step": per_step, "loop_s_per_step": loop_step,
+                          "ratio": loop_step / per_step, "loop_steps": n_loop})
+        print(f"  {label} B = {B}: {per_step * 1e3:.3g} ms per step", flush=True)
+
+
+def measure_whole(bench: Bench, row, whole_seeds: int, whole_tab) -> None:
+    """One model's whole run of one filter, median over the first ``whole_seeds`` noise seeds."""
+    label, _, model, params = row
+    T = bench.scenario.increments.shape[0]
+    times = [C.timed(lambda: bench.run(model, params, 1, T, start=seed))[1] for seed in range(whole_seeds)]
+    s = statistics.median(times)
+    whole_tab.add([label, f"{s:.3g}", f"{min(times):.3g}–{max(times):.3g}", f"{s / T * 1e3:.3g}",
+                   f"≤ {WHOLE_TARGET:g} s", "ok" if s <= WHOLE_TARGET else "MISS"],
+                  {"model": label, "seconds": s, "steps": T, "seconds_per_seed": times})
+    print(f"  {label} whole run: {s:.3g} s", flush=True)
+
+
+def measure_cuda(bench: Bench, models, step_tab) -> None:
+    """B = 10 000 and 100 000 filters on CUDA with the SparseGP rows and the renderer."""
+    bench.add_device("cuda")
+    for label, _, model, params in models[2:]:
+        model = copy.deepcopy(model).to("cuda")
+        for B in (10_000, 100_000):
+            per_step, n_steps, runs = bench.time_case(model, params, B, "cuda")
+            step_tab.add([label, "cuda", B, f"{n_steps} x {runs}", f"{per_step * 1e3:.3g}",
+                          f"{per_step / B * 1e6:.3g}", "", f"{B / per_step:.3g} filter-steps/s"],
+                         {"model": label, "device": "cuda", "B": B, "steps": n_steps, "runs": runs,
+                          "s_per_step": per_step, "filter_steps_per_s": B / per_step})
+
+
+def print_paper_comparison(step_tab) -> None:
+    """One filter's step time against the paper's (section 4) for the ExactGP and the renderer."""
+    b1 = {r["model"]: r["s_per_step"] for r in step_tab.records if r.get("B") == 1 and "s_per_step" in r}
+    for label, paper in (("ExactGP fast var", "GPUKF"), ("Parametric", "UKF")):
+        if label in b1:
+            print(f"{label}, one filter: {b1[label] * 1e3:.3g} ms per step = paper's {paper} "
+                  f"({PAPER[paper]} s) / {PAPER[paper] / b1[label]:.3g}")
+
+
+def main() -> None:
+    args = parse_args()
+    batches = [int(b) for b in (args.batches or ("1,100,1000" if args.quick else "1,100,1000,10000")).split(",")]
+    steps = args.steps or (20 if args.quick else 50)
+
+    import torch
+
+    from lightcurve_gp.scenario import simulate_scenario
+
+    C.set_threads(args.threads)
+    cfg = C.load_cfg(C.quick_overrides(args.quick))
+    info = C.machine_info(cfg.torch_dtype, cfg.device)
+    print(C.machine_line(info))
+    models, scene = load_models(cfg, args)
+    seeds = max(batches + ([100] if not args.skip_loop else []))
+    sc = simulate_scenario(cfg, seeds=range(seeds), scene=scene)
+    bench = Bench(cfg=cfg, scenario=sc, steps=steps, repeats=args.repeats, budget=args.budget)
+    bench.add_device("cpu")
 
     step_tab = C.Table(f"Filter step time (median of up to {args.repeats} runs of {steps} steps; "
                        f"{info['torch_threads']} thread(s), {info['dtype']})",
@@ -112,62 +214,12 @@ def main() -> None:
     whole_seeds = min(1 if args.quick else 5, sc.observations.shape[0])
     whole_tab = C.Table(f"One whole 600 s run of one filter (median over noise seeds 0-{whole_seeds - 1}, "
                         "one run each)", ["model", "seconds", "range", "ms / step", "target", "status"])
-
-    def time_case(model, params, B, device):
-        """Median seconds per step of ``B`` filters, steps and runs timed."""
-        sync = C.synchronizer(device)
-        _, warm = C.timed(lambda: (run(model, params, B, 2, device), sync()))
-        per_step = warm / 2
-        n_steps = max(5, min(steps, int(args.budget / (per_step * (args.repeats + 1)))))
-        runs = max(1, min(args.repeats, int(args.budget / (per_step * n_steps))))
-        res = C.time_call(lambda: run(model, params, B, n_steps, device), repeats=runs, warmup=0, sync=sync)
-        return res["median"] / n_steps, n_steps, runs
-
-    for label, target_key, model, params in models:
-        last = None  # (B, seconds per filter-step) of the previous batch size
-        for B in batches:
-            projected = last[1] * B if last is not None else 0.0
-            if projected * 2 > args.budget:
-                step_tab.add([label, "cpu", B, "—", "—", "—", "", "skipped"],
-                             {"model": label, "B": B, "skipped": f"projected {projected:.2g} s per step"})
-                step_tab.note(f"{label} at B = {B} skipped: projected {projected:.3g} s per step from "
-                              f"B = {last[0]} (> --budget {args.budget:g} s for a warm-up and one run)")
-                continue
-            per_step, n_steps, runs = time_case(model, params, B, "cpu")
-            last = (B, per_step / B)
-            t = TARGETS.get((target_key, B))
-            status = "" if t is None else ("ok" if per_step / B <= t else "MISS")
-            step_tab.add([label, "cpu", B, f"{n_steps} x {runs}", f"{per_step * 1e3:.3g}",
-                          f"{per_step / B * 1e6:.3g}", "" if t is None else f"≤ {C.fmt_seconds(t)}", status],
-                         {"model": label, "device": "cpu", "B": B, "steps": n_steps, "runs": runs,
-                          "s_per_step": per_step, "s_per_filter_step": per_step / B, "target": t, "status": status})
-            if B == 100 and not args.skip_loop:
-                n_loop = min(n_steps, 20)
-                _, loop_s = C.timed(lambda: [run(model, params, 1, n_loop, start=b) for b in range(100)])
-                loop_step = loop_s / n_loop
-                loop_tab.add([label, f"{per_step * 1e3:.3g}", f"{loop_step * 1e3:.3g}", f"{loop_step / per_step:.3g}x"],
-                             {"model": label, "batched_s_per_step": per_step, "loop_s_per_step": loop_step,
-                              "ratio": loop_step / per_step, "loop_steps": n_loop})
-            print(f"  {label} B = {B}: {per_step * 1e3:.3g} ms per step", flush=True)
+    for row in models:
+        measure_batches(bench, row, batches, step_tab=step_tab, loop_tab=loop_tab, with_loop=not args.skip_loop)
         if not args.skip_whole:
-            T = sc.increments.shape[0]
-            times = [C.timed(lambda: run(model, params, 1, T, start=seed))[1] for seed in range(whole_seeds)]
-            s = statistics.median(times)
-            whole_tab.add([label, f"{s:.3g}", f"{min(times):.3g}–{max(times):.3g}", f"{s / T * 1e3:.3g}",
-                           f"≤ {WHOLE_TARGET:g} s", "ok" if s <= WHOLE_TARGET else "MISS"],
-                          {"model": label, "seconds": s, "steps": T, "seconds_per_seed": times})
-            print(f"  {label} whole run: {s:.3g} s", flush=True)
-
-    if cuda:
-        tensors["cuda"] = setup("cuda")
-        for label, _, model, params in models[2:]:
-            model = copy.deepcopy(model).to("cuda")
-            for B in (10_000, 100_000):
-                per_step, n_steps, runs = time_case(model, params, B, "cuda")
-                step_tab.add([label, "cuda", B, f"{n_steps} x {runs}", f"{per_step * 1e3:.3g}",
-                              f"{per_step / B * 1e6:.3g}", "", f"{B / per_step:.3g} filter-steps/s"],
-                             {"model": label, "device": "cuda", "B": B, "steps": n_steps, "runs": runs,
-                              "s_per_step": per_step, "filter_steps_per_s": B / per_step})
+            measure_whole(bench, row, whole_seeds, whole_tab)
+    if torch.cuda.is_available():
+        measure_cuda(bench, models, step_tab)
     else:
         step_tab.note("no CUDA device: the B = 100 000 cases (SparseGP, Parametric) need one")
 
@@ -178,13 +230,9 @@ def main() -> None:
     tables = [step_tab] + ([loop_tab] if loop_tab.rows else []) + ([whole_tab] if whole_tab.rows else [])
     for t in tables:
         t.print()
-    b1 = {r["model"]: r["s_per_step"] for r in step_tab.records if r.get("B") == 1 and "s_per_step" in r}
-    for label, paper in (("ExactGP fast var", "GPUKF"), ("Parametric", "UKF")):
-        if label in b1:
-            print(f"{label}, one filter: {b1[label] * 1e3:.3g} ms per step = paper's {paper} "
-                  f"({PAPER[paper]} s) / {PAPER[paper] / b1[label]:.3g}")
+    print_paper_comparison(step_tab)
     if args.out:
-        print(f"wrote {C.write_report(args.out, C.machine_info(dtype, cfg.device), tables)}")
+        print(f"wrote {C.write_report(args.out, C.machine_info(cfg.torch_dtype, cfg.device), tables)}")
 
 
 if __name__ == "__main__":

@@ -29,7 +29,7 @@ TARGETS = {  # (model label, points, with variance) -> seconds, on a 2-core CPU 
 SIZES = ((1, 7), (1, 13), (1000, 13))  # (sets, points per set)
 
 
-def main() -> None:
+def parse_args() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="1260 training points (data.icosphere_subdivisions=1)")
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1; 0 = torch's default)")
@@ -38,22 +38,18 @@ def main() -> None:
     parser.add_argument("--refit", action="store_true", help="retrain the models even when cached")
     parser.add_argument("--cache-dir", default=str(C.ROOT / "runs" / "bench"), help="trained-model cache")
     parser.add_argument("--out", help="also write the tables to this file (.json: JSON, else markdown)")
-    args = parser.parse_args()
+    return parser.parse_args()
 
-    import torch
 
+def _cache_note(cached: bool) -> str:
+    return "cached model; time measured when it was trained" if cached else "trained in this run"
+
+
+def one_off_costs(cfg, args):
+    """Training-set generation, exact conditioning with its fast-variance check, sparse fitting at each M:
+    the table, the training data, the ExactGP and the SparseGPs by M."""
     from lightcurve_gp.data import generate_training_set, load_or_generate
-    from lightcurve_gp.observation.exact_gp import gpytorch_exact_model
-    from lightcurve_gp.observation.parametric import Parametric
-    from lightcurve_gp.render import Scene
 
-    C.set_threads(args.threads)
-    cfg = C.load_cfg(C.quick_overrides(args.quick))
-    dtype = cfg.torch_dtype
-    info = C.machine_info(dtype, cfg.device)
-    print(C.machine_line(info))
-
-    # ------------------------------------------------------------------ one-off costs
     once = C.Table("One-off costs", ["item", "value", "target", "note"])
     data, seconds = C.timed(lambda: load_or_generate(cfg, C.ROOT / "runs" / "cache", progress=False)[0])
     _, gen_s = C.timed(lambda: generate_training_set(cfg, progress=False))
@@ -64,10 +60,9 @@ def main() -> None:
 
     exact, ex_extra, ex_cached = C.cached_gp(cfg, data, "exact", cache_dir=args.cache_dir, refit=args.refit,
                                              after_fit=C.exact_variance_check(data))
-    tag = lambda cached: "cached model; time measured when it was trained" if cached else "trained in this run"  # noqa: E731
     fit_s = ex_extra["fit_s"]
     once.add(["ExactGP conditioning", C.fmt_seconds(fit_s), "≤ 60 s",
-              f"{'ok' if fit_s <= 60 else 'MISS'}; N = {n}; {tag(ex_cached)}"],
+              f"{'ok' if fit_s <= 60 else 'MISS'}; N = {n}; {_cache_note(ex_cached)}"],
              {"item": "exact_conditioning_s", "value": fit_s, "cached": ex_cached})
     ve = ex_extra["variance_error"]
     once.add(["fast-vs-exact variance, max rel. error", f"{ve['max_rel']:.3g}", "",
@@ -82,17 +77,16 @@ def main() -> None:
         sparse[m] = model
         once.add([f"SparseGP fitting, M = {model.num_inducing}", C.fmt_seconds(extra["fit_s"]), "",
                   f"k-means init, inducing points {'optimised' if cfg.model.sparse.optimize_inducing else 'fixed'}; "
-                  f"{tag(cached)}"], {"item": f"sparse_fit_s_M{m}", "value": extra["fit_s"], "cached": cached})
-    scene = Scene.from_config(cfg)
-    parametric = Parametric(scene, cfg.filter.rho_assumed)
-    once.print()
+                  f"{_cache_note(cached)}"], {"item": f"sparse_fit_s_M{m}", "value": extra["fit_s"], "cached": cached})
+    return once, data, exact, sparse
 
-    # ------------------------------------------------------------------ latency
-    models = [("ExactGP", exact, f"N = {exact.num_train}, fast variance ({exact.neighbors} neighbours)")]
-    models += [(f"SparseGP M={m}", sp, f"M = {sp.num_inducing}") for m, sp in sparse.items()]
-    models += [("Parametric", parametric, f"renderer, {len(scene.facets)} facets")]
-    inputs = {s * p: C.sigma_like_inputs(data, s, p, seed=10 + s) for s, p in SIZES}
-    lat = C.Table(f"Per-call latency (median of {args.repeats} after 1 warm-up; {info['torch_threads']} thread(s), "
+
+def latency(models, inputs, *, repeats: int, info: dict):
+    """Median latency of each model on each input size, mean only and mean + variance: the table and the ExactGP's
+    mean + variance seconds on 13 points."""
+    import torch
+
+    lat = C.Table(f"Per-call latency (median of {repeats} after 1 warm-up; {info['torch_threads']} thread(s), "
                   f"{info['dtype']})", ["model", "points", "mean only", "mean+var", "target", "status"])
 
     def call(model, q, m, var):
@@ -104,7 +98,7 @@ def main() -> None:
         for pts, (q, m) in inputs.items():
             res = {}
             for var in (False, True):
-                res[var] = C.time_call(lambda: call(model, q, m, var), repeats=args.repeats)["median"]
+                res[var] = C.time_call(lambda: call(model, q, m, var), repeats=repeats)["median"]
             targets, status = [], []
             for var in (False, True):
                 t = TARGETS.get((label, pts, var))
@@ -122,43 +116,76 @@ def main() -> None:
              "m_past of that training point; 13 000 points = 1000 such sets of 13")
     lat.note("targets are for a 2-core CPU in float64; this machine may be shared with other work "
              f"(load average at start {info['loadavg']}, now {C.load_average()})")
+    return lat, ours_13
+
+
+def gpytorch_default_call(exact, data, inputs_13, ours_13):
+    """GPyTorch's ``likelihood(model(x))`` with default settings on the same data, timed once on 13 points."""
+    import torch
+
+    from lightcurve_gp.observation.exact_gp import gpytorch_exact_model
+
+    gp = C.Table("GPyTorch default likelihood(model(x)) on the same data (timed once)",
+                 ["call", "points", "seconds", "this ExactGP", "ratio", "max |Δmean|", "max |Δvar|"])
+    ls = float(exact.lengthscale[0])
+    gmodel, glik = gpytorch_exact_model(exact.x_train, data.y.to(torch.float64) - exact.y_mean,
+                                        float(exact.outputscale), ls, float(exact.noise))
+    gmodel.eval()
+    glik.eval()
+    q, m = inputs_13
+    xt = exact.inputs(q.reshape(-1, 4).double(), m.reshape(-1).double())
+
+    def gcall():
+        with torch.no_grad():
+            out = glik(gmodel(xt))
+            return out.mean, out.variance
+
+    (gmean, gvar), g_s = C.timed(gcall)
+    with torch.no_grad():
+        mean, var = exact(q=q, m_past=m, variance="fast")
+    dmean = float((gmean + exact.y_mean - mean.reshape(-1)).abs().max())
+    dvar = float((gvar - float(exact.noise) - var.reshape(-1)).abs().max())
+    gp.add(["likelihood(model(x)), mean+var", 13, C.fmt_seconds(g_s), C.fmt_seconds(ours_13),
+            f"{g_s / ours_13:.3g}x", f"{dmean:.2g}", f"{dvar:.2g}"],
+           {"gpytorch_s": g_s, "ours_s": ours_13, "ratio": g_s / ours_13, "max_abs_dmean": dmean,
+            "max_abs_dvar": dvar})
+    gp.note("timed once (repeats = 1): GPyTorch's default settings solve with CG/Lanczos above 800 points and "
+            "redo the predictive variance against the full N×N system on a fresh call")
+    gp.note("Δ compares GPyTorch's (approximate, CG) answer with this ExactGP's (exact mean, fast variance; "
+            "GPyTorch's variance minus the noise σ²)")
+    return gp
+
+
+def main() -> None:
+    args = parse_args()
+
+    from lightcurve_gp.observation.parametric import Parametric
+    from lightcurve_gp.render import Scene
+
+    C.set_threads(args.threads)
+    cfg = C.load_cfg(C.quick_overrides(args.quick))
+    info = C.machine_info(cfg.torch_dtype, cfg.device)
+    print(C.machine_line(info))
+
+    once, data, exact, sparse = one_off_costs(cfg, args)
+    scene = Scene.from_config(cfg)
+    parametric = Parametric(scene, cfg.filter.rho_assumed)
+    once.print()
+
+    models = [("ExactGP", exact, f"N = {exact.num_train}, fast variance ({exact.neighbors} neighbours)")]
+    models += [(f"SparseGP M={m}", sp, f"M = {sp.num_inducing}") for m, sp in sparse.items()]
+    models += [("Parametric", parametric, f"renderer, {len(scene.facets)} facets")]
+    inputs = {s * p: C.sigma_like_inputs(data, s, p, seed=10 + s) for s, p in SIZES}
+    lat, ours_13 = latency(models, inputs, repeats=args.repeats, info=info)
     lat.print()
 
-    # ------------------------------------------------------------------ GPyTorch default call
     tables = [once, lat]
     if not args.skip_gpytorch:
-        gp = C.Table("GPyTorch default likelihood(model(x)) on the same data (timed once)",
-                     ["call", "points", "seconds", "this ExactGP", "ratio", "max |Δmean|", "max |Δvar|"])
-        ls = float(exact.lengthscale[0])
-        gmodel, glik = gpytorch_exact_model(exact.x_train, data.y.to(torch.float64) - exact.y_mean,
-                                            float(exact.outputscale), ls, float(exact.noise))
-        gmodel.eval()
-        glik.eval()
-        q, m = inputs[13]
-        xt = exact.inputs(q.reshape(-1, 4).double(), m.reshape(-1).double())
-
-        def gcall():
-            with torch.no_grad():
-                out = glik(gmodel(xt))
-                return out.mean, out.variance
-
-        (gmean, gvar), g_s = C.timed(gcall)
-        with torch.no_grad():
-            mean, var = exact(q=q, m_past=m, variance="fast")
-        dmean = float((gmean + exact.y_mean - mean.reshape(-1)).abs().max())
-        dvar = float((gvar - float(exact.noise) - var.reshape(-1)).abs().max())
-        gp.add(["likelihood(model(x)), mean+var", 13, C.fmt_seconds(g_s), C.fmt_seconds(ours_13),
-                f"{g_s / ours_13:.3g}x", f"{dmean:.2g}", f"{dvar:.2g}"],
-               {"gpytorch_s": g_s, "ours_s": ours_13, "ratio": g_s / ours_13, "max_abs_dmean": dmean,
-                "max_abs_dvar": dvar})
-        gp.note("timed once (repeats = 1): GPyTorch's default settings solve with CG/Lanczos above 800 points and "
-                "redo the predictive variance against the full N×N system on a fresh call")
-        gp.note("Δ compares GPyTorch's (approximate, CG) answer with this ExactGP's (exact mean, fast variance; "
-                "GPyTorch's variance minus the noise σ²)")
+        gp = gpytorch_default_call(exact, data, inputs[13], ours_13)
         gp.print()
         tables.append(gp)
     if args.out:
-        print(f"wrote {C.write_report(args.out, C.machine_info(dtype, cfg.device), tables)}")
+        print(f"wrote {C.write_report(args.out, C.machine_info(cfg.torch_dtype, cfg.device), tables)}")
 
 
 if __name__ == "__main__":
