@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
-from lightcurve_gp.config import ConfigError, apply_overrides
+from lightcurve_gp.config import ConfigError, apply_overrides, config_from_dict, content_hash
 from lightcurve_gp.sweep import (
     RESULT_COLUMNS,
     SUMMARY_COLUMNS,
@@ -102,6 +102,67 @@ def test_cli_reports_a_bad_grid_key_and_documents_the_outputs(tmp_path, capsys):
     text = capsys.readouterr().out
     for word in ("--grid", "--seeds", "--workers", "results.csv", "summary.csv", "resume", "failed"):
         assert word in text
+
+
+def test_cli_user_errors_are_one_line_and_exit_2(tmp_path, capsys):
+    def error_of(*argv: str) -> str:
+        assert main([str(BOXWING), "--out", str(tmp_path), "--seeds", "1", "--no-progress", *argv]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "Traceback" not in err
+        return err.strip()
+
+    assert error_of("--set", "surface.f0=2") == "error: surface.f0: 2 is outside [0, 1]"
+    assert error_of("--grid", "data.t_span_past") == ("error: --grid 'data.t_span_past': expected "
+                                                      "key.path=value1,value2,...")
+    assert error_of("--threads", "0") == "error: --threads: 0 must be >= 1"
+    assert error_of("--seeds", "0") == "error: --seeds: 0 must be >= 1"
+    missing = tmp_path / "none.yaml"
+    assert main([str(missing), "--out", str(tmp_path)]) == 2
+    assert capsys.readouterr().err == f"error: config file {str(missing)!r} does not exist\n"
+    assert not (tmp_path / "boxwing").exists()  # nothing ran
+
+
+def test_cli_resolves_a_relative_mesh_path_against_the_config_file_and_reports_a_missing_one(tmp_path, capsys):
+    folder = tmp_path / "configs"
+    folder.mkdir()
+    config = folder / "mesh.yaml"
+    config.write_text(yaml.safe_dump(apply_overrides(yaml.safe_load(BOXWING.read_text()),
+                                                     ["shape.kind=mesh", "shape.mesh_path=shapes/none.obj"])))
+    assert main([str(config), "--out", str(tmp_path / "out"), "--seeds", "1", "--no-progress"]) == 2
+    expected = str(folder / "shapes" / "none.obj")
+    assert capsys.readouterr().err == f"error: shape.mesh_path: {expected!r} does not exist or is not a file\n"
+    assert not (tmp_path / "out").exists()
+
+
+def test_missing_mesh_is_a_config_error_when_hashed():
+    raw = tiny_raw("shape.kind=mesh", "shape.mesh_path=/nonexistent/box.obj")
+    with pytest.raises(ConfigError) as exc:
+        content_hash(config_from_dict(raw), "shape")
+    assert str(exc.value) == "shape.mesh_path: '/nonexistent/box.obj' does not exist or is not a file"
+
+
+def test_cli_ctrl_c_is_one_line_exit_130_and_keeps_finished_cases(tmp_path, capsys, monkeypatch):
+    import lightcurve_gp.sweep.cli as sweep_cli
+
+    seen = []
+
+    def interrupted_after_one(spec):
+        if seen:
+            raise KeyboardInterrupt
+        seen.append(spec["case_id"])
+        return run_case(spec)
+
+    monkeypatch.setattr(sweep_cli, "run_sweep",
+                        lambda *a, **k: run_sweep(*a, **k, case_runner=interrupted_after_one))
+    config = tmp_path / "tiny.yaml"
+    config.write_text(yaml.safe_dump(tiny_raw()))
+    code = main([str(config), "--out", str(tmp_path), "--grid", "scenario.rho_true=0.3,0.7", "--seeds", "1",
+                 "--estimators", "ukf", "--no-progress"])
+    assert code == 130
+    err = capsys.readouterr().err
+    assert err == (f"interrupted; finished cases are stored in {tmp_path / 'tiny' / 'cases'}; rerun the same "
+                   f"command to resume\n")
+    assert [p.stem for p in (tmp_path / "tiny" / "cases").glob("*.json")] == seen
 
 
 # ----------------------------------------------------------------------------------------------- tables

@@ -58,6 +58,7 @@ __all__ = [
     "EvaluationConfig",
     "MODEL_KIND_SECTIONS",
     "load_config",
+    "load_raw_config",
     "config_from_dict",
     "config_to_dict",
     "config_hash",
@@ -282,15 +283,28 @@ def load_config(path: str | Path, overrides: list[str] | None = None) -> Config:
     Raises:
         ConfigError: missing file, invalid YAML, unknown key, wrong type or out-of-range value, a bad mesh.
     """
+    cfg = config_from_dict(load_raw_config(path, overrides))
+    if cfg.shape.mesh_path:
+        check_mesh(cfg.shape.mesh_path)
+    return cfg
+
+
+def load_raw_config(path: str | Path, overrides: list[str] | None = None) -> dict:
+    """The YAML mapping of ``path`` with ``overrides`` applied and a relative ``shape.mesh_path`` made absolute (as
+    :func:`load_config` resolves it), not yet validated: what a sweep varies before validating each grid point.
+
+    Raises:
+        ConfigError: missing file, invalid YAML, a malformed override.
+    """
     path = Path(path)
     raw = _read_yaml(path)
     mesh_base = Path.cwd() if any(o.partition("=")[0].strip() == "shape.mesh_path" for o in overrides or []) \
         else path.resolve().parent
-    cfg = config_from_dict(apply_overrides(raw, overrides))
-    if cfg.shape.mesh_path:
-        cfg.shape.mesh_path = str(mesh_base / Path(cfg.shape.mesh_path).expanduser())
-        check_mesh(cfg.shape.mesh_path)
-    return cfg
+    out = apply_overrides(raw, overrides)
+    shape = out.get("shape") if isinstance(out, dict) else None
+    if isinstance(shape, dict) and isinstance(shape.get("mesh_path"), str) and shape["mesh_path"]:
+        shape["mesh_path"] = str(mesh_base / Path(shape["mesh_path"]).expanduser())
+    return out
 
 
 def _read_yaml(path: Path) -> dict:
@@ -309,11 +323,15 @@ def _read_yaml(path: Path) -> dict:
     return raw
 
 
+def _check_mesh_file(mesh_path: str) -> None:
+    if not os.path.isfile(mesh_path):
+        raise ConfigError(f"shape.mesh_path: {mesh_path!r} does not exist or is not a file")
+
+
 def check_mesh(mesh_path: str) -> None:
     """Raise :class:`ConfigError` naming ``shape.mesh_path`` unless the file exists, trimesh reads it and it has
     triangles of positive area."""
-    if not os.path.isfile(mesh_path):
-        raise ConfigError(f"shape.mesh_path: {mesh_path!r} does not exist or is not a file")
+    _check_mesh_file(mesh_path)
     from .shapes import load_mesh  # trimesh is only needed when a mesh is named
 
     try:
@@ -347,7 +365,11 @@ def content_dict(cfg: Config, *sections: str) -> dict:
 
         shape = dict(chosen["shape"])
         path = shape.pop("mesh_path")
-        shape["mesh_sha256"] = file_sha256(path) if path and cfg.shape.kind == "mesh" else None
+        if path and cfg.shape.kind == "mesh":
+            _check_mesh_file(path)
+            shape["mesh_sha256"] = file_sha256(path)
+        else:
+            shape["mesh_sha256"] = None
         chosen["shape"] = shape
     return chosen
 

@@ -1,7 +1,6 @@
 """``python -m lightcurve_gp.sweep CONFIG --grid KEY=V1,V2,... --seeds N``."""
 
-import sys
-
+from ..cli import exit_process
 from .cli import main
 
-sys.exit(main())
+exit_process(main())

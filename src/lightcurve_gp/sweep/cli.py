@@ -6,9 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
-import yaml
-
-from ..config import ConfigError, apply_overrides, config_from_dict
+from ..cli import Interrupted, UserError, add_common_arguments, apply_threads, progress_enabled, run_command
+from ..config import config_from_dict, load_raw_config
 from ..estimation import DEFAULT_ESTIMATORS, ESTIMATORS
 from .grid import parse_grid
 from .runner import run_sweep
@@ -58,36 +57,36 @@ example:
     parser.add_argument("--sweep-id", default=None,
                         help="name of the table folder OUT/<name>/sweep/<id> (default: hash of the definition)")
     parser.add_argument("--workers", type=int, default=1, help="parallel case processes (default 1)")
-    parser.add_argument("--threads", type=int, default=1,
-                        help="torch threads per case (default 1: small per-step tensors run fastest on one)")
     parser.add_argument("--no-retry", action="store_true", help="keep stored failures instead of retrying them")
-    parser.add_argument("--no-progress", action="store_true", help="hide progress bars and training messages")
+    add_common_arguments(parser, force=False)
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def _run(args: argparse.Namespace) -> int:
+    threads = apply_threads(args.threads)
+    if args.seeds is not None and args.seeds < 1:
+        raise UserError(f"--seeds: {args.seeds} must be >= 1")
+    raw = load_raw_config(args.config, args.overrides)
+    axes = [parse_grid(g) for g in args.grid]
+    estimators = [e.strip() for e in args.estimators.split(",") if e.strip()]
+    base = config_from_dict(raw)
+    seeds = range(args.seeds if args.seeds is not None else base.scenario.seeds)
+    kept = f"finished cases are stored in {args.out / base.name / 'cases'}; rerun the same command to resume"
     try:
-        path = Path(args.config)
-        if not path.is_file():
-            raise ConfigError(f"config file {str(path)!r} does not exist")
-        raw = apply_overrides(yaml.safe_load(path.read_text()) or {}, args.overrides)
-        axes = [parse_grid(g) for g in args.grid]
-        estimators = [e.strip() for e in args.estimators.split(",") if e.strip()]
-        seeds = range(args.seeds if args.seeds is not None else config_from_dict(raw).scenario.seeds)
-        if args.seeds is not None and args.seeds < 1:
-            raise ConfigError(f"--seeds: {args.seeds} must be >= 1")
         result = run_sweep(raw, axes, seeds, out=args.out, sweep_id=args.sweep_id, estimators=estimators,
-                           workers=args.workers, threads=args.threads, cache_dir=args.cache,
-                           progress=not args.no_progress, rerun_failed=not args.no_retry)
-    except (ConfigError, yaml.YAMLError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+                           workers=args.workers, threads=threads, cache_dir=args.cache,
+                           progress=progress_enabled(args.no_progress), rerun_failed=not args.no_retry)
+    except KeyboardInterrupt:
+        raise Interrupted(kept) from None
     print_summary(result.summary, [k for k, _ in axes])
     for cid in result.failed:
         print(f"case {cid} failed: {result.records[cid].error}", file=sys.stderr)
     print(f"written: {result.folder}")
     if result.interrupted:
-        print("interrupted: finished cases are stored; rerun the same command to resume", file=sys.stderr)
-        return 130
+        raise Interrupted(kept)
     return 1 if result.failed else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return run_command(lambda: _run(args), debug=args.debug)

@@ -9,7 +9,7 @@ from typing import Any, Sequence
 
 import yaml
 
-from ..config import Config, ConfigError, apply_overrides, config_from_dict, config_hash, config_to_dict
+from ..config import Config, ConfigError, apply_overrides, check_mesh, config_from_dict, config_hash, config_to_dict
 from ..estimation import DEFAULT_ESTIMATORS, ESTIMATORS
 from ..model_store import MODEL_SECTIONS, model_key
 from ..reporting import CASE_FORMAT
@@ -85,7 +85,8 @@ def _case_key(cfg: Config, seeds: Sequence[int], estimators: Sequence[str]) -> s
 
 def make_cases(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Sequence[int],
                estimators: Sequence[str] = DEFAULT_ESTIMATORS) -> list[Case]:
-    """Validate every grid point of ``axes`` applied to the raw config mapping ``raw``.
+    """Validate every grid point of ``axes`` applied to the raw config mapping ``raw`` (a mesh is checked as
+    :func:`~lightcurve_gp.config.load_config` checks it).
 
     Raises:
         ConfigError: an unknown key or invalid value; the message names the key (and the grid point).
@@ -93,10 +94,13 @@ def make_cases(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Sequ
     unknown = [e for e in estimators if e not in ESTIMATORS]
     if unknown:
         raise ConfigError(f"estimators: unknown estimator {unknown[0]!r}; choose from {', '.join(ESTIMATORS)}")
-    cases = []
+    cases, meshes_checked = [], set()
     for values in expand_grid(axes):
         try:
             cfg = config_from_dict(apply_overrides(raw, [_override_text(k, v) for k, v in values.items()]))
+            if cfg.shape.kind == "mesh" and cfg.shape.mesh_path not in meshes_checked:
+                check_mesh(cfg.shape.mesh_path)
+                meshes_checked.add(cfg.shape.mesh_path)
         except ConfigError as exc:
             where = ", ".join(f"{k}={value_text(v)}" for k, v in values.items())
             raise ConfigError(f"{exc} (grid point {where})" if where else str(exc)) from None
