@@ -38,6 +38,16 @@ def counting_runner(calls: list, key: str):
     return counting
 
 
+def interrupting_runner(seen: list):
+    """A case runner that runs the first case (its id appended to ``seen``), then raises KeyboardInterrupt."""
+    def interrupted_after_one(spec):
+        if seen:
+            raise KeyboardInterrupt
+        seen.append(spec["case_id"])
+        return run_case(spec)
+    return interrupted_after_one
+
+
 def read_csv(path: Path) -> tuple[list[str], list[dict]]:
     with open(path, newline="") as fh:
         reader = csv.DictReader(fh)
@@ -145,13 +155,7 @@ def test_cli_ctrl_c_is_one_line_exit_130_and_keeps_finished_cases(tmp_path, caps
     import lightcurve_gp.sweep.cli as sweep_cli
 
     seen = []
-
-    def interrupted_after_one(spec):
-        if seen:
-            raise KeyboardInterrupt
-        seen.append(spec["case_id"])
-        return run_case(spec)
-
+    interrupted_after_one = interrupting_runner(seen)
     monkeypatch.setattr(sweep_cli, "run_sweep",
                         lambda *a, **k: run_sweep(*a, **k, case_runner=interrupted_after_one))
     config = tmp_path / "tiny.yaml"
@@ -241,13 +245,7 @@ def test_interrupt_keeps_finished_cases_and_a_rerun_resumes(tmp_path):
     axes = [("scenario.rho_true", [0.3, 0.5, 0.7])]
     est = ["ukf"]
     seen = []
-
-    def interrupted_after_one(spec):
-        if seen:
-            raise KeyboardInterrupt
-        seen.append(spec["case_id"])
-        return run_case(spec)
-
+    interrupted_after_one = interrupting_runner(seen)
     first = run_sweep(tiny_raw(), axes, range(2), out=tmp_path, sweep_id="s", estimators=est, progress=False,
                       case_runner=interrupted_after_one)
     assert first.interrupted and first.ran == seen

@@ -27,36 +27,12 @@ from typing import Any
 
 import yaml
 
-from .config_schema import (
-    MODEL_KIND_SECTIONS,
-    Config,
-    ConfigError,
-    DataConfig,
-    EvaluationConfig,
-    ExactModelConfig,
-    FilterConfig,
-    GeometryConfig,
-    ModelConfig,
-    ScenarioConfig,
-    ShapeConfig,
-    SparseModelConfig,
-    SurfaceConfig,
-)
+from . import config_schema
+from .config_schema import *  # noqa: F403 (the typed sections are importable from here)
+from .config_schema import MODEL_KIND_SECTIONS, Config, ConfigError, ModelConfig
 
 __all__ = [
-    "ConfigError",
-    "Config",
-    "GeometryConfig",
-    "ShapeConfig",
-    "SurfaceConfig",
-    "DataConfig",
-    "ModelConfig",
-    "ExactModelConfig",
-    "SparseModelConfig",
-    "ScenarioConfig",
-    "FilterConfig",
-    "EvaluationConfig",
-    "MODEL_KIND_SECTIONS",
+    *config_schema.__all__,
     "load_config",
     "load_raw_config",
     "config_from_dict",
