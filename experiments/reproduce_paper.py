@@ -28,10 +28,10 @@ from typing import Sequence
 
 import numpy as np
 import torch
-import yaml
 
 from experiments.reproduction_tables import cost_table, estimator_table, models_table, robustness_tables, variance_table
-from lightcurve_gp.config import ConfigError, apply_overrides, config_from_dict
+from lightcurve_gp.cli import UserError, apply_threads
+from lightcurve_gp.config import ConfigError, apply_overrides, config_from_dict, load_raw_config
 from lightcurve_gp.estimation import DEFAULT_ESTIMATORS
 from lightcurve_gp.io import write_json_atomic, write_text_atomic
 from lightcurve_gp.plots import euler_errors, light_curves, rmse_boxplot
@@ -144,7 +144,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--results", type=Path, default=None,
                         help="figures and tables (default experiments/results; with --quick OUT/<name>/results)")
     parser.add_argument("--workers", type=int, default=1, help="parallel case processes (default 1)")
-    parser.add_argument("--threads", type=int, default=1, help="torch threads per case (default 1)")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads of the command and of each case process "
+                        "(default 1)")
     parser.add_argument("--no-progress", action="store_true", help="hide progress bars")
     return parser
 
@@ -206,11 +207,12 @@ def main(argv: list[str] | None = None) -> int:
     seeds_n, var_seeds_n = ((min(args.seeds, 3), min(args.variance_seeds, 2)) if args.quick
                             else (args.seeds, args.variance_seeds))
     try:
+        apply_threads(args.threads)
         if seeds_n < 1 or var_seeds_n < 1:
             raise ConfigError("--seeds and --variance-seeds must be >= 1")
-        raw = apply_overrides(yaml.safe_load(Path(args.config).read_text()) or {}, overrides)
+        raw = load_raw_config(args.config, overrides)
         cfg = config_from_dict(raw)
-    except (ConfigError, OSError) as exc:
+    except (ConfigError, UserError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     results = args.results or (ROOT / "experiments" / "results" if not args.quick

@@ -275,3 +275,13 @@ def test_results_are_deterministic_and_parallel_workers_agree(tmp_path):
     yaw = {(r["scenario.rho_true"], r["estimator"]): r["rmse_yaw_deg"] for r in a.rows if r["seed"] == 0}
     assert yaw[("0.3", "ukf")] != yaw[("0.7", "ukf")]
     assert np.isfinite([r["rmse_yaw_deg"] for r in a.rows]).all()
+
+
+def test_an_in_process_sweep_leaves_the_callers_thread_count_alone(tmp_path):
+    import torch
+
+    before = torch.get_num_threads()
+    res = run_sweep(tiny_raw(), [], range(1), out=tmp_path, estimators=["no_update"], threads=before + 1,
+                    progress=False)
+    assert not res.failed and len(res.ran) == 1
+    assert torch.get_num_threads() == before

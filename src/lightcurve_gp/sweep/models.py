@@ -5,8 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Sequence
 
-import torch
-
 from .grid import Case
 
 __all__ = ["model_path", "ensure_models"]
@@ -17,8 +15,8 @@ def model_path(root: Path, model_hash: str) -> Path:
     return Path(root) / "models" / model_hash / "model.pt"
 
 
-def ensure_models(cases: Sequence[Case], root: Path, cache_dir: Path, progress: bool = True,
-                  threads: int | None = None) -> dict[str, str | None]:
+def ensure_models(cases: Sequence[Case], root: Path, cache_dir: Path,
+                  progress: bool = True) -> dict[str, str | None]:
     """Get every model the cases need from the model store ``root/models``
     (:func:`lightcurve_gp.model_store.get_or_train`, in the config's dtype), training the missing ones.
 
@@ -29,15 +27,10 @@ def ensure_models(cases: Sequence[Case], root: Path, cache_dir: Path, progress: 
 
     errors: dict[str, str | None] = {}
     wanted = {c.model_hash: c.config for c in cases if c.model_hash is not None}
-    old_threads = torch.get_num_threads()
     for model_hash, cfg in wanted.items():
         try:
-            if threads:
-                torch.set_num_threads(threads)
             get_or_train(cfg, Path(root) / "models", cache_dir=cache_dir, progress=progress)
             errors[model_hash] = None
         except Exception as exc:  # recorded on every case that needs this model
             errors[model_hash] = f"model training failed: {type(exc).__name__}: {exc}"
-        finally:
-            torch.set_num_threads(old_threads)
     return errors

@@ -145,7 +145,7 @@ def _run_specs(specs: list[dict[str, Any]], records: dict[str, CaseRecord], case
 
 def run_sweep(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Sequence[int], *,
               out: str | Path = "runs", sweep_id: str | None = None, estimators: Sequence[str] = DEFAULT_ESTIMATORS,
-              workers: int = 1, threads: int = 1, train_threads: int | None = None, cache_dir: str | Path | None = None,
+              workers: int = 1, threads: int = 1, cache_dir: str | Path | None = None,
               progress: bool = True, rerun_failed: bool = True,
               case_runner: Callable[[dict[str, Any]], CaseRecord] = run_case) -> SweepResult:
     """Run (or resume) a sweep; see :mod:`lightcurve_gp.sweep` for what is written where.
@@ -158,7 +158,8 @@ def run_sweep(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Seque
         sweep_id: folder name of this sweep's tables (default: a hash of the definition).
         estimators: subset of :data:`~lightcurve_gp.estimation.ESTIMATORS`.
         workers: parallel processes for the cases (spawned); 1 runs them in this process.
-        threads: torch threads per case; ``train_threads``: torch threads while training (default: torch's).
+        threads: torch threads of each spawned worker process (``workers`` > 1); training and the cases run in
+            this process use the caller's thread count (the library leaves torch's global settings alone).
         cache_dir: training-data cache (default ``out/cache``).
         rerun_failed: retry cases stored as failed (otherwise their stored failure is reported again).
         case_runner: the function that runs one case spec (default :func:`run_case`).
@@ -182,10 +183,10 @@ def run_sweep(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Seque
                                  for c in cases]}, folder / "sweep.json")
 
     records, pending = _pending(cases, root, rerun_failed)
-    model_errors = ensure_models(pending, root, Path(cache_dir) if cache_dir else out / "cache", progress,
-                                 train_threads) if pending else {}
+    model_errors = ensure_models(pending, root, Path(cache_dir) if cache_dir else out / "cache",
+                                 progress) if pending else {}
     specs = [{"config": config_to_dict(c.config), "values": c.values, "case_id": c.case_id, "seeds": seeds,
-              "estimators": list(estimators), "threads": threads,
+              "estimators": list(estimators), "threads": threads if workers > 1 else None,
               "model_path": str(model_path(root, c.model_hash)) if c.model_hash else None,
               "model_error": model_errors.get(c.model_hash) if c.model_hash else None,
               "path": str(case_path(root, c.case_id))} for c in pending]
