@@ -123,7 +123,7 @@ def gpytorch_default_call(exact, data, inputs_13, ours_13):
     """GPyTorch's ``likelihood(model(x))`` with default settings on the same data, timed once on 13 points."""
     import torch
 
-    from lightcurve_gp.observation.exact_gp import gpytorch_exact_model
+    from lightcurve_gp.observation.fitting import gpytorch_exact_model
 
     gp = C.Table("GPyTorch default likelihood(model(x)) on the same data (timed once)",
                  ["call", "points", "seconds", "this ExactGP", "ratio", "max |Δmean|", "max |Δvar|"])
