@@ -70,7 +70,7 @@ def test_estimate_refuses_an_existing_folder_and_records_its_inputs(model_file, 
     assert run["model_mismatch"] is None and run["torch_threads"] == cli.DEFAULT_THREADS
     capsys.readouterr()
     assert estimate.main(args[:2] + ["1"] + args[3:]) == 2  # one seed now: would silently replace two
-    assert capsys.readouterr().err == (f"error: {folder} already exists (an earlier run); pass --force to replace "
+    assert capsys.readouterr().err == (f"error: {folder}: already exists (an earlier run); pass --force to replace "
                                        f"it, or choose another --out or name\n")
     assert tree(folder) == before
     assert estimate.main(args[:2] + ["1"] + args[3:] + ["--force"]) == 0

@@ -94,7 +94,7 @@ def check_output_root(out: Path) -> None:
 def check_new_folder(folder: Path, force: bool) -> None:
     """Refuse to write over an existing run folder unless ``force``."""
     if folder.exists() and not force:
-        raise UserError(f"{folder} already exists (an earlier run); pass --force to replace it, or choose another "
+        raise UserError(f"{folder}: already exists (an earlier run); pass --force to replace it, or choose another "
                         f"--out or name")
     if folder.exists() and not folder.is_dir():
         raise UserError(f"{folder} exists and is not a folder")
@@ -173,7 +173,7 @@ def provenance(cfg, seeds: list[int] | None = None, **extra: Any) -> dict:
     from . import __version__
     from .config import config_to_dict
 
-    return {"command": shlex.join([Path(sys.argv[0]).name, *sys.argv[1:]]),
+    return {"command": shlex.join([Path(sys.orig_argv[0]).name, *sys.orig_argv[1:]]),
             "working_directory": os.getcwd(), "config": config_to_dict(cfg), "package_version": __version__,
             "torch_version": torch.__version__, "python_version": sys.version.split()[0],
             "torch_threads": torch.get_num_threads(), "seeds": seeds,
