@@ -28,15 +28,38 @@ Numerics:
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
 
-__all__ = ["ashikhmin_shirley", "ashikhmin_shirley_cosines", "ashikhmin_shirley_projected", "lambert", "exp_floor",
-           "DIFFUSE_SCALE"]
+__all__ = ["Surface", "ashikhmin_shirley", "ashikhmin_shirley_cosines", "ashikhmin_shirley_projected", "lambert",
+           "exp_floor", "DIFFUSE_SCALE"]
 
 #: 28 / (23 π), the normalisation of the Ashikhmin–Shirley diffuse term
 DIFFUSE_SCALE = 28.0 / (23.0 * math.pi)
+
+
+class Surface(NamedTuple):
+    """Ashikhmin–Shirley parameters of a whole object, one value per batch element: every field ``(B,)``.
+
+    ``rho`` diffuse reflectance, ``f0`` Fresnel reflectance at normal incidence, ``n_u``/``n_v`` lobe exponents.
+    The renderer gives every facet of batch element ``b`` the parameters ``surface[:, b]`` (see
+    :meth:`lightcurve_gp.render.Scene.flux_parts`).
+    """
+
+    rho: Tensor
+    f0: Tensor
+    n_u: Tensor
+    n_v: Tensor
+
+    def to(self, device=None, dtype=None) -> "Surface":
+        """Copy with every field moved to ``device`` and/or cast to ``dtype``."""
+        return Surface(*(t.to(device=device, dtype=dtype) for t in self))
+
+    def index(self, rows) -> "Surface":
+        """The batch elements ``rows`` (an index, slice or mask) of every field."""
+        return Surface(*(t[rows] for t in self))
 
 
 def exp_floor(dtype: torch.dtype) -> float:

@@ -16,6 +16,10 @@ Reflectance override. ``rho=`` (a number or a tensor broadcasting against the at
 facet that ρ. ``c_d`` is linear in ρ, so the ρ = 1 diffuse flux is computed once per attitude and scaled: a
 ρ grid costs no more than one rendering (``rho`` of shape ``(R, 1, …)`` adds a leading ρ dimension).
 
+Per-object surfaces. ``surface=`` (:class:`~lightcurve_gp.brdf.Surface`, every field ``(B,)``) gives every facet of
+batch element ``b`` of ``q (B, ..., 4)`` the material ``(ρ_b, F0_b, n_u,b, n_v,b)``: many objects of one shape with
+different surfaces render in one call (the facet groups stay valid, they share one material per element).
+
 Zero flux. Where no facet is both lit and visible, ``f_obs = 0`` and there is no magnitude. Policy:
 :meth:`Scene.magnitude` returns NaN there (never ``inf``, and with zero, not NaN, gradients elsewhere),
 and ``return_visible=True`` also returns the boolean mask ``f_obs > 0``; ``zero_flux="raise"`` raises
@@ -30,7 +34,7 @@ import math
 import torch
 from torch import Tensor
 
-from .brdf import ashikhmin_shirley_projected
+from .brdf import Surface, ashikhmin_shirley_projected
 from .config import Config
 from .rotations import attitude_matrix
 from .shapes import Facets, facets_from_config
@@ -113,8 +117,12 @@ class Scene:
 
     # ------------------------------------------------------------------------------------------ rendering
 
-    def _sums(self, q: Tensor, unit_rho: bool) -> tuple[Tensor, Tensor]:
-        """Diffuse and specular flux sums ``(batch,)`` of ``q (batch..., 4)``; diffuse at ρ = 1 if ``unit_rho``."""
+    def _sums(self, q: Tensor, unit_rho: bool, surface: Surface | None = None) -> tuple[Tensor, Tensor]:
+        """Diffuse and specular flux sums ``(batch,)`` of ``q (batch..., 4)``; diffuse at ρ = 1 if ``unit_rho``.
+
+        With ``surface`` (fields ``(B,)``, ``B = batch[0]``) every facet of batch element ``b`` takes that
+        element's (F0, n_u, n_v) and the diffuse sum is scaled by its ρ (unless ``unit_rho``).
+        """
         fac = self._facets_eval
         if q.shape[-1] != 4:
             raise ValueError(f"q must have shape (..., 4), got {tuple(q.shape)}")
@@ -123,19 +131,23 @@ class Scene:
                              f"{fac.normals.device}; use scene.to(...)")
         batch = q.shape[:-1]
         flat = q.reshape(-1, 4)
+        rows = None if surface is None else _surface_rows(surface, batch, q)  # (N, 1) each, or None
         frame = torch.stack([self.sun, self.observer, self.half], -1)  # (3, 3): columns ŝ, v̂, ĥ (inertial)
         normals_t, u_t, w_t = fac.normals.T, fac.u.T, fac.v.T  # (3, G)
-        area_d = fac.areas if unit_rho else fac.areas * fac.rho
+        area_d = fac.areas if unit_rho or rows is not None else fac.areas * fac.rho
         vh = torch.dot(self.observer, self.half)  # v·h does not depend on the attitude
         chunk = max(1, self.chunk_elements // max(1, len(fac)))
         diffuse, specular = [], []
         for start in range(0, flat.shape[0], chunk):
-            body = (attitude_matrix(flat[start:start + chunk]) @ frame).transpose(-1, -2)  # (N, 3 [s,v,h], 3)
+            part = slice(start, start + chunk)
+            f0, n_u, n_v = (fac.f0, fac.n_u, fac.n_v) if rows is None else (r[part] for r in rows[1:])
+            body = (attitude_matrix(flat[part]) @ frame).transpose(-1, -2)  # (N, 3 [s,v,h], 3)
             s_b, v_b, h_b = body.unbind(-2)
             hn = h_b @ normals_t
             d, c = ashikhmin_shirley_projected(s_b @ normals_t, v_b @ normals_t, hn, vh, h_b @ u_t, h_b @ w_t,
-                                               1.0, fac.f0, fac.n_u, fac.n_v)  # diffuse at ρ = 1, (N, G)
-            diffuse.append(d @ area_d)
+                                               1.0, f0, n_u, n_v)  # diffuse at ρ = 1, (N, G)
+            d_sum = d @ area_d
+            diffuse.append(d_sum if rows is None or unit_rho else d_sum * rows[0][part, 0])
             specular.append(c @ fac.areas)
         if not diffuse:
             empty = flat.new_zeros(0)
@@ -145,13 +157,20 @@ class Scene:
     def _rho(self, rho, like: Tensor) -> Tensor:
         return torch.as_tensor(rho, dtype=like.dtype, device=like.device)
 
-    def flux_parts(self, q: Tensor, rho=None) -> tuple[Tensor, Tensor]:
+    def flux_parts(self, q: Tensor, rho=None, *, surface: Surface | None = None) -> tuple[Tensor, Tensor]:
         """Diffuse and specular parts of ``f_obs`` (m²·sr⁻¹ weighted), shapes ``broadcast(q.shape[:-1], rho.shape)``.
 
         Args:
             q: unit quaternions ``(..., 4)``, scalar last (inertial → body).
             rho: ``None`` for the facets' own ρ, else a number or tensor every facet's ρ is replaced by.
+            surface: per-batch-element material (:class:`~lightcurve_gp.brdf.Surface`, fields ``(B,)``) replacing
+                every facet's (ρ, F0, n_u, n_v); ``B`` is ``q``'s leading dimension (or 1) and broadcasts against
+                ``q (B, ..., 4)``. Exclusive with ``rho``.
         """
+        if surface is not None:
+            if rho is not None:
+                raise ValueError("give rho or surface, not both")
+            return self._sums(q, unit_rho=False, surface=surface)
         if rho is None:
             return self._sums(q, unit_rho=False)
         diffuse1, specular = self._sums(q, unit_rho=True)
@@ -159,14 +178,14 @@ class Scene:
         diffuse = rho * diffuse1
         return diffuse, specular.expand_as(diffuse) if specular.shape != diffuse.shape else specular
 
-    def flux(self, q: Tensor, rho=None) -> Tensor:
-        """``f_obs`` of attitudes ``q (..., 4)``; shape ``broadcast(q.shape[:-1], rho.shape)``; see
-        :meth:`flux_parts`."""
-        diffuse, specular = self.flux_parts(q, rho)
+    def flux(self, q: Tensor, rho=None, *, surface: Surface | None = None) -> Tensor:
+        """``f_obs`` of attitudes ``q (..., 4)``, shaped as :meth:`flux_parts`'s parts."""
+        diffuse, specular = self.flux_parts(q, rho, surface=surface)
         return diffuse + specular
 
-    def magnitude(self, q: Tensor, rho=None, *, zero_flux: str = "nan", return_visible: bool = False):
-        """Apparent magnitude ``m_app`` of attitudes ``q (..., 4)`` (see :meth:`flux_parts` for ``rho``).
+    def magnitude(self, q: Tensor, rho=None, *, surface: Surface | None = None, zero_flux: str = "nan",
+                  return_visible: bool = False):
+        """Apparent magnitude ``m_app`` of attitudes ``q (..., 4)`` (see :meth:`flux_parts` for ``rho``, ``surface``).
 
         Args:
             zero_flux: ``"nan"``: NaN where ``f_obs = 0`` (nothing lit and visible); ``"raise"``: ``ValueError``.
@@ -178,7 +197,7 @@ class Scene:
         """
         if zero_flux not in ("nan", "raise"):
             raise ValueError(f"zero_flux: {zero_flux!r} is not 'nan' or 'raise'")
-        f = self.flux(q, rho)
+        f = self.flux(q, rho, surface=surface)
         visible = f > 0
         all_visible = bool(visible.all())
         if not all_visible and zero_flux == "raise":
@@ -190,3 +209,16 @@ class Scene:
             m = apparent_magnitude(torch.where(visible, f, torch.ones_like(f)), self.r_obs)
             m = torch.where(visible, m, torch.full_like(m, math.nan))
         return (m, visible) if return_visible else m
+
+
+def _surface_rows(surface: Surface, batch: torch.Size, like: Tensor) -> list[Tensor]:
+    """The fields of ``surface`` ``(B,)`` broadcast over ``batch = (B, ...)`` and flattened to ``(N, 1)`` each."""
+    lead = batch[0] if len(batch) else 1
+    rows = []
+    for name, t in zip(Surface._fields, surface):
+        t = torch.as_tensor(t, dtype=like.dtype, device=like.device)
+        if t.ndim != 1 or t.shape[0] not in (1, lead) or not len(batch):
+            raise ValueError(f"surface.{name}: expected shape ({lead},) or (1,) against q of batch shape "
+                             f"{tuple(batch)}, got {tuple(t.shape)}")
+        rows.append(t.reshape(-1, *([1] * (len(batch) - 1))).expand(batch).reshape(-1, 1))
+    return rows

@@ -1,0 +1,261 @@
+"""Generalisation suite: every estimator on random truths (attitude, spin, surface, initial error per seed).
+
+Seeds come in two blocks: the tuning block (default 1000-1099) may inform choices; the held-out block (default
+2000-2299) is never used for one and gives the reported numbers. ``--error-angles`` adds the initial-error table:
+the same truths of ``--error-seeds`` (default 2000-2099) with a fixed initial-error angle (5, 10, 20, 30 deg, random
+axis, P0 matched). Truths: :mod:`lightcurve_gp.truths`; estimators and metrics: :mod:`lightcurve_gp.generalization`.
+
+Resumable: seeds run in blocks of ``--block-size``, each block one case of the sweep machinery's result store,
+``<runs>/<config name>/cases/<case-id>.json`` (the id hashes the config, the model, the seeds, the error mode and the
+estimators), written atomically when the block finishes; a rerun skips stored blocks, so a killed run continues.
+Writes to ``--out`` (experiments/results/generalization/): summary.md/.csv (held-out and tuning blocks, per surface
+class, |omega0| bin and initial-error bin), initial_error.md/.csv, bar charts of the share below 10 deg and of the
+NEES-consistent share, RMSE box plots; per-seed rows go to ``<runs>/generalization/<config name>/per_seed.csv``.
+
+    python -m experiments.generalization --model-config configs/boxwing_robust.yaml
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import sys
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from lightcurve_gp.config import ConfigError, config_hash, config_to_dict, load_config
+from lightcurve_gp.generalization import SUITE_ESTIMATORS, nees_band, run_suite
+from lightcurve_gp.generalization_summary import SUMMARY_COLUMNS, summarize, seed_rows, whitened_correlation
+from lightcurve_gp.io import write_json_atomic, write_text_atomic
+from lightcurve_gp.plots import _save, plt, rmse_boxplot
+from lightcurve_gp.render import Scene
+from lightcurve_gp.sweep import CASE_FORMAT, model_key, read_case
+from lightcurve_gp.truths import draw_truths, simulate_truths
+
+from experiments.robust_gpukf import trained_model
+
+ROOT = Path(__file__).resolve().parents[1]
+SUITE_FORMAT = 1
+
+
+def seed_range(text: str) -> range:
+    """``"2000:2300"`` → ``range(2000, 2300)``."""
+    try:
+        lo, hi = (int(v) for v in text.split(":"))
+    except ValueError:
+        raise ConfigError(f"seed block {text!r}: expected FIRST:END, e.g. 2000:2300") from None
+    if hi <= lo:
+        raise ConfigError(f"seed block {text!r}: END must exceed FIRST")
+    return range(lo, hi)
+
+
+def block_id(cfg, seeds: Sequence[int], error_deg: float | None, estimators: Sequence[str], map_every: float) -> str:
+    """Content hash of one block: the whole config, its model, the seeds, the error mode and the estimators."""
+    return config_hash(cfg, *[k for k in config_to_dict(cfg) if k != "name"],
+                       extra={"suite": "generalization", "format": SUITE_FORMAT, "model": model_key(cfg),
+                              "seeds": list(seeds), "error_deg": error_deg, "estimators": list(estimators),
+                              "map_every_s": map_every})
+
+
+def run_block(cfg, model, scene, seeds: Sequence[int], error_deg: float | None, estimators: Sequence[str],
+              map_every: float, path: Path) -> dict[str, Any]:
+    """Run (or read back) one block of seeds; the record is written atomically to ``path``."""
+    stored = read_case(path)
+    if stored is not None and stored.get("status") == "ok":
+        return stored
+    start = time.perf_counter()
+    truths = simulate_truths(cfg, draw_truths(seeds, error_deg=error_deg), scene)
+    results = run_suite(cfg, truths, gp_model=model, estimators=estimators, map_every_s=map_every, scene=scene)
+    rows = seed_rows(truths, results, nees_band(), error_mode="random" if error_deg is None else f"{error_deg:g}")
+    record = {"format": CASE_FORMAT, "case_id": path.stem, "status": "ok", "seeds": list(seeds),
+              "error_deg": error_deg, "estimators": list(estimators), "rows": rows,
+              "seconds": time.perf_counter() - start,
+              "estimator_seconds": {n: r.seconds for n, r in results.items()}}
+    write_json_atomic(record, path)
+    return record
+
+
+def run_blocks(cfg, model, scene, seeds: range, error_deg: float | None, estimators, args, label: str):
+    """All blocks of ``seeds`` for one error mode; returns the rows and the summed estimator seconds."""
+    blocks = [seeds[i:i + args.block_size] for i in range(0, len(seeds), args.block_size)]
+    rows, seconds = [], {}
+    for block in tqdm(blocks, desc=label, unit="block"):
+        path = args.runs / cfg.name / "cases" / f"{block_id(cfg, block, error_deg, estimators, args.map_every)}.json"
+        record = run_block(cfg, model, scene, block, error_deg, estimators, args.map_every, path)
+        for row in record["rows"]:
+            rows.append({**row, "block": label})
+        for name, s in record["estimator_seconds"].items():
+            seconds[name] = seconds.get(name, 0.0) + s
+    return rows, seconds
+
+
+# ------------------------------------------------------------------------------------------------ tables
+
+def csv_text(rows: Sequence[dict[str, Any]], columns: Sequence[str]) -> str:
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(columns), extrasaction="ignore", lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: ("" if row.get(k) is None else row[k]) for k in columns})
+    return buf.getvalue()
+
+
+def markdown_table(summary: Sequence[dict[str, Any]], first: str) -> list[str]:
+    """Rows of the summary as a Markdown table whose first column is ``first`` (``"group"`` or ``"estimator"``)."""
+    other = "estimator" if first == "group" else "group"
+    lines = [f"| {first} | {other} | seeds | < 10 deg all axes | yaw | pitch | roll | NEES in band | mean NEES | "
+             "median NEES |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for e in summary:
+        lines.append(f"| {e[first]} | {e[other]} | {e['seeds']} | {100 * e['share_below_10deg']:.0f} % | "
+                     f"{e['rmse_yaw_median']:.2f} | {e['rmse_pitch_median']:.2f} | {e['rmse_roll_median']:.2f} | "
+                     f"{100 * e['share_nees_in_band']:.0f} % | {e['nees_mean']:.3g} | {e['nees_median']:.3g} |")
+    return lines
+
+
+def block_report(rows, seconds: dict[str, float], title: str) -> tuple[list[str], list[dict[str, Any]]]:
+    """Markdown section (per grouping one table) and the summary entries of one block of rows."""
+    summary = summarize(rows)
+    lines = [f"\n## {title}\n", "Wall time of the batched runs (s): "
+             + ", ".join(f"{n} {s:.0f}" for n, s in seconds.items()) + ".",
+             "\nSpearman correlation of the whitened attitude error at the window's first and last scored sample "
+             "(pooled over seeds and axes): "
+             + ", ".join(f"{n} {whitened_correlation(rows, n):.2f}" for n in seconds if n != "no_update") + "."]
+    for grouping in dict.fromkeys(e["grouping"] for e in summary):
+        lines += [f"\n### by {grouping}\n", *markdown_table([e for e in summary if e["grouping"] == grouping],
+                                                            "group")]
+    return lines, summary
+
+
+# ------------------------------------------------------------------------------------------------ figures
+
+def bar_chart(summary: Sequence[dict[str, Any]], metric: str, ylabel: str, path: Path, title: str) -> Path:
+    """One panel per grouping: bars of ``metric`` per group, one bar per estimator."""
+    groupings = [g for g in dict.fromkeys(e["grouping"] for e in summary)]
+    estimators = list(dict.fromkeys(e["estimator"] for e in summary))
+    fig, axes = plt.subplots(1, len(groupings), figsize=(3.6 * len(groupings), 3.4), sharey=True, squeeze=False)
+    width = 0.8 / len(estimators)
+    for ax, grouping in zip(axes[0], groupings):
+        entries = [e for e in summary if e["grouping"] == grouping]
+        groups = list(dict.fromkeys(e["group"] for e in entries))
+        for j, name in enumerate(estimators):
+            values = {e["group"]: e[metric] for e in entries if e["estimator"] == name}
+            ax.bar(np.arange(len(groups)) + (j - (len(estimators) - 1) / 2) * width,
+                   [100 * values.get(g, np.nan) for g in groups], width, label=name)
+        ax.set_xticks(range(len(groups)), groups, fontsize=8)
+        ax.set_title(grouping, fontsize=9)
+    axes[0][0].set_ylabel(ylabel)
+    axes[0][-1].legend(fontsize=7)
+    fig.suptitle(title)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def write_figures(rows, summary, out: Path, label: str) -> None:
+    bar_chart(summary, "share_below_10deg", "seeds below 10 deg [%]", out / f"below10_{label}.png",
+              f"share below 10 deg on all axes ({label} seeds)")
+    bar_chart(summary, "share_nees_in_band", "NEES in its band [%]", out / f"nees_consistent_{label}.png",
+              f"share of seeds with time-averaged NEES in its single-run band ({label} seeds)")
+    names = list(dict.fromkeys(r["estimator"] for r in rows))
+    rmse = {n: np.array([[r[k] if r[k] is not None else np.nan for k in ("rmse_yaw_deg", "rmse_pitch_deg",
+                                                                          "rmse_roll_deg")]
+                         for r in rows if r["estimator"] == n]) for n in names}
+    rmse_boxplot(rmse, out / f"rmse_boxplot_{label}.png", title=f"RMSE over 400-600 s ({label} seeds)")
+
+
+# ------------------------------------------------------------------------------------------------ main
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--model-config", default=str(ROOT / "configs/boxwing_robust.yaml"),
+                   help="the robust config to evaluate (its model is trained into --runs when missing)")
+    p.add_argument("--tuning-seeds", default="1000:1100", type=seed_range, help="FIRST:END (choices allowed)")
+    p.add_argument("--heldout-seeds", default="2000:2300", type=seed_range, help="FIRST:END (never for choices)")
+    p.add_argument("--blocks", default="tuning,heldout", help="which of tuning,heldout to run")
+    p.add_argument("--error-angles", default="", help="fixed initial-error angles (deg), e.g. 5,10,20,30")
+    p.add_argument("--error-seeds", default="2000:2100", type=seed_range, help="seeds of the initial-error table")
+    p.add_argument("--estimators", default=",".join(SUITE_ESTIMATORS))
+    p.add_argument("--error-estimators", default="robust_gpukf,matched_ukf,joint_ukf,map_surface,no_update")
+    p.add_argument("--block-size", type=int, default=50)
+    p.add_argument("--map-every", type=float, default=50.0, help="MAP checkpoint spacing in the window (s)")
+    p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    p.add_argument("--out", default=str(ROOT / "experiments/results/generalization"), type=Path)
+    p.add_argument("--runs", default=str(ROOT / "runs"), type=Path, help="trained models and the result store")
+    return p
+
+
+def _names(text: str) -> list[str]:
+    names = [e.strip() for e in text.split(",") if e.strip()]
+    unknown = [e for e in names if e not in SUITE_ESTIMATORS]
+    if unknown:
+        raise ConfigError(f"--estimators: unknown estimator {unknown[0]!r}; choose from {', '.join(SUITE_ESTIMATORS)}")
+    return names
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        cfg = load_config(args.model_config)
+        estimators, error_estimators = _names(args.estimators), _names(args.error_estimators)
+        angles = [float(a) for a in args.error_angles.split(",") if a.strip()]
+        blocks = [b.strip() for b in args.blocks.split(",") if b.strip()]
+        if any(b not in ("tuning", "heldout") for b in blocks):
+            raise ConfigError(f"--blocks: {args.blocks!r} names a block other than tuning, heldout")
+    except (ConfigError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    torch.set_num_threads(args.threads)
+    start = time.perf_counter()
+    model = trained_model(cfg, args.runs) if "robust_gpukf" in estimators + error_estimators else None
+    scene = Scene.from_config(cfg).to(dtype=torch.float64)
+    band = nees_band()
+    command = "python -m experiments.generalization " + " ".join(sys.argv[1:] if argv is None else argv)
+    report = [f"# Generalisation suite: {cfg.name}\n",
+              f"Command: `{command}`. Median RMSE in deg "
+              f"over {cfg.evaluation.rmse_window_s[0]:g}-{cfg.evaluation.rmse_window_s[1]:g} s (MAP: its checkpoints "
+              f"every {args.map_every:g} s there); NEES band of one chi-square(3) sample {band[0]:.2f}-{band[1]:.2f}."]
+    all_rows, all_summary = [], []
+    for label in blocks:
+        seeds = args.heldout_seeds if label == "heldout" else args.tuning_seeds
+        rows, seconds = run_blocks(cfg, model, scene, seeds, None, estimators, args, label)
+        lines, summary = block_report(rows, seconds, f"{label} seeds {seeds.start}-{seeds.stop - 1}")
+        report += lines
+        all_rows += rows
+        all_summary += [{"block": label, **e} for e in summary]
+        write_figures(rows, summary, args.out, label)
+    error_summary = []
+    for angle in angles:
+        rows, _ = run_blocks(cfg, model, scene, args.error_seeds, angle, error_estimators, args, f"error {angle:g}")
+        all_rows += rows
+        error_summary += [{"initial_error_deg": angle, **e} for e in summarize(rows, {"all": None})]
+    wall = time.perf_counter() - start
+    report.append(f"\nWall time of this command: {wall:.0f} s.")
+    write_text_atomic("\n".join(report) + "\n", args.out / "summary.md")
+    write_text_atomic(csv_text(all_summary, ("block", *SUMMARY_COLUMNS)), args.out / "summary.csv")
+    if error_summary:
+        write_error_table(error_summary, args)
+    columns = [k for k in all_rows[0] if k not in ("white_first", "white_last")] if all_rows else []
+    write_text_atomic(csv_text(all_rows, columns), args.runs / "generalization" / cfg.name / "per_seed.csv")
+    write_json_atomic({"command": command, "wall_seconds": wall, "summary": all_summary,
+                       "initial_error": error_summary}, args.out / "summary.json")
+    print("\n".join(report))
+    return 0
+
+
+def write_error_table(error_summary, args) -> None:
+    seeds = args.error_seeds
+    lines = [f"# Accuracy against the initial error ({len(seeds)} seeds {seeds.start}-{seeds.stop - 1}, the same "
+             "truths at every angle, random axis, P0 = (angle / sqrt 3)^2 I)\n",
+             *markdown_table([{**e, "group": f"{e['initial_error_deg']:g} deg"} for e in error_summary], "group")]
+    write_text_atomic("\n".join(lines) + "\n", args.out / "initial_error.md")
+    write_text_atomic(csv_text(error_summary, ("initial_error_deg", *SUMMARY_COLUMNS)), args.out / "initial_error.csv")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
