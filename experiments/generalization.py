@@ -10,7 +10,8 @@ Resumable: seeds run in blocks of ``--block-size``, each block one case of the s
 estimators), written atomically when the block finishes; a rerun skips stored blocks, so a killed run continues.
 Writes to ``--out`` (experiments/results/generalization/): summary.md/.csv (held-out and tuning blocks, per surface
 class, |omega0| bin and initial-error bin), initial_error.md/.csv, bar charts of the share below 10 deg and of the
-NEES-consistent share, RMSE box plots; per-seed rows go to ``<runs>/generalization/<config name>/per_seed.csv``.
+NEES-consistent share, RMSE box plots; per-seed rows go to ``<runs>/generalization/<config name>/per_seed.csv`` (and
+``per_seed_initial_error.csv``). Each table is written only by a command that ran its blocks.
 
     python -m experiments.generalization --model-config configs/boxwing_robust.yaml
 """
@@ -176,7 +177,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the robust config to evaluate (its model is trained into --runs when missing)")
     p.add_argument("--tuning-seeds", default="1000:1100", type=seed_range, help="FIRST:END (choices allowed)")
     p.add_argument("--heldout-seeds", default="2000:2300", type=seed_range, help="FIRST:END (never for choices)")
-    p.add_argument("--blocks", default="tuning,heldout", help="which of tuning,heldout to run")
+    p.add_argument("--blocks", default="tuning,heldout", help="which of tuning,heldout to run ('' for none)")
     p.add_argument("--error-angles", default="", help="fixed initial-error angles (deg), e.g. 5,10,20,30")
     p.add_argument("--error-seeds", default="2000:2100", type=seed_range, help="seeds of the initial-error table")
     p.add_argument("--estimators", default=",".join(SUITE_ESTIMATORS))
@@ -204,8 +205,8 @@ def main(argv=None) -> int:
         estimators, error_estimators = _names(args.estimators), _names(args.error_estimators)
         angles = [float(a) for a in args.error_angles.split(",") if a.strip()]
         blocks = [b.strip() for b in args.blocks.split(",") if b.strip()]
-        if any(b not in ("tuning", "heldout") for b in blocks):
-            raise ConfigError(f"--blocks: {args.blocks!r} names a block other than tuning, heldout")
+        if any(b not in ("tuning", "heldout") for b in blocks) or not (blocks or angles):
+            raise ConfigError(f"--blocks: {args.blocks!r} must name tuning and/or heldout (or give --error-angles)")
     except (ConfigError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -228,29 +229,33 @@ def main(argv=None) -> int:
         all_rows += rows
         all_summary += [{"block": label, **e} for e in summary]
         write_figures(rows, summary, args.out, label)
-    error_summary = []
+    error_summary, error_rows = [], []
     for angle in angles:
         rows, _ = run_blocks(cfg, model, scene, args.error_seeds, angle, error_estimators, args, f"error {angle:g}")
-        all_rows += rows
+        error_rows += rows
         error_summary += [{"initial_error_deg": angle, **e} for e in summarize(rows, {"all": None})]
     wall = time.perf_counter() - start
     report.append(f"\nWall time of this command: {wall:.0f} s.")
-    write_text_atomic("\n".join(report) + "\n", args.out / "summary.md")
-    write_text_atomic(csv_text(all_summary, ("block", *SUMMARY_COLUMNS)), args.out / "summary.csv")
+    if blocks:
+        write_text_atomic("\n".join(report) + "\n", args.out / "summary.md")
+        write_text_atomic(csv_text(all_summary, ("block", *SUMMARY_COLUMNS)), args.out / "summary.csv")
+        write_json_atomic({"command": command, "wall_seconds": wall, "summary": all_summary},
+                          args.out / "summary.json")
+        print("\n".join(report))
     if error_summary:
-        write_error_table(error_summary, args)
-    columns = [k for k in all_rows[0] if k not in ("white_first", "white_last")] if all_rows else []
-    write_text_atomic(csv_text(all_rows, columns), args.runs / "generalization" / cfg.name / "per_seed.csv")
-    write_json_atomic({"command": command, "wall_seconds": wall, "summary": all_summary,
-                       "initial_error": error_summary}, args.out / "summary.json")
-    print("\n".join(report))
+        write_error_table(error_summary, args, command, wall)
+    for rows, name in ((all_rows, "per_seed.csv"), (error_rows, "per_seed_initial_error.csv")):
+        if rows:
+            columns = [k for k in rows[0] if k not in ("white_first", "white_last")]
+            write_text_atomic(csv_text(rows, columns), args.runs / "generalization" / cfg.name / name)
     return 0
 
 
-def write_error_table(error_summary, args) -> None:
+def write_error_table(error_summary, args, command: str, wall: float) -> None:
     seeds = args.error_seeds
     lines = [f"# Accuracy against the initial error ({len(seeds)} seeds {seeds.start}-{seeds.stop - 1}, the same "
              "truths at every angle, random axis, P0 = (angle / sqrt 3)^2 I)\n",
+             f"Command: `{command}` ({wall:.0f} s). Median RMSE in deg; NEES band of one chi-square(3) sample.\n",
              *markdown_table([{**e, "group": f"{e['initial_error_deg']:g} deg"} for e in error_summary], "group")]
     write_text_atomic("\n".join(lines) + "\n", args.out / "initial_error.md")
     write_text_atomic(csv_text(error_summary, ("initial_error_deg", *SUMMARY_COLUMNS)), args.out / "initial_error.csv")
