@@ -5,9 +5,10 @@ Seeds come in two blocks: the tuning block (default 1000-1099) may inform choice
 the same truths of ``--error-seeds`` (default 2000-2099) with a fixed initial-error angle (5, 10, 20, 30 deg, random
 axis, P0 matched). Truths: :mod:`lightcurve_gp.truths`; estimators and metrics: :mod:`lightcurve_gp.generalization`.
 
-Resumable: seeds run in blocks of ``--block-size``, each block one case of the sweep machinery's result store,
-``<runs>/<config name>/cases/<case-id>.json`` (the id hashes the config, the model, the seeds, the error mode and the
-estimators), written atomically when the block finishes; a rerun skips stored blocks, so a killed run continues.
+Resumable: seeds run in blocks of ``--block-size``; each (block, estimator) is one case of the sweep machinery's
+record format in ``<runs>/generalization/cases/<case-id>.json`` (the id hashes what the estimator depends on, the
+seeds and the error mode; see :func:`block_id`), written atomically when it finishes; a rerun skips stored cases, so
+a killed run continues, and a new candidate config reruns only what it changes (its GPUKF, for a new model).
 Writes to ``--out`` (experiments/results/generalization/): summary.md/.csv (held-out and tuning blocks, per surface
 class, |omega0| bin and initial-error bin), initial_error.md/.csv, bar charts of the share below 10 deg and of the
 NEES-consistent share, RMSE box plots; per-seed rows go to ``<runs>/generalization/<config name>/per_seed.csv`` (and
@@ -56,43 +57,53 @@ def seed_range(text: str) -> range:
     return range(lo, hi)
 
 
-def block_id(cfg, seeds: Sequence[int], error_deg: float | None, estimators: Sequence[str], map_every: float) -> str:
-    """Content hash of one block: the whole config, its model, the seeds, the error mode and the estimators."""
-    return config_hash(cfg, *[k for k in config_to_dict(cfg) if k != "name"],
-                       extra={"suite": "generalization", "format": SUITE_FORMAT, "model": model_key(cfg),
-                              "seeds": list(seeds), "error_deg": error_deg, "estimators": list(estimators),
-                              "map_every_s": map_every})
+def block_id(cfg, seeds: Sequence[int], error_deg: float | None, estimator: str, map_every: float) -> str:
+    """Content hash of one (block, estimator) case: what the estimator's result depends on, the seeds, the error mode.
+
+    Only the robust GPUKF depends on the trained model (``data`` and ``model`` sections); the other estimators use
+    ``model.rho_reference`` alone from those, so a new candidate config with the same scenario, surface and filter
+    tuning reuses their stored blocks and runs its GPUKF only.
+    """
+    sections = [k for k in config_to_dict(cfg) if k != "name" and (estimator == "robust_gpukf"
+                                                                   or k not in ("data", "model"))]
+    return config_hash(cfg, *sections, extra={
+        "suite": "generalization", "format": SUITE_FORMAT, "seeds": list(seeds), "error_deg": error_deg,
+        "estimator": estimator, "map_every_s": map_every if estimator.startswith("map_") else None,
+        "model": model_key(cfg) if estimator == "robust_gpukf" else cfg.model.rho_reference})
 
 
 def run_block(cfg, model, scene, seeds: Sequence[int], error_deg: float | None, estimators: Sequence[str],
-              map_every: float, path: Path) -> dict[str, Any]:
-    """Run (or read back) one block of seeds; the record is written atomically to ``path``."""
-    stored = read_case(path)
-    if stored is not None and stored.get("status") == "ok":
-        return stored
-    start = time.perf_counter()
-    truths = simulate_truths(cfg, draw_truths(seeds, error_deg=error_deg), scene)
-    results = run_suite(cfg, truths, gp_model=model, estimators=estimators, map_every_s=map_every, scene=scene)
-    rows = seed_rows(truths, results, nees_band(), error_mode="random" if error_deg is None else f"{error_deg:g}")
-    record = {"format": CASE_FORMAT, "case_id": path.stem, "status": "ok", "seeds": list(seeds),
-              "error_deg": error_deg, "estimators": list(estimators), "rows": rows,
-              "seconds": time.perf_counter() - start,
-              "estimator_seconds": {n: r.seconds for n, r in results.items()}}
-    write_json_atomic(record, path)
-    return record
+              map_every: float, store: Path) -> list[dict[str, Any]]:
+    """Rows of one block of seeds, each estimator read back from ``store`` or run and stored atomically there."""
+    truths, rows = None, []
+    for name in estimators:
+        path = store / f"{block_id(cfg, seeds, error_deg, name, map_every)}.json"
+        record = read_case(path)
+        if record is None or record.get("status") != "ok":
+            start = time.perf_counter()
+            truths = truths or simulate_truths(cfg, draw_truths(seeds, error_deg=error_deg), scene)
+            results = run_suite(cfg, truths, gp_model=model, estimators=[name], map_every_s=map_every, scene=scene)
+            record = {"format": CASE_FORMAT, "case_id": path.stem, "status": "ok", "seeds": list(seeds),
+                      "error_deg": error_deg, "estimator": name, "seconds": time.perf_counter() - start,
+                      "rows": seed_rows(truths, results, nees_band(),
+                                        error_mode="random" if error_deg is None else f"{error_deg:g}")}
+            write_json_atomic(record, path)
+        rows += record["rows"]
+    return rows
 
 
 def run_blocks(cfg, model, scene, seeds: range, error_deg: float | None, estimators, args, label: str):
     """All blocks of ``seeds`` for one error mode; returns the rows and the summed estimator seconds."""
     blocks = [seeds[i:i + args.block_size] for i in range(0, len(seeds), args.block_size)]
-    rows, seconds = [], {}
+    rows = []
     for block in tqdm(blocks, desc=label, unit="block"):
-        path = args.runs / cfg.name / "cases" / f"{block_id(cfg, block, error_deg, estimators, args.map_every)}.json"
-        record = run_block(cfg, model, scene, block, error_deg, estimators, args.map_every, path)
-        for row in record["rows"]:
-            rows.append({**row, "block": label})
-        for name, s in record["estimator_seconds"].items():
-            seconds[name] = seconds.get(name, 0.0) + s
+        store = args.runs / "generalization" / "cases"
+        rows += [{**row, "block": label}
+                 for row in run_block(cfg, model, scene, block, error_deg, estimators, args.map_every, store)]
+    seconds = {}
+    for row in rows:
+        if row["seed"] in {b[0] for b in blocks}:  # one row per block and estimator carries the batch time
+            seconds[row["estimator"]] = seconds.get(row["estimator"], 0.0) + row["seconds_batch"]
     return rows, seconds
 
 
@@ -212,7 +223,8 @@ def main(argv=None) -> int:
         return 2
     torch.set_num_threads(args.threads)
     start = time.perf_counter()
-    model = trained_model(cfg, args.runs) if "robust_gpukf" in estimators + error_estimators else None
+    needs_model = ("robust_gpukf" in estimators and blocks) or ("robust_gpukf" in error_estimators and angles)
+    model = trained_model(cfg, args.runs) if needs_model else None
     scene = Scene.from_config(cfg).to(dtype=torch.float64)
     band = nees_band()
     command = "python -m experiments.generalization " + " ".join(sys.argv[1:] if argv is None else argv)

@@ -128,7 +128,7 @@ def test_experiment_resumes_from_its_stored_blocks(tmp_path, monkeypatch):
             "--estimators", "no_update", "--out", str(tmp_path / "out"), "--runs", str(tmp_path / "runs")]
     assert gen.main(argv) == 0
     first = (tmp_path / "out" / "summary.csv").read_text()
-    assert len(list((tmp_path / "runs" / "tiny_suite" / "cases").glob("*.json"))) == 2
+    assert len(list((tmp_path / "runs" / "generalization" / "cases").glob("*.json"))) == 2
 
     def refuse(*args, **kwargs):
         raise AssertionError("a stored block was run again")
