@@ -73,9 +73,10 @@ def block_id(cfg, seeds: Sequence[int], error_deg: float | None, estimator: str,
 
 
 def run_block(cfg, model, scene, seeds: Sequence[int], error_deg: float | None, estimators: Sequence[str],
-              map_every: float, store: Path) -> list[dict[str, Any]]:
-    """Rows of one block of seeds, each estimator read back from ``store`` or run and stored atomically there."""
-    truths, rows = None, []
+              map_every: float, store: Path) -> tuple[list[dict[str, Any]], int]:
+    """Rows of one block of seeds, each estimator read back from ``store`` or run and stored atomically there;
+    also the number of estimators that ran."""
+    truths, rows, ran = None, [], 0
     for name in estimators:
         path = store / f"{block_id(cfg, seeds, error_deg, name, map_every)}.json"
         record = read_case(path)
@@ -88,23 +89,26 @@ def run_block(cfg, model, scene, seeds: Sequence[int], error_deg: float | None, 
                       "rows": seed_rows(truths, results, nees_band(),
                                         error_mode="random" if error_deg is None else f"{error_deg:g}")}
             write_json_atomic(record, path)
+            ran += 1
         rows += record["rows"]
-    return rows
+    return rows, ran
 
 
 def run_blocks(cfg, model, scene, seeds: range, error_deg: float | None, estimators, args, label: str):
-    """All blocks of ``seeds`` for one error mode; returns the rows and the summed estimator seconds."""
+    """All blocks of ``seeds`` for one error mode; returns the rows, the summed estimator seconds (as stored) and
+    the number of (block, estimator) cases run and read back."""
     blocks = [seeds[i:i + args.block_size] for i in range(0, len(seeds), args.block_size)]
-    rows = []
+    rows, ran = [], 0
     for block in tqdm(blocks, desc=label, unit="block"):
         store = args.runs / "generalization" / "cases"
-        rows += [{**row, "block": label}
-                 for row in run_block(cfg, model, scene, block, error_deg, estimators, args.map_every, store)]
+        block_rows, block_ran = run_block(cfg, model, scene, block, error_deg, estimators, args.map_every, store)
+        rows += [{**row, "block": label} for row in block_rows]
+        ran += block_ran
     seconds = {}
     for row in rows:
         if row["seed"] in {b[0] for b in blocks}:  # one row per block and estimator carries the batch time
             seconds[row["estimator"]] = seconds.get(row["estimator"], 0.0) + row["seconds_batch"]
-    return rows, seconds
+    return rows, seconds, (ran, len(blocks) * len(estimators))
 
 
 # ------------------------------------------------------------------------------------------------ tables
@@ -232,10 +236,11 @@ def main(argv=None) -> int:
               f"Command: `{command}`. Median RMSE in deg "
               f"over {cfg.evaluation.rmse_window_s[0]:g}-{cfg.evaluation.rmse_window_s[1]:g} s (MAP: its checkpoints "
               f"every {args.map_every:g} s there); NEES band of one chi-square(3) sample {band[0]:.2f}-{band[1]:.2f}."]
-    all_rows, all_summary = [], []
+    all_rows, all_summary, counts = [], [], [0, 0]
     for label in blocks:
         seeds = args.heldout_seeds if label == "heldout" else args.tuning_seeds
-        rows, seconds = run_blocks(cfg, model, scene, seeds, None, estimators, args, label)
+        rows, seconds, count = run_blocks(cfg, model, scene, seeds, None, estimators, args, label)
+        counts = [a + b for a, b in zip(counts, count)]
         lines, summary = block_report(rows, seconds, f"{label} seeds {seeds.start}-{seeds.stop - 1}")
         report += lines
         all_rows += rows
@@ -243,11 +248,14 @@ def main(argv=None) -> int:
         write_figures(rows, summary, args.out, label)
     error_summary, error_rows = [], []
     for angle in angles:
-        rows, _ = run_blocks(cfg, model, scene, args.error_seeds, angle, error_estimators, args, f"error {angle:g}")
+        rows, _, count = run_blocks(cfg, model, scene, args.error_seeds, angle, error_estimators, args,
+                                    f"error {angle:g}")
+        counts = [a + b for a, b in zip(counts, count)]
         error_rows += rows
         error_summary += [{"initial_error_deg": angle, **e} for e in summarize(rows, {"all": None})]
     wall = time.perf_counter() - start
-    report.append(f"\nWall time of this command: {wall:.0f} s.")
+    report.append(f"\nWall time of this command: {wall:.0f} s; it ran {counts[0]} of {counts[1]} (block, estimator) "
+                  "cases and read the others back from the store (the batch times above are those of the runs).")
     if blocks:
         write_text_atomic("\n".join(report) + "\n", args.out / "summary.md")
         write_text_atomic(csv_text(all_summary, ("block", *SUMMARY_COLUMNS)), args.out / "summary.csv")
@@ -255,7 +263,7 @@ def main(argv=None) -> int:
                           args.out / "summary.json")
         print("\n".join(report))
     if error_summary:
-        write_error_table(error_summary, args, command, wall)
+        write_error_table(error_summary, args, command, report[-1].strip())
     for rows, name in ((all_rows, "per_seed.csv"), (error_rows, "per_seed_initial_error.csv")):
         if rows:
             columns = [k for k in rows[0] if k not in ("white_first", "white_last")]
@@ -263,11 +271,11 @@ def main(argv=None) -> int:
     return 0
 
 
-def write_error_table(error_summary, args, command: str, wall: float) -> None:
+def write_error_table(error_summary, args, command: str, timing: str) -> None:
     seeds = args.error_seeds
     lines = [f"# Accuracy against the initial error ({len(seeds)} seeds {seeds.start}-{seeds.stop - 1}, the same "
              "truths at every angle, random axis, P0 = (angle / sqrt 3)^2 I)\n",
-             f"Command: `{command}` ({wall:.0f} s). Median RMSE in deg; NEES band of one chi-square(3) sample.\n",
+             f"Command: `{command}`. {timing} Median RMSE in deg; NEES band of one chi-square(3) sample.\n",
              *markdown_table([{**e, "group": f"{e['initial_error_deg']:g} deg"} for e in error_summary], "group")]
     write_text_atomic("\n".join(lines) + "\n", args.out / "initial_error.md")
     write_text_atomic(csv_text(error_summary, ("initial_error_deg", *SUMMARY_COLUMNS)), args.out / "initial_error.csv")
