@@ -5,10 +5,13 @@ Seeds come in two blocks: the tuning block (default 1000-1099) may inform choice
 the same truths of ``--error-seeds`` (default 2000-2099) with a fixed initial-error angle (5, 10, 20, 30 deg, random
 axis, P0 matched). Truths: :mod:`lightcurve_gp.truths`; estimators and metrics: :mod:`lightcurve_gp.generalization`.
 
-Resumable: seeds run in blocks of ``--block-size``; each (block, estimator) is one case of the sweep machinery's
-record format in ``<runs>/generalization/cases/<case-id>.json`` (the id hashes what the estimator depends on, the
-seeds and the error mode; see :func:`block_id`), written atomically when it finishes; a rerun skips stored cases, so
-a killed run continues, and a new candidate config reruns only what it changes (its GPUKF, for a new model).
+Resumable: seeds run in blocks of ``--block-size``; each (block, estimator) is one case of the sweep's case store
+(:mod:`lightcurve_gp.sweep.store`), ``<runs>/generalization/cases/<case-id>.json``: a
+:class:`~lightcurve_gp.reporting.CaseRecord` whose rows hold the metrics and whose summary holds the suite's per-seed
+rows. The id hashes what the estimator depends on, the seeds and the error mode (:func:`block_id`); a record is
+written atomically when its case finishes, and a rerun skips stored cases, so a killed run continues and a new
+candidate config reruns only what it changes (its GPUKF, for a new model). The GP comes from the model store
+``<runs>/models/`` (trained there when missing).
 Writes to ``--out`` (experiments/results/generalization/): summary.md/.csv (held-out and tuning blocks, per surface
 class, |omega0| bin and initial-error bin), initial_error.md/.csv, bar charts of the share below 10 deg and of the
 NEES-consistent share, RMSE box plots; per-seed rows go to ``<runs>/generalization/<config name>/per_seed.csv`` (and
@@ -20,8 +23,6 @@ NEES-consistent share, RMSE box plots; per-seed rows go to ``<runs>/generalizati
 from __future__ import annotations
 
 import argparse
-import csv
-import io
 import sys
 import time
 from pathlib import Path
@@ -29,18 +30,20 @@ from typing import Any, Sequence
 
 import numpy as np
 import torch
+from matplotlib.figure import Figure
 from tqdm.auto import tqdm
 
+from experiments.robust_gpukf import trained_model
 from lightcurve_gp.config import ConfigError, config_hash, config_to_dict, load_config
 from lightcurve_gp.generalization import SUITE_ESTIMATORS, nees_band, run_suite
-from lightcurve_gp.generalization_summary import SUMMARY_COLUMNS, summarize, seed_rows, whitened_correlation
+from lightcurve_gp.generalization_summary import SUMMARY_COLUMNS, seed_rows, summarize, whitened_correlation
 from lightcurve_gp.io import write_json_atomic, write_text_atomic
-from lightcurve_gp.plots import _save, plt, rmse_boxplot
+from lightcurve_gp.model_store import model_key
+from lightcurve_gp.plots import _save, rmse_boxplot
 from lightcurve_gp.render import Scene
-from lightcurve_gp.sweep import CASE_FORMAT, model_key, read_case
+from lightcurve_gp.reporting import CaseRecord, SeedRow, csv_text, markdown_table
+from lightcurve_gp.sweep.store import read_case, write_case
 from lightcurve_gp.truths import draw_truths, simulate_truths
-
-from experiments.robust_gpukf import trained_model
 
 ROOT = Path(__file__).resolve().parents[1]
 SUITE_FORMAT = 1
@@ -72,6 +75,17 @@ def block_id(cfg, seeds: Sequence[int], error_deg: float | None, estimator: str,
         "model": model_key(cfg) if estimator == "robust_gpukf" else cfg.model.rho_reference})
 
 
+def case_record(case_id: str, seeds: Sequence[int], error_deg: float | None, name: str, rows: list[dict[str, Any]],
+                seconds: float, steps: int) -> CaseRecord:
+    """The store's record of one (block, estimator): its :class:`SeedRow` metrics, and the suite's per-seed rows
+    (truth descriptors, classes, bins, whitened errors) under ``summary["per_seed"]``."""
+    seed_metrics = [SeedRow(r["seed"], name, r["rmse_yaw_deg"], r["rmse_pitch_deg"], r["rmse_roll_deg"],
+                            nees_mean=r["nees_mean"], seconds_per_step=seconds / steps) for r in rows]
+    return CaseRecord(case_id=case_id, values={"suite": "generalization", "error_deg": error_deg},
+                      seeds=list(seeds), estimators=[name], rows=seed_metrics, summary={"per_seed": rows},
+                      seconds=seconds)
+
+
 def run_block(cfg, model, scene, seeds: Sequence[int], error_deg: float | None, estimators: Sequence[str],
               map_every: float, store: Path) -> tuple[list[dict[str, Any]], int]:
     """Rows of one block of seeds, each estimator read back from ``store`` or run and stored atomically there;
@@ -80,17 +94,17 @@ def run_block(cfg, model, scene, seeds: Sequence[int], error_deg: float | None, 
     for name in estimators:
         path = store / f"{block_id(cfg, seeds, error_deg, name, map_every)}.json"
         record = read_case(path)
-        if record is None or record.get("status") != "ok":
+        if record is None or not record.ok:
             start = time.perf_counter()
             truths = truths or simulate_truths(cfg, draw_truths(seeds, error_deg=error_deg), scene)
             results = run_suite(cfg, truths, gp_model=model, estimators=[name], map_every_s=map_every, scene=scene)
-            record = {"format": CASE_FORMAT, "case_id": path.stem, "status": "ok", "seeds": list(seeds),
-                      "error_deg": error_deg, "estimator": name, "seconds": time.perf_counter() - start,
-                      "rows": seed_rows(truths, results, nees_band(),
-                                        error_mode="random" if error_deg is None else f"{error_deg:g}")}
-            write_json_atomic(record, path)
+            block_rows = seed_rows(truths, results, nees_band(),
+                                   error_mode="random" if error_deg is None else f"{error_deg:g}")
+            record = case_record(path.stem, seeds, error_deg, name, block_rows, time.perf_counter() - start,
+                                 truths.increments.shape[1])
+            write_case(record, path)
             ran += 1
-        rows += record["rows"]
+        rows += record.summary["per_seed"]
     return rows, ran
 
 
@@ -113,25 +127,16 @@ def run_blocks(cfg, model, scene, seeds: range, error_deg: float | None, estimat
 
 # ------------------------------------------------------------------------------------------------ tables
 
-def csv_text(rows: Sequence[dict[str, Any]], columns: Sequence[str]) -> str:
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(columns), extrasaction="ignore", lineterminator="\n")
-    writer.writeheader()
-    for row in rows:
-        writer.writerow({k: ("" if row.get(k) is None else row[k]) for k in columns})
-    return buf.getvalue()
+TABLE_HEADER = ("seeds", "< 10 deg all axes", "yaw", "pitch", "roll", "NEES in band", "mean NEES", "median NEES")
 
 
-def markdown_table(summary: Sequence[dict[str, Any]], first: str) -> list[str]:
-    """Rows of the summary as a Markdown table whose first column is ``first`` (``"group"`` or ``"estimator"``)."""
-    other = "estimator" if first == "group" else "group"
-    lines = [f"| {first} | {other} | seeds | < 10 deg all axes | yaw | pitch | roll | NEES in band | mean NEES | "
-             "median NEES |", "|---|---|---|---|---|---|---|---|---|---|"]
-    for e in summary:
-        lines.append(f"| {e[first]} | {e[other]} | {e['seeds']} | {100 * e['share_below_10deg']:.0f} % | "
-                     f"{e['rmse_yaw_median']:.2f} | {e['rmse_pitch_median']:.2f} | {e['rmse_roll_median']:.2f} | "
-                     f"{100 * e['share_nees_in_band']:.0f} % | {e['nees_mean']:.3g} | {e['nees_median']:.3g} |")
-    return lines
+def summary_table(summary: Sequence[dict[str, Any]], first: str) -> str:
+    """The summary entries as one Markdown table led by the columns ``first`` (``"group"``) and ``"estimator"``."""
+    cells = [[e[first], e["estimator"], e["seeds"], f"{100 * e['share_below_10deg']:.0f} %",
+              *(f"{e[k]:.2f}" for k in ("rmse_yaw_median", "rmse_pitch_median", "rmse_roll_median")),
+              f"{100 * e['share_nees_in_band']:.0f} %", f"{e['nees_mean']:.3g}", f"{e['nees_median']:.3g}"]
+             for e in summary]
+    return markdown_table((first, "estimator", *TABLE_HEADER), cells)
 
 
 def block_report(rows, seconds: dict[str, float], title: str) -> tuple[list[str], list[dict[str, Any]]]:
@@ -143,8 +148,7 @@ def block_report(rows, seconds: dict[str, float], title: str) -> tuple[list[str]
              "(pooled over seeds and axes): "
              + ", ".join(f"{n} {whitened_correlation(rows, n):.2f}" for n in seconds if n != "no_update") + "."]
     for grouping in dict.fromkeys(e["grouping"] for e in summary):
-        lines += [f"\n### by {grouping}\n", *markdown_table([e for e in summary if e["grouping"] == grouping],
-                                                            "group")]
+        lines += [f"\n### by {grouping}\n", summary_table([e for e in summary if e["grouping"] == grouping], "group")]
     return lines, summary
 
 
@@ -154,7 +158,8 @@ def bar_chart(summary: Sequence[dict[str, Any]], metric: str, ylabel: str, path:
     """One panel per grouping: bars of ``metric`` per group, one bar per estimator."""
     groupings = [g for g in dict.fromkeys(e["grouping"] for e in summary)]
     estimators = list(dict.fromkeys(e["estimator"] for e in summary))
-    fig, axes = plt.subplots(1, len(groupings), figsize=(3.6 * len(groupings), 3.4), sharey=True, squeeze=False)
+    fig = Figure(figsize=(3.6 * len(groupings), 3.8), layout="constrained")
+    axes = fig.subplots(1, len(groupings), sharey=True, squeeze=False)
     width = 0.8 / len(estimators)
     for ax, grouping in zip(axes[0], groupings):
         entries = [e for e in summary if e["grouping"] == grouping]
@@ -166,9 +171,9 @@ def bar_chart(summary: Sequence[dict[str, Any]], metric: str, ylabel: str, path:
         ax.set_xticks(range(len(groups)), groups, fontsize=8)
         ax.set_title(grouping, fontsize=9)
     axes[0][0].set_ylabel(ylabel)
-    axes[0][-1].legend(fontsize=7)
+    fig.legend(*axes[0][0].get_legend_handles_labels(), loc="outside lower center", ncols=len(estimators),
+               frameon=False, fontsize=8)
     fig.suptitle(title)
-    fig.tight_layout()
     return _save(fig, path)
 
 
@@ -189,7 +194,7 @@ def write_figures(rows, summary, out: Path, label: str) -> None:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--model-config", default=str(ROOT / "configs/boxwing_robust.yaml"),
-                   help="the robust config to evaluate (its model is trained into --runs when missing)")
+                   help="the robust config to evaluate (its model is trained into <runs>/models/ when missing)")
     p.add_argument("--tuning-seeds", default="1000:1100", type=seed_range, help="FIRST:END (choices allowed)")
     p.add_argument("--heldout-seeds", default="2000:2300", type=seed_range, help="FIRST:END (never for choices)")
     p.add_argument("--blocks", default="tuning,heldout", help="which of tuning,heldout to run ('' for none)")
@@ -276,7 +281,7 @@ def write_error_table(error_summary, args, command: str, timing: str) -> None:
     lines = [f"# Accuracy against the initial error ({len(seeds)} seeds {seeds.start}-{seeds.stop - 1}, the same "
              "truths at every angle, random axis, P0 = (angle / sqrt 3)^2 I)\n",
              f"Command: `{command}`. {timing} Median RMSE in deg; NEES band of one chi-square(3) sample.\n",
-             *markdown_table([{**e, "group": f"{e['initial_error_deg']:g} deg"} for e in error_summary], "group")]
+             summary_table([{**e, "group": f"{e['initial_error_deg']:g} deg"} for e in error_summary], "group")]
     write_text_atomic("\n".join(lines) + "\n", args.out / "initial_error.md")
     write_text_atomic(csv_text(error_summary, ("initial_error_deg", *SUMMARY_COLUMNS)), args.out / "initial_error.csv")
     print("\n".join(lines))

@@ -10,10 +10,9 @@ import yaml
 
 from lightcurve_gp.brdf import Surface
 from lightcurve_gp.config import load_config
-from lightcurve_gp.generalization import nees_band, run_suite
-from lightcurve_gp.generalization_summary import (ERROR_BINS, bin_label, seed_rows, summarize,
-                                                  whitened_correlation)
 from lightcurve_gp.estimation import propagate_only
+from lightcurve_gp.generalization import nees_band, run_suite
+from lightcurve_gp.generalization_summary import ERROR_BINS, bin_label, seed_rows, summarize, whitened_correlation
 from lightcurve_gp.map_surface import batch_map
 from lightcurve_gp.metrics import total_angle_deg
 from lightcurve_gp.render import Scene

@@ -13,8 +13,14 @@ from lightcurve_gp.map_surface import cumulative_increments
 from lightcurve_gp.render import Scene
 from lightcurve_gp.rotations import attitude_matrix, quat_conj, quat_mul, quat_to_rotvec, rotvec_to_quat
 from lightcurve_gp.shapes import box_wing
-from lightcurve_gp.truths import (SPECULAR_CLASSES, TruthRanges, draw_truths, simulate_truths, specular_class,
-                                  specular_share)
+from lightcurve_gp.truths import (
+    SPECULAR_CLASSES,
+    TruthRanges,
+    draw_truths,
+    simulate_truths,
+    specular_class,
+    specular_share,
+)
 
 DT = torch.float64
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "boxwing_robust.yaml"

@@ -37,7 +37,7 @@ from .render import Scene
 from .rotations import quat_mul
 from .truths import TruthBatch
 from .ukf import UsqueParams, run_usque
-from .ukf_offset import initial_offset, run_usque_offset
+from .ukf_offset import initial_offset
 
 __all__ = ["SUITE_ESTIMATORS", "FILTERS", "Scored", "nees_band", "score", "run_suite"]
 
@@ -106,17 +106,15 @@ def _offset_covariance(sigma0: Tensor, offset_std: float) -> Tensor:
 def _run_filter(name: str, cfg: Config, truths: TruthBatch, scene: Scene,
                 gp_model) -> tuple[Tensor, Tensor, Tensor | None]:
     """History ``(q_est (S, T+1, 4), P (S, T+1, 3, 3), final offset or None)`` of one filter."""
-    params = UsqueParams.from_config(cfg.filter, cfg.data.t_span_past)
     obs, q_est0 = truths.observations, truths.draw.q_est0
+    run = dict(q_est0=q_est0, observations=obs, m_past0=obs[:, 0], increments=truths.increments,
+               params=UsqueParams.from_config(cfg))
     if name == "matched_ukf":
-        model = Parametric(scene, surface=truths.draw.surface)
-        h = run_usque(model, q_est0, truths.P0, obs, obs[:, 0], truths.increments, params)
+        h = run_usque(model=Parametric(scene, surface=truths.draw.surface), P0=truths.P0, **run)
         return h.q_est, h.P, None
     model = gp_model if name == "robust_gpukf" else Parametric(scene, cfg.model.rho_reference)
-    b0 = initial_offset(model, q_est0, obs[:, 0], obs[:, 0])
     P0 = _offset_covariance(truths.draw.sigma0, cfg.filter.offset_prior_std)
-    h = run_usque_offset(model, q_est0, P0, b0, obs, obs[:, 0], truths.increments, params,
-                         offset_process_noise=cfg.filter.offset_process_noise)
+    h = run_usque(model=model, P0=P0, offset0=initial_offset(model, q_est0, obs[:, 0], obs[:, 0]), **run)
     return h.q_est, h.P, h.offset[:, -1]
 
 
