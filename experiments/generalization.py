@@ -136,7 +136,7 @@ def summary_table(summary: Sequence[dict[str, Any]], first: str) -> str:
               *(f"{e[k]:.2f}" for k in ("rmse_yaw_median", "rmse_pitch_median", "rmse_roll_median")),
               f"{100 * e['share_nees_in_band']:.0f} %", f"{e['nees_mean']:.3g}", f"{e['nees_median']:.3g}"]
              for e in summary]
-    return markdown_table((first, "estimator", *TABLE_HEADER), cells)
+    return markdown_table((first, "estimator", *TABLE_HEADER), cells).rstrip("\n")
 
 
 def block_report(rows, seconds: dict[str, float], title: str) -> tuple[list[str], list[dict[str, Any]]]:
