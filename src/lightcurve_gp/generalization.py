@@ -51,7 +51,7 @@ def nees_band(independent_samples: int = 1, confidence: float = 0.95) -> tuple[f
 
     A filter's attitude error is strongly autocorrelated: with ω known and no process noise it is one random vector
     turned by the known motion and corrected a little by each sample. On the suite's held-out seeds the whitened
-    errors at the two ends of the 200 s window still correlate 0.3-0.5 (Spearman, pooled; neighbouring samples far
+    errors at the two ends of the 200 s window still correlate 0.26-0.52 (Spearman, pooled; neighbouring samples far
     more), so the average of the ~200 NEES samples holds one to two independent draws, not 200. The default is the
     band of one draw, ``[0.22, 9.35]`` (two: ``[0.62, 7.22]``); the band of 200 independent draws, ``[2.67, 3.35]``,
     would reject a consistent filter in most runs. Check: the no-update baseline, whose ``P0`` matches its initial
