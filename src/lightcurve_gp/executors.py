@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import multiprocessing
+import signal
 import traceback
 import uuid
 from abc import ABC, abstractmethod
@@ -225,6 +226,17 @@ def import_distributed():
     return distributed
 
 
+def _interrupt_ignorer(distributed):
+    """A worker plugin that makes each LocalCluster worker ignore SIGINT: a Ctrl-C in the terminal reaches the
+    whole process group, and the client, not each worker, shuts the cluster down (restarted workers too)."""
+
+    class IgnoreInterrupt(distributed.WorkerPlugin):
+        def setup(self, worker) -> None:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    return IgnoreInterrupt()
+
+
 class DaskExecutor(Executor):
     """One ``dask.distributed`` task per payload, on a LocalCluster or on a running scheduler.
 
@@ -252,6 +264,7 @@ class DaskExecutor(Executor):
                                                      dashboard_address=":0",
                                                      scheduler_kwargs={"allowed_failures": retries})
             self._client = distributed.Client(self._cluster)
+            self._client.register_plugin(_interrupt_ignorer(distributed), name="lightcurve-gp-ignore-sigint")
         else:
             try:
                 self._client = distributed.Client(address, timeout=CONNECT_TIMEOUT_S)
