@@ -65,15 +65,13 @@ def by_key(outcomes) -> dict:
     return {o.key: (o.value, o.error) for o in outcomes}
 
 
-@pytest.mark.slow
-def test_dask_local_pool_and_serial_give_the_same_outcomes_and_record_a_raising_case():
+def test_dask_local_pool_and_serial_give_the_same_outcomes_and_record_a_raising_case(scheduler):
     work = payloads(10, 200, -1, 3000, 7)
     serial = by_key(SerialExecutor().run(series, work, progress=False))
     with make_executor("local", workers=2) as pool:
         assert isinstance(pool, LocalPoolExecutor)
         local = by_key(pool.run(series, work, progress=False))
-    with make_executor("dask", workers=2) as cluster:
-        assert cluster.slots == 2
+    with make_executor("dask", address=scheduler) as cluster:
         dask = by_key(cluster.run(series, work, progress=False))
     assert serial == local == dask
     assert serial["n-1"] == (None, "ValueError: negative length -1")
@@ -103,8 +101,8 @@ def test_dask_case_that_kills_its_worker_is_retried_and_the_run_completes(schedu
 
 
 @pytest.mark.slow
-def test_dask_worker_deaths_are_bounded_and_the_others_finish(tmp_path):
-    with DaskExecutor(workers=2, retries=1) as ex:
+def test_dask_worker_deaths_are_bounded_and_the_others_finish(scheduler, tmp_path):
+    with DaskExecutor(address=scheduler) as ex:  # its scheduler allows one retry
         counter = tmp_path / "attempts"
         outcomes = list(ex.map_unordered(die_always, {"doomed": {"counter": str(counter)}}))
         rest = by_key(ex.map_unordered(series, payloads(1, 2)))
@@ -124,8 +122,9 @@ def test_local_pool_retries_a_died_worker_and_gives_up_after_the_bound(tmp_path)
     assert counter.read_text() == "xx"
 
 
-def test_interrupt_in_the_consumer_cancels_the_rest_and_shuts_the_cluster_down():
+def test_interrupt_in_the_consumer_cancels_the_rest_and_shuts_the_local_cluster_down():
     ex = DaskExecutor(workers=2)
+    assert ex.slots == 2
     pids = list(ex.client.run(os.getpid).values())
     assert len(pids) == 2 and all(psutil.pid_exists(p) for p in pids)
     seen = []
