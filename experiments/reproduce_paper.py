@@ -36,7 +36,8 @@ from lightcurve_gp.estimation import DEFAULT_ESTIMATORS
 from lightcurve_gp.io import write_json_atomic, write_text_atomic
 from lightcurve_gp.plots import euler_errors, light_curves, rmse_boxplot
 from lightcurve_gp.reporting import CaseRecord
-from lightcurve_gp.sweep import SweepResult, run_sweep
+from lightcurve_gp.sweep import EXECUTORS, Executor, SweepResult, make_executor, run_sweep
+from lightcurve_gp.sweep.executors import CLUSTER_EXTRA
 
 ROOT = Path(__file__).resolve().parents[1]
 BASE_CONFIG = ROOT / "configs" / "boxwing.yaml"
@@ -54,11 +55,12 @@ RHOS_MISMATCH = (0.5, 0.7)
 
 # ----------------------------------------------------------------------------------------------- experiments
 
-def _sweep(raw: dict, sweep_id: str, axes, seeds: Sequence[int], args, estimators=DEFAULT_ESTIMATORS) -> SweepResult:
+def _sweep(raw: dict, sweep_id: str, axes, seeds: Sequence[int], args, executor: Executor,
+           estimators=DEFAULT_ESTIMATORS) -> SweepResult:
     print(f"== {sweep_id}: {', '.join(f'{k} in {list(v)}' for k, v in axes)}, {len(seeds)} seeds",
           file=sys.stderr, flush=True)
     result = run_sweep(raw, axes, seeds, out=args.out, sweep_id=sweep_id, estimators=estimators,
-                       workers=args.workers, threads=args.threads, progress=not args.no_progress)
+                       workers=args.workers, threads=args.threads, progress=not args.no_progress, executor=executor)
     for cid in result.failed:
         print(f"   case {cid} failed: {result.records[cid].error}", file=sys.stderr)
     return result
@@ -143,7 +145,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, default=Path("runs"), help="root of models, cases and raw tables")
     parser.add_argument("--results", type=Path, default=None,
                         help="figures and tables (default experiments/results; with --quick OUT/<name>/results)")
-    parser.add_argument("--workers", type=int, default=1, help="parallel case processes (default 1)")
+    parser.add_argument("--executor", choices=EXECUTORS, default="local",
+                        help="local (this machine) or dask (a LocalCluster of --workers processes, or --scheduler; "
+                             f"needs {CLUSTER_EXTRA}) (default local)")
+    parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                        help="address of a running dask scheduler (with --executor dask)")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="worker processes of the local pool or the LocalCluster (default 1)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads of the command and of each case process "
                         "(default 1)")
     parser.add_argument("--no-progress", action="store_true", help="hide progress bars")
@@ -151,13 +159,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def run_sweeps(raw: dict, seeds: Sequence[int], var_seeds: Sequence[int], args) -> dict[str, SweepResult]:
-    """The four sweeps of the reproduction, at t_span_past = 20 s and rho_true = 0.5 unless swept."""
+    """The four sweeps of the reproduction, at t_span_past = 20 s and rho_true = 0.5 unless swept, on one executor
+    (``args.executor``, ``args.scheduler``, ``args.workers``)."""
     raw20 = apply_overrides(raw, ["data.t_span_past=20", "scenario.rho_true=0.5"])
-    return {"variance_check": _sweep(raw20, "variance_check", [("filter.add_model_variance", [True, False])],
-                                     var_seeds, args, estimators=["gpukf"]),
-            "tspan": _sweep(raw20, "tspan", [("data.t_span_past", list(T_SPANS))], seeds, args),
-            "robustness": _sweep(raw20, "robustness", [("scenario.rho_true", list(RHOS_ROBUST))], seeds, args),
-            "rho_mismatch": _sweep(raw20, "rho_mismatch", [("scenario.rho_true", list(RHOS_MISMATCH))], seeds, args)}
+    with make_executor(args.executor, workers=args.workers, address=args.scheduler) as ex:
+        return {"variance_check": _sweep(raw20, "variance_check", [("filter.add_model_variance", [True, False])],
+                                         var_seeds, args, ex, estimators=["gpukf"]),
+                "tspan": _sweep(raw20, "tspan", [("data.t_span_past", list(T_SPANS))], seeds, args, ex),
+                "robustness": _sweep(raw20, "robustness", [("scenario.rho_true", list(RHOS_ROBUST))], seeds, args, ex),
+                "rho_mismatch": _sweep(raw20, "rho_mismatch", [("scenario.rho_true", list(RHOS_MISMATCH))], seeds,
+                                       args, ex)}
 
 
 def tables_and_figures(sweeps: dict[str, SweepResult], cfg, models_root: Path, results: Path,
@@ -218,7 +229,11 @@ def main(argv: list[str] | None = None) -> int:
     results = args.results or (ROOT / "experiments" / "results" if not args.quick
                                else args.out / cfg.name / "results")
     results.mkdir(parents=True, exist_ok=True)
-    sweeps = run_sweeps(raw, range(seeds_n), range(var_seeds_n), args)
+    try:
+        sweeps = run_sweeps(raw, range(seeds_n), range(var_seeds_n), args)
+    except ConfigError as exc:  # the executor cannot start
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     sections, var_info, fig_names = tables_and_figures(sweeps, cfg, args.out / cfg.name / "models", results,
                                                          seeds_n)
     wall = time.perf_counter() - start
@@ -226,7 +241,8 @@ def main(argv: list[str] | None = None) -> int:
     info = {"command": "python -m experiments.reproduce_paper " + " ".join(argv if argv is not None else sys.argv[1:]),
             "seeds": seeds_n, "variance_seeds": var_seeds_n, "quick": args.quick, "overrides": overrides,
             "wall_seconds": wall, "load_average_start": list(load_start), "load_average_end": list(os.getloadavg()),
-            "cpu_count": os.cpu_count(), "torch_threads_per_case": args.threads, "torch": torch.__version__,
+            "cpu_count": os.cpu_count(), "executor": args.executor, "workers": args.workers,
+            "torch_threads_per_case": args.threads, "torch": torch.__version__,
             "cases_run_now": {name: len(res.ran) for name, res in sweeps.items()},
             "sweep_tables": {name: str(res.folder) for name, res in sweeps.items()},
             "variance_check": var_info, "failed_cases": failed, "figures": fig_names}

@@ -13,8 +13,8 @@ import distributed
 import psutil
 import pytest
 
-from lightcurve_gp import executors
-from lightcurve_gp.executors import (
+from lightcurve_gp.sweep import executors
+from lightcurve_gp.sweep.executors import (
     CLUSTER_EXTRA,
     DaskExecutor,
     ExecutorError,

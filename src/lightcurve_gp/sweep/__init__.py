@@ -16,18 +16,25 @@ point is a *case*: one validated config, run with every seed batched in one filt
   estimator, :data:`~lightcurve_gp.reporting.RESULT_COLUMNS` after the grid columns), ``summary.csv`` and
   ``summary.json`` (median and IQR per case and estimator; :mod:`.tables`).
 
+Where the trainings and the cases run is the sweep's *executor* (:mod:`.executors`): this process, a local pool of
+spawned processes, or a ``dask.distributed`` cluster (the optional ``cluster`` extra). Whichever it is, the models
+are trained first, one task per distinct model, then the cases run and each record is stored by this process the
+moment it arrives, so the store is the same, and resumable, whichever executor wrote it.
+
 Config errors (unknown key, bad value) stop the sweep before any work and name the key; a run-time failure of one
-case is recorded and the others go on. Ctrl-C keeps every finished case.
+case is recorded and the others go on; a case whose worker process died is run again (a bounded number of times).
+Ctrl-C keeps every finished case.
 """
 
 from ..reporting import RESULT_COLUMNS, CaseRecord
 from .cli import build_parser, main
+from .executors import EXECUTORS, Executor, make_executor
 from .grid import MODEL_SECTIONS, Case, expand_grid, make_cases, model_key, parse_grid
 from .models import ensure_models
 from .runner import SweepResult, run_case, run_sweep
 from .store import read_case
 from .tables import SUMMARY_COLUMNS, summarize_rows
 
-__all__ = ["RESULT_COLUMNS", "SUMMARY_COLUMNS", "MODEL_SECTIONS", "Case", "CaseRecord", "SweepResult", "parse_grid",
-           "expand_grid", "make_cases", "model_key", "ensure_models", "run_case", "run_sweep", "read_case",
-           "summarize_rows", "build_parser", "main"]
+__all__ = ["EXECUTORS", "Executor", "make_executor", "RESULT_COLUMNS", "SUMMARY_COLUMNS", "MODEL_SECTIONS", "Case",
+           "CaseRecord", "SweepResult", "parse_grid", "expand_grid", "make_cases", "model_key", "ensure_models",
+           "run_case", "run_sweep", "read_case", "summarize_rows", "build_parser", "main"]

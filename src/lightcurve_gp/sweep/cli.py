@@ -9,6 +9,7 @@ from pathlib import Path
 from ..cli import Interrupted, UserError, add_common_arguments, apply_threads, progress_enabled, run_command
 from ..config import config_from_dict, load_raw_config
 from ..estimation import DEFAULT_ESTIMATORS, ESTIMATORS
+from .executors import CLUSTER_EXTRA, EXECUTORS
 from .grid import parse_grid
 from .runner import run_sweep
 from .tables import print_summary
@@ -31,7 +32,10 @@ what it does:
   * each case is stored when it finishes, atomically, in OUT/<name>/cases/<case-id>.json (the id hashes the
     case's whole config, seeds and estimators); a rerun skips stored cases and retries failed ones, so an
     interrupted sweep (Ctrl-C) resumes where it stopped
-  * a case that raises is recorded with its error (status "failed") and the sweep goes on
+  * a case that raises is recorded with its error (status "failed") and the sweep goes on; a case whose worker
+    process died is run again (--retries times at most)
+  * --executor dask runs the trainings, then the cases, as tasks on a dask.distributed cluster; the records come
+    back to this process, which stores each as it arrives (a rerun with either executor resumes the store)
   * tables in OUT/<name>/sweep/<sweep-id>/: results.csv (one row per case x seed x estimator: case_id, the grid
     values, seed, estimator, rmse_yaw_deg, rmse_pitch_deg, rmse_roll_deg, lc_rmse_noisy, lc_rmse_clean,
     nees_mean, seconds_per_step, status, error), summary.csv / summary.json (median and quartiles per case and
@@ -40,6 +44,8 @@ what it does:
 example:
   python -m lightcurve_gp.sweep configs/boxwing.yaml --grid data.t_span_past=10,20,30,40 \\
       --grid scenario.rho_true=0.3,0.7 --seeds 20 --set filter.add_model_variance=false
+  python -m lightcurve_gp.sweep configs/boxwing.yaml --grid scenario.rho_true=0.3,0.7 --seeds 100 \\
+      --executor dask --workers 2                      # a LocalCluster; or --scheduler tcp://head:8786
 """)
     parser.add_argument("config", help="YAML config, e.g. configs/boxwing.yaml")
     parser.add_argument("--grid", action="append", default=[], metavar="KEY.PATH=V1,V2,...",
@@ -56,7 +62,18 @@ example:
     parser.add_argument("--cache", default=None, type=Path, help="training-data cache (default: OUT/cache)")
     parser.add_argument("--sweep-id", default=None,
                         help="name of the table folder OUT/<name>/sweep/<id> (default: hash of the definition)")
-    parser.add_argument("--workers", type=int, default=1, help="parallel case processes (default 1)")
+    parser.add_argument("--executor", choices=EXECUTORS, default="local",
+                        help="where trainings and cases run: local (a pool of --workers spawned processes, or this "
+                             "process with 1) or dask (dask.distributed: a LocalCluster of --workers "
+                             "single-threaded processes, or the running scheduler of --scheduler; needs the cluster "
+                             f"extra, {CLUSTER_EXTRA}) (default local)")
+    parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                        help="address of a running dask scheduler, e.g. tcp://head:8786 (with --executor dask; every "
+                             "worker must see OUT)")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="worker processes of the local pool or the LocalCluster (default 1)")
+    parser.add_argument("--retries", type=int, default=2,
+                        help="times a case or training whose worker process died is run again (default 2)")
     parser.add_argument("--no-retry", action="store_true", help="keep stored failures instead of retrying them")
     add_common_arguments(parser, force=False)
     return parser
@@ -75,7 +92,8 @@ def _run(args: argparse.Namespace) -> int:
     try:
         result = run_sweep(raw, axes, seeds, out=args.out, sweep_id=args.sweep_id, estimators=estimators,
                            workers=args.workers, threads=threads, cache_dir=args.cache,
-                           progress=progress_enabled(args.no_progress), rerun_failed=not args.no_retry)
+                           progress=progress_enabled(args.no_progress), rerun_failed=not args.no_retry,
+                           executor=args.executor, scheduler=args.scheduler, retries=args.retries)
     except KeyboardInterrupt:
         raise Interrupted(kept) from None
     print_summary(result.summary, [k for k, _ in axes])

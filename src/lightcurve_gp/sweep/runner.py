@@ -1,11 +1,9 @@
-"""Running a sweep: each pending case in this process or in spawned workers, stored as soon as it finishes."""
+"""Running a sweep: the missing models, then each pending case, on an executor; each case stored as it arrives."""
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import hashlib
 import json
-import multiprocessing
 import time
 import traceback
 from dataclasses import dataclass, field
@@ -13,12 +11,12 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import torch
-from tqdm.auto import tqdm
 
 from ..config import ConfigError, config_from_dict, config_to_dict
 from ..estimation import DEFAULT_ESTIMATORS, ScenarioResult, run_estimators
 from ..io import write_json_atomic
 from ..reporting import CaseRecord, seed_rows
+from .executors import Executor, SerialExecutor, make_executor
 from .grid import Case, make_cases
 from .models import ensure_models, model_path
 from .store import case_path, failed_rows, read_case, write_case
@@ -37,11 +35,11 @@ def _traces(result: ScenarioResult) -> dict[str, Any]:
 
 
 def run_case(spec: dict[str, Any]) -> CaseRecord:
-    """Run one case and store its record atomically at ``spec["path"]``; never raises for a failing case.
+    """Run one case and return its record (``status`` ``"ok"`` or ``"failed"``); never raises for a failing case.
 
-    ``spec`` holds plain values (it crosses process boundaries): ``config`` (dict), ``values``, ``case_id``,
-    ``seeds``, ``estimators``, ``model_path`` (or None), ``model_error`` (or None), ``threads``, ``path``.
-    Returns the record (``status`` ``"ok"`` or ``"failed"``).
+    ``spec`` holds plain values (it crosses process and machine boundaries): ``config`` (dict), ``values``,
+    ``case_id``, ``seeds``, ``estimators``, ``model_path`` (or None), ``model_error`` (or None), ``threads`` (None:
+    leave torch's). The runner stores the record when it arrives.
     """
     from ..observation.serialization import load_model
 
@@ -62,8 +60,13 @@ def run_case(spec: dict[str, Any]) -> CaseRecord:
         record.traceback = traceback.format_exc()
         record.rows = failed_rows(spec["seeds"], spec["estimators"], record.error)
     record.seconds = time.perf_counter() - start
-    write_case(record, spec["path"])
     return record
+
+
+def _failed_record(spec: dict[str, Any], error: str) -> CaseRecord:
+    """The record of a case that returned none (its worker died too often, its result did not pickle)."""
+    return CaseRecord(spec["case_id"], spec["values"], list(spec["seeds"]), list(spec["estimators"]),
+                      status="failed", error=error, rows=failed_rows(spec["seeds"], spec["estimators"], error))
 
 
 @dataclass
@@ -110,43 +113,29 @@ def _pending(cases: Sequence[Case], root: Path, rerun_failed: bool) -> tuple[dic
     return records, list(pending.values())
 
 
-def _run_specs(specs: list[dict[str, Any]], records: dict[str, CaseRecord], case_runner, workers: int,
-               bar) -> tuple[list[str], bool]:
-    """Run every spec (in ``workers`` spawned processes when > 1) into ``records``; returns (ran, interrupted)."""
-    ran: list[str] = []
-    try:
-        if workers == 1:
-            for spec in specs:
-                records[spec["case_id"]] = case_runner(spec)
-                ran.append(spec["case_id"])
-                bar.update()
-            return ran, False
-        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as ex:
-            futures = {ex.submit(case_runner, spec): spec for spec in specs}
-            try:
-                for fut in cf.as_completed(futures):
-                    spec = futures[fut]
-                    try:
-                        records[spec["case_id"]] = fut.result()
-                    except Exception as exc:  # the worker process itself died
-                        error = f"{type(exc).__name__}: {exc}"
-                        records[spec["case_id"]] = CaseRecord(
-                            spec["case_id"], spec["values"], list(spec["seeds"]), list(spec["estimators"]),
-                            status="failed", error=error, rows=failed_rows(spec["seeds"], spec["estimators"], error))
-                    ran.append(spec["case_id"])
-                    bar.update()
-            except KeyboardInterrupt:
-                ex.shutdown(wait=False, cancel_futures=True)
-                raise
-    except KeyboardInterrupt:
-        return ran, True
-    return ran, False
+def _run_pending(pending: Sequence[Case], root: Path, executor: Executor, records: dict[str, CaseRecord], *,
+                 seeds: list[int], estimators: Sequence[str], threads: int | None, cache_dir: Path, total: int,
+                 progress: bool, case_runner) -> None:
+    """Train the models the pending cases need, then run the cases on ``executor``, storing each record
+    atomically into the case store and into ``records`` the moment it arrives (in completion order)."""
+    model_errors = ensure_models(pending, root, cache_dir, executor, progress, threads)
+    specs = {c.case_id: {"config": config_to_dict(c.config), "values": c.values, "case_id": c.case_id,
+                         "seeds": seeds, "estimators": list(estimators), "threads": threads,
+                         "model_path": str(model_path(root, c.model_hash)) if c.model_hash else None,
+                         "model_error": model_errors.get(c.model_hash) if c.model_hash else None}
+             for c in pending}
+    for outcome in executor.run(case_runner, specs, desc="cases", total=total, initial=total - len(specs),
+                                progress=progress):
+        record = outcome.value if outcome.ok else _failed_record(specs[outcome.key], outcome.error)
+        write_case(record, case_path(root, outcome.key))
+        records[outcome.key] = record
 
 
 def run_sweep(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Sequence[int], *,
               out: str | Path = "runs", sweep_id: str | None = None, estimators: Sequence[str] = DEFAULT_ESTIMATORS,
               workers: int = 1, threads: int = 1, cache_dir: str | Path | None = None,
-              progress: bool = True, rerun_failed: bool = True,
+              progress: bool = True, rerun_failed: bool = True, executor: str | Executor = "local",
+              scheduler: str | None = None, retries: int = 2,
               case_runner: Callable[[dict[str, Any]], CaseRecord] = run_case) -> SweepResult:
     """Run (or resume) a sweep; see :mod:`lightcurve_gp.sweep` for what is written where.
 
@@ -157,15 +146,20 @@ def run_sweep(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Seque
         out: output root; files go to ``out/<config name>/``.
         sweep_id: folder name of this sweep's tables (default: a hash of the definition).
         estimators: subset of :data:`~lightcurve_gp.estimation.ESTIMATORS`.
-        workers: parallel processes for the cases (spawned); 1 runs them in this process.
-        threads: torch threads of each spawned worker process (``workers`` > 1); training and the cases run in
+        workers: worker processes of the local pool (1: this process) or of the dask LocalCluster.
+        threads: torch threads of each worker process (its trainings and cases); training and the cases run in
             this process use the caller's thread count (the library leaves torch's global settings alone).
         cache_dir: training-data cache (default ``out/cache``).
         rerun_failed: retry cases stored as failed (otherwise their stored failure is reported again).
-        case_runner: the function that runs one case spec (default :func:`run_case`).
+        executor: ``"local"`` or ``"dask"`` (:mod:`lightcurve_gp.sweep.executors`), or an open
+            :class:`~lightcurve_gp.sweep.executors.Executor` (left open, e.g. shared by several sweeps).
+        scheduler: address of a running dask scheduler (``executor="dask"``; default: a LocalCluster).
+        retries: times a case or training whose worker process died is run again.
+        case_runner: the function that runs one case spec (default :func:`run_case`); it must pickle on a pool
+            or a cluster.
 
     Raises:
-        ConfigError: an invalid grid key or value, before any work is done.
+        ConfigError: an invalid grid key or value, or an executor that cannot start, before any work is done.
     """
     seeds = [int(s) for s in seeds]
     if not seeds:
@@ -177,24 +171,26 @@ def run_sweep(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Seque
     root = out / cases[0].config.name
     sweep_id = sweep_id or _sweep_id(raw, axes, seeds, estimators)
     folder = root / "sweep" / sweep_id
+    owned = isinstance(executor, str)
+    ex = make_executor(executor, workers=workers, address=scheduler, retries=retries) if owned else executor
     write_json_atomic({"config": raw, "axes": [[k, list(v)] for k, v in axes], "seeds": seeds,
                        "estimators": list(estimators),
                        "cases": [{"case_id": c.case_id, "values": c.values, "model_hash": c.model_hash}
                                  for c in cases]}, folder / "sweep.json")
-
     records, pending = _pending(cases, root, rerun_failed)
-    model_errors = ensure_models(pending, root, Path(cache_dir) if cache_dir else out / "cache",
-                                 progress) if pending else {}
-    specs = [{"config": config_to_dict(c.config), "values": c.values, "case_id": c.case_id, "seeds": seeds,
-              "estimators": list(estimators), "threads": threads if workers > 1 else None,
-              "model_path": str(model_path(root, c.model_hash)) if c.model_hash else None,
-              "model_error": model_errors.get(c.model_hash) if c.model_hash else None,
-              "path": str(case_path(root, c.case_id))} for c in pending]
-    bar = tqdm(total=len(cases), initial=len(cases) - len(specs), desc="cases", unit="case", disable=not progress)
+    interrupted = False
     try:
-        ran, interrupted = _run_specs(specs, records, case_runner, workers, bar)
+        _run_pending(pending, root, ex, records, seeds=seeds, estimators=estimators,
+                     threads=None if isinstance(ex, SerialExecutor) else threads,
+                     cache_dir=Path(cache_dir) if cache_dir else out / "cache", total=len(cases), progress=progress,
+                     case_runner=case_runner)
+    except KeyboardInterrupt:
+        interrupted = True
     finally:
-        bar.close()
+        if owned:
+            ex.close()
+    pending_ids = {c.case_id for c in pending}
+    ran = [cid for cid in records if cid in pending_ids]  # in completion order
 
     keys = ["case_id", *(k for k, _ in axes)]
     rows = table_rows(cases, records)

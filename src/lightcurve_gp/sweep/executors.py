@@ -33,7 +33,7 @@ from typing import Any
 
 from tqdm.auto import tqdm
 
-from .config import ConfigError
+from ..config import ConfigError
 
 __all__ = [
     "CLUSTER_EXTRA",
@@ -118,8 +118,8 @@ class Executor(ABC):
     def __exit__(self, *exc_info: object) -> None:
         self.close()
 
-    def run(self, fn: Callable[[Any], Any], payloads: Mapping[str, Any], *, desc: str = "cases", total: int | None = None,
-            initial: int = 0, progress: bool = True) -> Iterator[Outcome]:
+    def run(self, fn: Callable[[Any], Any], payloads: Mapping[str, Any], *, desc: str = "cases",
+            total: int | None = None, initial: int = 0, progress: bool = True) -> Iterator[Outcome]:
         """:meth:`map_unordered` behind a progress bar of the whole campaign.
 
         The bar counts ``initial`` items already done before this run (out of ``total``, default
