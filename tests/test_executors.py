@@ -1,7 +1,8 @@
 """Executors: the same outcomes in this process, on a local pool and on dask; worker deaths retried (bounded), raised
 errors recorded, Ctrl-C frees the cluster, and a clear error when the cluster extra is missing.
 
-The functions the workers run live at module level so that spawned processes can import them by name.
+The functions the workers run live at module level so that spawned processes can import them by name. Every test
+that starts worker processes is marked slow (a cluster or a pool takes seconds to start on a loaded 2-core machine).
 """
 
 import math
@@ -65,6 +66,7 @@ def by_key(outcomes) -> dict:
     return {o.key: (o.value, o.error) for o in outcomes}
 
 
+@pytest.mark.slow
 def test_dask_local_pool_and_serial_give_the_same_outcomes_and_record_a_raising_case(scheduler):
     work = payloads(10, 200, -1, 3000, 7)
     serial = by_key(SerialExecutor().run(series, work, progress=False))
@@ -78,6 +80,7 @@ def test_dask_local_pool_and_serial_give_the_same_outcomes_and_record_a_raising_
     assert serial["n200"][0] == pytest.approx(math.pi, abs=1 / 200) and serial["n200"][1] is None
 
 
+@pytest.mark.slow
 def test_running_scheduler_streams_outcomes_and_keeps_the_traceback(scheduler):
     with DaskExecutor(address=scheduler) as ex:
         outcomes = list(ex.run(series, payloads(5, -2, 50), progress=False))
@@ -112,9 +115,10 @@ def test_dask_worker_deaths_are_bounded_and_the_others_finish(scheduler, tmp_pat
     assert rest == {"n1": (4.0, None), "n2": (4 * (1 - 1 / 3), None)}
 
 
+@pytest.mark.slow
 def test_local_pool_retries_a_died_worker_and_gives_up_after_the_bound(tmp_path):
     once = {"a": {"n": 1, "marker": str(tmp_path / "a")}}
-    with LocalPoolExecutor(2, retries=1) as pool:
+    with LocalPoolExecutor(1, retries=1) as pool:  # one process: each rebuild spawns one
         assert by_key(pool.map_unordered(die_once, once)) == {"a": (10, None)}
         counter = tmp_path / "attempts"
         doomed = list(pool.map_unordered(die_always, {"doomed": {"counter": str(counter)}}))
@@ -122,6 +126,7 @@ def test_local_pool_retries_a_died_worker_and_gives_up_after_the_bound(tmp_path)
     assert counter.read_text() == "xx"
 
 
+@pytest.mark.slow
 def test_interrupt_in_the_consumer_cancels_the_rest_and_shuts_the_local_cluster_down():
     ex = DaskExecutor(workers=2)
     assert ex.slots == 2

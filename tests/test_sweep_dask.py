@@ -81,6 +81,7 @@ def test_dask_writes_the_same_store_as_the_local_executor(reference, cluster, tm
 @pytest.mark.slow
 def test_a_worker_killed_mid_case_still_leaves_a_complete_store(reference, cluster, tmp_path):
     marker = tmp_path / "died"
+    shutil.copytree(reference.folder.parents[1] / "models", tmp_path / "tiny" / "models")  # cases only
     result = run_sweep(tiny_raw(), AXES, SEEDS, out=tmp_path, sweep_id="s", progress=False, executor=cluster,
                        case_runner=functools.partial(die_once_then_run, marker=str(marker)))
     assert marker.exists()  # one case did kill its worker
@@ -90,6 +91,7 @@ def test_a_worker_killed_mid_case_still_leaves_a_complete_store(reference, clust
         table(reference.folder, "summary"), key=json.dumps)
 
 
+@pytest.mark.slow
 def test_dask_resumes_a_store_of_the_local_executor_running_only_what_is_missing(reference, cluster, tmp_path):
     shutil.copytree(reference.folder.parents[1], tmp_path / "tiny")  # models and cases of the local run
     cases = tmp_path / "tiny" / "cases"
