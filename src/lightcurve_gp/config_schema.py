@@ -183,6 +183,11 @@ class FilterConfig:
     estimate_offset: bool = _spec(False, doc="carry a magnitude offset b in the state: y = h(q) + b")
     offset_prior_std: float = _spec(1.0, lo=0.0, lo_open=True, doc="prior std of b around y_0 - h(q_0) (mag)")
     offset_process_noise: float = _spec(0.0, lo=0.0, doc="random-walk variance of b per step (mag^2)")
+    adaptive_noise: str = _spec("none", choices=("none", "innovation"),
+                                doc="measurement noise: none = R fixed; innovation = R_k = max(R, EMA of "
+                                    "nu^2 - (Pyy - R)), from past innovations only")
+    adaptive_noise_time_s: float = _spec(100.0, lo=0.0, lo_open=True,
+                                         doc="forgetting time tau of the innovation average (s); rate dt / tau")
 
 
 @dataclass(kw_only=True)

@@ -39,12 +39,15 @@ class StateLayout:
 
 class FilterState(NamedTuple):
     """The posterior of ``B`` filters at one step: ``q̂ (B, 4)``, ``b̂ (B,)`` (``None`` when not estimated),
-    ``P (B, n, n)`` of the state about ``[0, b̂]``, and the running mean ``m_past (B,)`` for the next prediction."""
+    ``P (B, n, n)`` of the state about ``[0, b̂]``, the running mean ``m_past (B,)`` for the next prediction and,
+    with adaptive measurement noise, the running average ``noise_excess (B,)`` of the innovation excess (mag²;
+    ``R̂ = max(R, noise_excess)``, :func:`lightcurve_gp.ukf.adapted_noise`), else ``None``."""
 
     q_hat: Tensor
     offset: Tensor | None
     P: Tensor
     m_past: Tensor
+    noise_excess: Tensor | None = None
 
 
 class StepRecord(NamedTuple):

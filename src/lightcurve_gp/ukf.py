@@ -49,7 +49,12 @@ __all__ = [
     "initial_covariance",
     "run_usque",
     "usque_step",
+    "adapted_noise",
+    "ADAPTIVE_NOISE",
 ]
+
+#: measurement-noise rules of :class:`UsqueParams`: fixed ``R`` or innovation-based covariance matching
+ADAPTIVE_NOISE = ("none", "innovation")
 
 
 @dataclass(frozen=True, eq=False)
@@ -66,6 +71,9 @@ class UsqueParams:
             ``"none"``, the mean predictive variance ``Σ wm var_i`` is added to ``Pyy``.
         t_span_past: ``T`` of the running mean ``m_past ← (T m_past + ỹ) / (T + 1)`` (paper Sec. 3.3, Eq. (54)).
         offset_process_noise: random-walk variance of the offset ``b`` per step (mag²), when ``b`` is estimated.
+        adaptive_noise: ``"none"`` (``R`` fixed) or ``"innovation"``: each filter's ``R̂_k`` by covariance matching
+            (:func:`adapted_noise`).
+        adaptive_noise_rate: ``λ = dt / τ`` of that rule's exponential average, in ``(0, 1]``.
     """
 
     alpha: float = 1e-4
@@ -79,9 +87,15 @@ class UsqueParams:
     variance: Variance = "fast"
     t_span_past: float = 20.0
     offset_process_noise: float = 0.0
+    adaptive_noise: str = "none"
+    adaptive_noise_rate: float = 0.01
 
     def __post_init__(self):
         check_variance(self.variance)
+        if self.adaptive_noise not in ADAPTIVE_NOISE:
+            raise ValueError(f"adaptive_noise must be one of {', '.join(ADAPTIVE_NOISE)}, got {self.adaptive_noise!r}")
+        if not 0.0 < float(self.adaptive_noise_rate) <= 1.0:
+            raise ValueError(f"adaptive_noise_rate must be in (0, 1], got {self.adaptive_noise_rate!r}")
         if not float(self.offset_process_noise) >= 0.0:
             raise ValueError(f"offset_process_noise must be >= 0, got {self.offset_process_noise!r}")
         if not float(self.t_span_past) >= 0:
@@ -90,13 +104,15 @@ class UsqueParams:
     @classmethod
     def from_config(cls, cfg) -> UsqueParams:
         """Parameters of a :class:`~lightcurve_gp.config.Config`: its ``filter`` section (``Q = process_noise · I``),
-        ``data.t_span_past`` and ``model.variance`` (``"none"`` unless ``filter.add_model_variance``)."""
+        ``data.t_span_past``, ``model.variance`` (``"none"`` unless ``filter.add_model_variance``) and the adaptive
+        noise rule with ``λ = min(1, scenario.dt_s / filter.adaptive_noise_time_s)``."""
         f = cfg.filter
         return cls(
             alpha=float(f.alpha), beta=float(f.beta), kappa=float(f.kappa), lam=None if f.lam is None else float(f.lam),
             grp_a=float(f.grp_a), grp_f=float(f.grp_f), Q=float(f.process_noise), R=float(f.measurement_noise),
             variance=cfg.model.variance if f.add_model_variance else "none", t_span_past=float(cfg.data.t_span_past),
-            offset_process_noise=float(f.offset_process_noise),
+            offset_process_noise=float(f.offset_process_noise), adaptive_noise=f.adaptive_noise,
+            adaptive_noise_rate=min(1.0, float(cfg.scenario.dt_s) / float(f.adaptive_noise_time_s)),
         )
 
     def weights(self, n: int = 3, *, dtype: torch.dtype | None = None, device=None) -> UnscentedWeights:
@@ -123,6 +139,7 @@ class _Run:
     grp: tuple[float, float]  # (a, f)
     variance: Variance
     t_span_past: float
+    adaptive_rate: float | None  # λ of the innovation rule; None: R fixed
 
 
 def _check_run_inputs(q_est0: Tensor, P0: Tensor, offset0: Tensor | None, observations: Tensor, m_past0: Tensor,
@@ -211,7 +228,8 @@ def usque_step(run: _Run, state: FilterState, *, L_k: Tensor, G_k: Tensor, y_k: 
         y_sig = y_sig + (state.offset.unsqueeze(1) + chi[..., run.layout.offset_index])
     y_hat = y_sig @ run.wm
     dy = y_sig - y_hat.unsqueeze(1)
-    P_yy = (dy * dy) @ run.wc + run.R
+    R_k = run.R if state.noise_excess is None else torch.maximum(run.R, state.noise_excess)
+    P_yy = (dy * dy) @ run.wc + R_k
     m_var = torch.full((B,), math.nan, dtype=s.dtype, device=s.device)
     if var_sig is not None:
         m_var = var_sig @ run.wm
@@ -234,8 +252,31 @@ def usque_step(run: _Run, state: FilterState, *, L_k: Tensor, G_k: Tensor, y_k: 
     # 9. fold the observation into m_past (the record keeps the m_past used for this prediction)
     tsp = run.t_span_past
     m_past = torch.where(observed_k, (tsp * state.m_past + y_k) / (tsp + 1.0), state.m_past)
+    noise_excess = state.noise_excess
+    if noise_excess is not None:
+        noise_excess = torch.where(upd, adapted_noise(noise_excess, nu=nu, P_yy=P_yy, R_k=R_k, rate=run.adaptive_rate),
+                                   noise_excess)
     record = StepRecord(y_hat, P_yy, m_var, nu, state.m_past, upd, failed, observed_k & ~good)
-    return FilterState(q_hat, offset, P, m_past), record
+    return FilterState(q_hat, offset, P, m_past, noise_excess), record
+
+
+def adapted_noise(average: Tensor, *, nu: Tensor, P_yy: Tensor, R_k: Tensor, rate: float) -> Tensor:
+    """One step of the innovation-based measurement-noise estimate (covariance matching, Mehra 1972), all ``(B,)``.
+
+    The innovation ``ν = ỹ − ŷ`` of a consistent filter has ``E ν² = Pyy``; its part not explained by the
+    predicted spread and model variance, ``e = ν² − (Pyy − R_k)``, estimates the measurement noise. An observation
+    model that is wrong along the true trajectory (an unmodelled surface: a glint, a lobe the GP never saw) shows
+    up as an excess ``E e = R + bias²``, whatever the trajectory. The exponential average
+    ``c ← (1 − λ) c + λ e`` (``λ = dt / τ``) is returned; the next step uses ``R̂ = max(R, c)`` — never below the
+    configured noise, and only past innovations (no look-ahead).
+
+    Args:
+        average: the running average ``c`` before this step (mag²).
+        nu: innovations (mag); P_yy: their predicted variance with ``R_k`` (mag²); R_k: the noise used (mag²).
+        rate: ``λ`` in ``(0, 1]``.
+    """
+    excess = nu * nu - (P_yy - R_k)
+    return average + rate * (excess - average)
 
 
 def run_usque(*, model: ObservationModel, q_est0: Tensor, P0: Tensor, observations: Tensor, m_past0: Tensor,
@@ -290,7 +331,8 @@ def run_usque(*, model: ObservationModel, q_est0: Tensor, P0: Tensor, observatio
         run = _Run(model=model, layout=layout, wm=wm, wc=wc, scale=layout.dim + lam,
                    Q=_process_noise(params, layout, B, q_est0), R=R.expand(B),
                    grp=(float(params.grp_a), float(params.grp_f)), variance=params.variance,
-                   t_span_past=float(params.t_span_past))
+                   t_span_past=float(params.t_span_past),
+                   adaptive_rate=float(params.adaptive_noise_rate) if params.adaptive_noise == "innovation" else None)
         obs = observations.to(dtype=dtype, device=device)
         observed = torch.isfinite(obs)
         y_steps, observed_steps = torch.where(observed, obs, torch.zeros_like(obs)).unbind(1), observed.unbind(1)
@@ -300,7 +342,8 @@ def run_usque(*, model: ObservationModel, q_est0: Tensor, P0: Tensor, observatio
             q_hat=q_hat / torch.linalg.vector_norm(q_hat, dim=-1, keepdim=True),
             offset=None if offset0 is None else offset0.to(dtype=dtype, device=device).expand(B).clone(),
             P=symmetrise(P0.to(dtype=dtype, device=device).expand(B, layout.dim, layout.dim)).clone(),
-            m_past=m_past0.to(dtype=dtype, device=device).expand(B).clone())
+            m_past=m_past0.to(dtype=dtype, device=device).expand(B).clone(),
+            noise_excess=None if run.adaptive_rate is None else run.R.clone())
         history = HistoryBuilder(layout)
         nan_b = torch.full((B,), math.nan, dtype=dtype, device=device)
         no = torch.zeros(B, dtype=torch.bool, device=device)
