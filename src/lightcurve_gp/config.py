@@ -29,7 +29,7 @@ import yaml
 
 from . import config_schema
 from .config_schema import *  # noqa: F403 (the typed sections are importable from here)
-from .config_schema import MODEL_KIND_SECTIONS, Config, ConfigError, ModelConfig
+from .config_schema import MODEL_KIND_SECTIONS, Config, ConfigError, DataConfig, ModelConfig
 
 __all__ = [
     *config_schema.__all__,
@@ -165,10 +165,32 @@ def _cross_check(cfg: Config) -> None:
         raise ConfigError("scenario.q0: the zero quaternion is not an attitude")
     # a GP of the rho-normalised curve needs the offset in the filter state, and the offset needs that GP: either
     # alone would count rho twice or not at all
-    if cfg.filter.estimate_offset != (cfg.model.target == "rho_normalised"):
+    if cfg.filter.estimate_offset != (cfg.model.target != "magnitude"):
         raise ConfigError(f"filter.estimate_offset: {str(cfg.filter.estimate_offset).lower()} needs model.target: "
-                          f"{'rho_normalised' if cfg.filter.estimate_offset else 'magnitude'} "
+                          f"{'rho_normalised or surface_normalised' if cfg.filter.estimate_offset else 'magnitude'} "
                           f"(got {cfg.model.target})")
+    _check_training_surfaces(cfg)
+
+
+def _check_training_surfaces(cfg: Config) -> None:
+    """``data.surfaces`` and ``model.target: surface_normalised`` need each other; the surfaces' ranges."""
+    surfaces = cfg.data.surfaces
+    if (surfaces is not None) != (cfg.model.target == "surface_normalised"):
+        raise ConfigError("data.surfaces: given exactly when model.target is surface_normalised "
+                          f"(model.target: {cfg.model.target}, data.surfaces: {'set' if surfaces else 'null'})")
+    if surfaces is None:
+        return
+    for key in ("rho", "f0", "n"):
+        lo, hi = getattr(surfaces, key)
+        if not lo <= hi:
+            raise ConfigError(f"data.surfaces.{key}: low {lo:g} is above high {hi:g}")
+    if surfaces.f0[1] >= 1.0:
+        raise ConfigError(f"data.surfaces.f0: {surfaces.f0[1]:g} leaves no diffuse light (F0 must stay below 1)")
+    if cfg.surface.f0 >= 1.0:
+        raise ConfigError("surface.f0: the reference surface of surface_normalised needs F0 < 1")
+    if cfg.data.quaternion_sign != "as_is":
+        raise ConfigError(f"data.quaternion_sign: {cfg.data.quaternion_sign} is not supported with data.surfaces "
+                          f"(as_is only: the spread groups each attitude's surfaces)")
 
 
 #: settings that belonged to the flat ``model`` section before it was split by kind: their place now
@@ -211,6 +233,9 @@ def config_to_dict(cfg: Any) -> dict:
     for section in MODEL_KIND_SECTIONS if model is not None else ():
         if section != model["kind"]:
             del model[section]
+    data = out.get("data") if isinstance(cfg, Config) else out if isinstance(cfg, DataConfig) else None
+    if data is not None and data.get("surfaces") is None:
+        del data["surfaces"]  # absent, not null: configs without it keep their cache and model keys
     return out
 
 

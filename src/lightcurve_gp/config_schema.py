@@ -17,6 +17,7 @@ __all__ = [
     "ShapeConfig",
     "SurfaceConfig",
     "DataConfig",
+    "TrainingSurfacesConfig",
     "ModelConfig",
     "ExactModelConfig",
     "SparseModelConfig",
@@ -81,6 +82,23 @@ class SurfaceConfig:
 
 
 @dataclass(kw_only=True)
+class TrainingSurfacesConfig:
+    """Surfaces the training set is rendered with (``data.surfaces``; ``model.target: surface_normalised``).
+
+    Every training attitude is rendered with ``per_attitude`` surfaces of its own, drawn from ``seed``:
+    ρ ~ U(rho), F0 ~ U(f0), n_u and n_v independently log-uniform in ``n``. The spread of the normalised magnitude
+    over an attitude's surfaces is what the model's variance learns (``spread_inducing`` inducing points).
+    """
+
+    per_attitude: int = _spec(6, lo=2, doc="surfaces per training attitude (K)")
+    rho: list[float] = _spec([0.1, 0.9], lo=0.0, lo_open=True, hi=1.0, length=2, doc="range of rho (uniform)")
+    f0: list[float] = _spec([0.05, 0.95], lo=0.0, hi=1.0, length=2, doc="range of F0 (uniform); F0 < 1")
+    n: list[float] = _spec([10.0, 1.0e4], lo=0.0, lo_open=True, length=2, doc="range of n_u, n_v (log-uniform)")
+    seed: int = _spec(1, lo=0, doc="seed of the surface draws (the attitudes use data.seed)")
+    spread_inducing: int = _spec(500, lo=1, doc="inducing points of the spread model (SGPR on log s^2)")
+
+
+@dataclass(kw_only=True)
 class DataConfig:
     """Training set of the GP observation model (paper section 3.2)."""
 
@@ -96,6 +114,9 @@ class DataConfig:
     dt_s: float = _spec(lo=0.0, lo_open=True)
     t_span_past: float = _spec(lo=0.0, lo_open=True, doc="seconds averaged into m_app_past")
     heldout_size: int = _spec(2000, lo=1)
+    surfaces: TrainingSurfacesConfig | None = _spec(None, doc="render each attitude with many surfaces "
+                                                              "(model.target: surface_normalised); null: the "
+                                                              "surface section and rho_grid")
 
 
 @dataclass(kw_only=True)
@@ -133,8 +154,10 @@ class ModelConfig:
     kind: str = _spec(choices=("exact", "sparse"))
     inputs: str = _spec("quaternion", choices=("quaternion", "attitude_matrix"),
                         doc="GP input map: quaternion = [q, m_past] (paper); attitude_matrix = A(q), sign-invariant")
-    target: str = _spec("magnitude", choices=("magnitude", "rho_normalised"),
-                        doc="GP output: m_app as rendered (paper) or m_app + 2.5 log10(rho / rho_reference)")
+    target: str = _spec("magnitude", choices=("magnitude", "rho_normalised", "surface_normalised"),
+                        doc="GP output: m_app as rendered (paper), m_app + 2.5 log10(rho / rho_reference), or "
+                            "m_app + 2.5 log10(rho (1 - F0) / (rho_reference (1 - surface.f0))) over data.surfaces "
+                            "with the spread over surfaces in the variance")
     rho_reference: float = _spec(0.5, lo=0.0, lo_open=True, hi=1.0,
                                  doc="reflectance the rho_normalised target refers to")
     theta1: float = _spec(lo=0.0, lo_open=True)

@@ -163,7 +163,12 @@ def _inertia(cfg: Config) -> Tensor:
 
 
 def generate_training_set(cfg: Config, progress: bool = True) -> TrainingSet:
-    """The training set of ``cfg`` (paper: 3852 attitudes × 5 ρ = 19260 points), on CPU in ``cfg.dtype``."""
+    """The training set of ``cfg`` (paper: 3852 attitudes × 5 ρ = 19260 points), on CPU in ``cfg.dtype``; with
+    ``data.surfaces`` rendered over many surfaces (:mod:`lightcurve_gp.surface_training`)."""
+    if cfg.data.surfaces is not None:
+        from .surface_training import generate_surface_training_set
+
+        return generate_surface_training_set(cfg, progress=progress)
     dtype = cfg.torch_dtype
     scene = Scene.from_config(cfg, dtype=dtype, device="cpu")
     q0 = initial_attitudes(cfg.data, dtype=dtype)
@@ -176,7 +181,13 @@ def generate_heldout_set(cfg: Config) -> TrainingSet:
 
     ρ is uniform in ``[min(rho_grid), max(rho_grid)]`` (almost surely no grid value); attitudes and ρ come from
     the seed ``data.seed + 1``, independent of the training set. The sign policy of the training set applies.
+    With ``data.surfaces``: one random surface per attitude instead
+    (:func:`~lightcurve_gp.surface_training.generate_surface_heldout_set`).
     """
+    if cfg.data.surfaces is not None:
+        from .surface_training import generate_surface_heldout_set
+
+        return generate_surface_heldout_set(cfg)
     dtype = cfg.torch_dtype
     scene = Scene.from_config(cfg, dtype=dtype, device="cpu")
     n = cfg.data.heldout_size
@@ -201,7 +212,9 @@ def normalised_targets(m: Tensor, rho: Tensor, rho_reference: float) -> Tensor:
 def model_targets(ts: TrainingSet, model: ModelConfig) -> TrainingSet:
     """The data a GP of ``model`` learns from ``ts``: unchanged for ``model.target = magnitude`` (the paper);
     for ``rho_normalised``, ``y`` and ``m_past`` (the window mean shifts by the same offset) normalised to
-    ``model.rho_reference`` by :func:`normalised_targets`, so the GP sees the reference curve only."""
+    ``model.rho_reference`` by :func:`normalised_targets`, so the GP sees the reference curve only; for
+    ``surface_normalised`` the same with ``rho`` the equivalent reflectance ``ρ (1 − F0) / (1 − F0,0)``
+    (:mod:`lightcurve_gp.surface_training`)."""
     if model.target == "magnitude":
         return ts
     return _replace(ts, m_past=normalised_targets(ts.m_past, ts.rho, model.rho_reference),

@@ -97,7 +97,11 @@ def _fit(cfg: Config, cache_dir: Path, progress: bool, timings: dict,
     t0 = time.perf_counter()
     data = model_targets(data, cfg.model)
     _say(f"fitting the {cfg.model.kind} GP on {len(data)} points ({_TARGETS[cfg.model.target]})", progress)
-    model = run_interruptible(lambda: build_model(data.q, data.m_past, data.y, cfg.model, progress=progress),
+    surfaces = cfg.data.surfaces
+    kwargs = {} if surfaces is None else {"per_attitude": surfaces.per_attitude,
+                                          "spread_inducing": surfaces.spread_inducing}
+    model = run_interruptible(lambda: build_model(data.q, data.m_past, data.y, cfg.model, progress=progress,
+                                                  **kwargs),
                               status=f"fitting the {cfg.model.kind} GP", progress=progress)
     timings["fit_s"] = time.perf_counter() - t0
     _say(f"fitted in {timings['fit_s']:.1f} s", progress)
@@ -174,7 +178,9 @@ def _train_into(cfg: Config, run_dir: Path, cache_dir: Path, *, progress: bool, 
     return result
 
 
-_TARGETS = {"magnitude": "target: magnitude", "rho_normalised": "target: magnitude normalised to model.rho_reference"}
+_TARGETS = {"magnitude": "target: magnitude", "rho_normalised": "target: magnitude normalised to model.rho_reference",
+            "surface_normalised": "target: magnitude normalised to the reference surface's diffuse part, over "
+                                  "data.surfaces"}
 
 
 def _say(text: str, progress: bool) -> None:

@@ -5,6 +5,7 @@ from .exact_gp import ExactGP
 from .parametric import Parametric
 from .serialization import ModelFileError, build_model, load_model, save_model
 from .sparse_gp import SparseGP
+from .surface_marginal import SurfaceMarginalGP
 
 __all__ = [
            "ExactGP",
@@ -13,6 +14,7 @@ __all__ = [
            "ObservationModule",
            "Parametric",
            "SparseGP",
+           "SurfaceMarginalGP",
            "Variance",
            "build_model",
            "load_model",

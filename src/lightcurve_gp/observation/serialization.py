@@ -3,7 +3,7 @@
 A model file is ``torch.save`` of a plain dict (tensors and python scalars/strings/dicts only, so it loads with
 ``torch.load(weights_only=True)``)::
 
-    {"format": "lightcurve-gp-model", "format_version": 1, "kind": "exact" | "sparse",
+    {"format": "lightcurve-gp-model", "format_version": 1, "kind": "exact" | "sparse" | "surface_marginal",
      "config": {...model config section...}, "inputs": {...input map and normalisation...},
      "state": {...hyperparameters and prediction cache...}, "extra": {...caller's metadata...}}
 
@@ -25,6 +25,7 @@ from .base import ObservationModel
 from .exact_gp import ExactGP
 from .inputs import InputMap
 from .sparse_gp import SparseGP
+from .surface_marginal import SurfaceMarginalGP
 
 __all__ = [
     "FORMAT",
@@ -39,7 +40,7 @@ __all__ = [
 
 FORMAT = "lightcurve-gp-model"
 FORMAT_VERSION = 1
-MODEL_KINDS: dict[str, type] = {"exact": ExactGP, "sparse": SparseGP}
+MODEL_KINDS: dict[str, type] = {"exact": ExactGP, "sparse": SparseGP, "surface_marginal": SurfaceMarginalGP}
 
 
 class ModelFileError(ValueError):
@@ -48,12 +49,15 @@ class ModelFileError(ValueError):
 
 def build_model(q: Tensor, m_past: Tensor, y: Tensor, cfg: ModelConfig, **kwargs: Any) -> ObservationModel:
     """Train the GP named by ``cfg.kind`` (``exact`` or ``sparse``) on ``q (N, 4)``, ``m_past (N,)``, ``y (N,)``;
-    ``kwargs`` go to its ``from_data`` (e.g. ``seed``, ``device``)."""
-    return MODEL_KINDS[cfg.kind].from_data(q, m_past, y, cfg, **kwargs)
+    ``kwargs`` go to its ``from_data`` (e.g. ``seed``, ``device``). ``cfg.target: surface_normalised`` trains a
+    :class:`SurfaceMarginalGP` (its ``per_attitude`` and ``spread_inducing`` in ``kwargs``)."""
+    kind = "surface_marginal" if cfg.target == "surface_normalised" else cfg.kind
+    return MODEL_KINDS[kind].from_data(q, m_past, y, cfg, **kwargs)
 
 
 def save_model(model: ObservationModel, path: str | Path, *, extra: dict[str, Any] | None = None) -> Path:
-    """Write ``model`` (an :class:`ExactGP` or :class:`SparseGP`) to one file at ``path``, atomically.
+    """Write ``model`` (an :class:`ExactGP`, :class:`SparseGP` or :class:`SurfaceMarginalGP`) to one file at
+    ``path``, atomically.
 
     ``extra`` is stored as given (plain python types and tensors only), e.g. the full config and data hash.
     The exact GP's full Cholesky factor is not stored (it is recomputed when an exact variance is asked for).
