@@ -103,3 +103,13 @@ def test_config_maps_forgetting_time_to_rate_and_names_bad_keys():
         load_config(ROOT / "configs" / "boxwing_robust.yaml", ["filter.adaptive_noise=sage"])
     with pytest.raises(ConfigError, match=r"^filter.adaptive_noise_time_s: "):
         load_config(ROOT / "configs" / "boxwing_robust.yaml", ["filter.adaptive_noise_time_s=0"])
+
+
+def test_options_that_are_off_leave_the_config_dict_unchanged():
+    """``adaptive_noise: none`` and ``data.surfaces: null`` are absent from the dict that cache and case keys hash."""
+    from lightcurve_gp.config import config_to_dict
+
+    base = config_to_dict(load_config(ROOT / "configs" / "boxwing_robust.yaml"))
+    assert "adaptive_noise" not in base["filter"] and "surfaces" not in base["data"]
+    on = config_to_dict(load_config(ROOT / "configs" / "boxwing_robust.yaml", ["filter.adaptive_noise=innovation"]))
+    assert on["filter"]["adaptive_noise"] == "innovation" and on["filter"]["adaptive_noise_time_s"] == 100.0

@@ -29,7 +29,7 @@ import yaml
 
 from . import config_schema
 from .config_schema import *  # noqa: F403 (the typed sections are importable from here)
-from .config_schema import MODEL_KIND_SECTIONS, Config, ConfigError, DataConfig, ModelConfig
+from .config_schema import MODEL_KIND_SECTIONS, Config, ConfigError, DataConfig, FilterConfig, ModelConfig
 
 __all__ = [
     *config_schema.__all__,
@@ -227,15 +227,20 @@ def config_from_dict(raw: dict) -> Config:
 
 def config_to_dict(cfg: Any) -> dict:
     """Plain nested ``dict`` of a config or one of its sections (YAML/JSON serialisable) that
-    :func:`config_from_dict` reads back: the model section keeps only the settings of its own kind."""
+    :func:`config_from_dict` reads back: the model section keeps only the settings of its own kind, and options
+    that are off (``data.surfaces`` null, ``filter.adaptive_noise`` none) are left out."""
     out = dataclasses.asdict(cfg)
     model = out.get("model") if isinstance(cfg, Config) else out if isinstance(cfg, ModelConfig) else None
     for section in MODEL_KIND_SECTIONS if model is not None else ():
         if section != model["kind"]:
             del model[section]
+    # options that are off are absent, not null: configs without them keep their cache, model and case keys
     data = out.get("data") if isinstance(cfg, Config) else out if isinstance(cfg, DataConfig) else None
     if data is not None and data.get("surfaces") is None:
-        del data["surfaces"]  # absent, not null: configs without it keep their cache and model keys
+        del data["surfaces"]
+    filt = out.get("filter") if isinstance(cfg, Config) else out if isinstance(cfg, FilterConfig) else None
+    if filt is not None and filt.get("adaptive_noise") == "none":
+        del filt["adaptive_noise"], filt["adaptive_noise_time_s"]
     return out
 
 
