@@ -298,6 +298,9 @@ def run_usque(*, model: ObservationModel, q_est0: Tensor, P0: Tensor, observatio
     (conjugation by ``δ`` rotates a quaternion's vector part by ``A(δ)``), so ``χ_i⁻ = A(δ) χ_i`` and
     ``P⁻ = A (P⁺ + Q) Aᵀ + Q``. The step computes them that way: the same filter with a fraction of the work.
 
+    With ``params.adaptive_noise = "innovation"`` the ``R`` of step 6 is each filter's ``R̂_k = max(R, c_k)``,
+    ``c`` the running average of the innovation excess of the steps before (:func:`adapted_noise`).
+
     A NaN observation skips steps 7 and 9 for that filter only (the prior becomes the posterior). A finite
     observation whose prediction is not finite or whose ``Pyy ≤ 0`` is refused the same way and counted in
     ``rejected``; its ``m_past`` recursion still happens (the observation is real).
