@@ -1,7 +1,9 @@
 """Generalisation suite: every estimator on random truths (attitude, spin, surface, initial error per seed).
 
 Seeds come in two blocks: the tuning block (default 1000-1099) may inform choices; the held-out block (default
-2000-2299) is never used for one and gives the reported numbers. ``--error-angles`` adds the initial-error table:
+2000-2299) is never used for one and gives the reported numbers; the paper block (``--blocks paper``, noise seeds
+0-199, ``--paper-rho`` 0.7) is the paper's case: every seed the config's truth, the seeds differing by noise alone
+(:func:`lightcurve_gp.truths.paper_case_draw`). ``--error-angles`` adds the initial-error table:
 the same truths of ``--error-seeds`` (default 2000-2099) with a fixed initial-error angle (5, 10, 20, 30 deg, random
 axis, P0 matched). Truths: :mod:`lightcurve_gp.truths`; estimators and metrics: :mod:`lightcurve_gp.generalization`.
 
@@ -43,7 +45,7 @@ from lightcurve_gp.plots import _save, rmse_boxplot
 from lightcurve_gp.render import Scene
 from lightcurve_gp.reporting import CaseRecord, SeedRow, csv_text, markdown_table
 from lightcurve_gp.sweep.store import read_case, write_case
-from lightcurve_gp.truths import draw_truths, simulate_truths
+from lightcurve_gp.truths import draw_truths, paper_case_draw, simulate_truths
 
 ROOT = Path(__file__).resolve().parents[1]
 SUITE_FORMAT = 1
@@ -60,8 +62,23 @@ def seed_range(text: str) -> range:
     return range(lo, hi)
 
 
-def block_id(cfg, seeds: Sequence[int], error_deg: float | None, estimator: str, map_every: float) -> str:
-    """Content hash of one (block, estimator) case: what the estimator's result depends on, the seeds, the error mode.
+def truth_mode_label(mode) -> str:
+    """``None`` (random truths) → ``"random"``, an angle → ``"10"``, ``("paper", 0.7)`` → ``"paper rho 0.7"``."""
+    if mode is None:
+        return "random"
+    return f"paper rho {mode[1]:g}" if isinstance(mode, tuple) else f"{mode:g}"
+
+
+def truth_draw(cfg, seeds: Sequence[int], mode):
+    """The truths of one block: random (``None``), random with a fixed initial-error angle, or the paper's case."""
+    if isinstance(mode, tuple):
+        return paper_case_draw(cfg, seeds, rho=mode[1])
+    return draw_truths(seeds, error_deg=mode)
+
+
+def block_id(cfg, seeds: Sequence[int], error_deg, estimator: str, map_every: float) -> str:
+    """Content hash of one (block, estimator) case: what the estimator's result depends on, the seeds, the truth
+    mode ``error_deg`` (``None``, a fixed initial-error angle, or ``("paper", rho)``).
 
     Only the robust GPUKF depends on the trained model (``data`` and ``model`` sections); the other estimators use
     ``model.rho_reference`` alone from those, so a new candidate config with the same scenario, surface and filter
@@ -70,23 +87,25 @@ def block_id(cfg, seeds: Sequence[int], error_deg: float | None, estimator: str,
     sections = [k for k in config_to_dict(cfg) if k != "name" and (estimator == "robust_gpukf"
                                                                    or k not in ("data", "model"))]
     return config_hash(cfg, *sections, extra={
-        "suite": "generalization", "format": SUITE_FORMAT, "seeds": list(seeds), "error_deg": error_deg,
+        "suite": "generalization", "format": SUITE_FORMAT, "seeds": list(seeds),
+        "error_deg": list(error_deg) if isinstance(error_deg, tuple) else error_deg,
         "estimator": estimator, "map_every_s": map_every if estimator.startswith("map_") else None,
         "model": model_key(cfg) if estimator == "robust_gpukf" else cfg.model.rho_reference})
 
 
-def case_record(case_id: str, seeds: Sequence[int], error_deg: float | None, name: str, rows: list[dict[str, Any]],
+def case_record(case_id: str, seeds: Sequence[int], error_deg, name: str, rows: list[dict[str, Any]],
                 seconds: float, steps: int) -> CaseRecord:
     """The store's record of one (block, estimator): its :class:`SeedRow` metrics, and the suite's per-seed rows
     (truth descriptors, classes, bins, whitened errors) under ``summary["per_seed"]``."""
     seed_metrics = [SeedRow(r["seed"], name, r["rmse_yaw_deg"], r["rmse_pitch_deg"], r["rmse_roll_deg"],
                             nees_mean=r["nees_mean"], seconds_per_step=seconds / steps) for r in rows]
-    return CaseRecord(case_id=case_id, values={"suite": "generalization", "error_deg": error_deg},
+    return CaseRecord(case_id=case_id, values={"suite": "generalization", "error_deg": truth_mode_label(error_deg)
+                                               if isinstance(error_deg, tuple) else error_deg},
                       seeds=list(seeds), estimators=[name], rows=seed_metrics, summary={"per_seed": rows},
                       seconds=seconds)
 
 
-def run_block(cfg, model, scene, seeds: Sequence[int], error_deg: float | None, estimators: Sequence[str],
+def run_block(cfg, model, scene, seeds: Sequence[int], error_deg, estimators: Sequence[str],
               map_every: float, store: Path) -> tuple[list[dict[str, Any]], int]:
     """Rows of one block of seeds, each estimator read back from ``store`` or run and stored atomically there;
     also the number of estimators that ran."""
@@ -96,10 +115,10 @@ def run_block(cfg, model, scene, seeds: Sequence[int], error_deg: float | None, 
         record = read_case(path)
         if record is None or not record.ok:
             start = time.perf_counter()
-            truths = truths or simulate_truths(cfg, draw_truths(seeds, error_deg=error_deg), scene)
+            truths = truths or simulate_truths(cfg, truth_draw(cfg, seeds, error_deg), scene)
             results = run_suite(cfg, truths, gp_model=model, estimators=[name], map_every_s=map_every, scene=scene)
             block_rows = seed_rows(truths, results, nees_band(),
-                                   error_mode="random" if error_deg is None else f"{error_deg:g}")
+                                   error_mode=truth_mode_label(error_deg))
             record = case_record(path.stem, seeds, error_deg, name, block_rows, time.perf_counter() - start,
                                  truths.increments.shape[1])
             write_case(record, path)
@@ -108,7 +127,7 @@ def run_block(cfg, model, scene, seeds: Sequence[int], error_deg: float | None, 
     return rows, ran
 
 
-def run_blocks(cfg, model, scene, seeds: range, error_deg: float | None, estimators, args, label: str):
+def run_blocks(cfg, model, scene, seeds: range, error_deg, estimators, args, label: str):
     """All blocks of ``seeds`` for one error mode; returns the rows, the summed estimator seconds (as stored) and
     the number of (block, estimator) cases run and read back."""
     blocks = [seeds[i:i + args.block_size] for i in range(0, len(seeds), args.block_size)]
@@ -197,7 +216,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the robust config to evaluate (its model is trained into <runs>/models/ when missing)")
     p.add_argument("--tuning-seeds", default="1000:1100", type=seed_range, help="FIRST:END (choices allowed)")
     p.add_argument("--heldout-seeds", default="2000:2300", type=seed_range, help="FIRST:END (never for choices)")
-    p.add_argument("--blocks", default="tuning,heldout", help="which of tuning,heldout to run ('' for none)")
+    p.add_argument("--blocks", default="tuning,heldout", help="which of tuning,heldout,paper to run ('' for none)")
+    p.add_argument("--paper-seeds", default="0:200", type=seed_range, help="noise seeds of the paper block")
+    p.add_argument("--paper-rho", default=0.7, type=float, help="the true reflectance of the paper block")
     p.add_argument("--error-angles", default="", help="fixed initial-error angles (deg), e.g. 5,10,20,30")
     p.add_argument("--error-seeds", default="2000:2100", type=seed_range, help="seeds of the initial-error table")
     p.add_argument("--estimators", default=",".join(SUITE_ESTIMATORS))
@@ -225,8 +246,9 @@ def main(argv=None) -> int:
         estimators, error_estimators = _names(args.estimators), _names(args.error_estimators)
         angles = [float(a) for a in args.error_angles.split(",") if a.strip()]
         blocks = [b.strip() for b in args.blocks.split(",") if b.strip()]
-        if any(b not in ("tuning", "heldout") for b in blocks) or not (blocks or angles):
-            raise ConfigError(f"--blocks: {args.blocks!r} must name tuning and/or heldout (or give --error-angles)")
+        if any(b not in ("tuning", "heldout", "paper") for b in blocks) or not (blocks or angles):
+            raise ConfigError(f"--blocks: {args.blocks!r} must name tuning, heldout and/or paper (or give "
+                              "--error-angles)")
     except (ConfigError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -243,10 +265,12 @@ def main(argv=None) -> int:
               f"every {args.map_every:g} s there); NEES band of one chi-square(3) sample {band[0]:.2f}-{band[1]:.2f}."]
     all_rows, all_summary, counts = [], [], [0, 0]
     for label in blocks:
-        seeds = args.heldout_seeds if label == "heldout" else args.tuning_seeds
-        rows, seconds, count = run_blocks(cfg, model, scene, seeds, None, estimators, args, label)
+        seeds = {"heldout": args.heldout_seeds, "tuning": args.tuning_seeds, "paper": args.paper_seeds}[label]
+        mode = ("paper", args.paper_rho) if label == "paper" else None
+        rows, seconds, count = run_blocks(cfg, model, scene, seeds, mode, estimators, args, label)
         counts = [a + b for a, b in zip(counts, count)]
-        lines, summary = block_report(rows, seconds, f"{label} seeds {seeds.start}-{seeds.stop - 1}")
+        title = f"{label} seeds {seeds.start}-{seeds.stop - 1}" + (f", rho {args.paper_rho:g}" if mode else "")
+        lines, summary = block_report(rows, seconds, title)
         report += lines
         all_rows += rows
         all_summary += [{"block": label, **e} for e in summary]

@@ -50,7 +50,7 @@ def _subset(truths, i):
 
 
 def test_filters_with_per_seed_increments_and_surfaces_equal_one_seed_at_a_time(cfg, scene, truths):
-    estimators = ("matched_ukf", "joint_ukf")
+    estimators = ("matched_ukf", "joint_ukf", "surface_ukf")
     batched = run_suite(cfg, truths, estimators=estimators, scene=scene)
     assert not torch.equal(truths.increments[0], truths.increments[1])
     for i in range(3):

@@ -12,11 +12,13 @@ from lightcurve_gp.dynamics import propagate
 from lightcurve_gp.map_surface import cumulative_increments
 from lightcurve_gp.render import Scene
 from lightcurve_gp.rotations import attitude_matrix, quat_conj, quat_mul, quat_to_rotvec, rotvec_to_quat
+from lightcurve_gp.scenario import simulate_scenario
 from lightcurve_gp.shapes import box_wing
 from lightcurve_gp.truths import (
     SPECULAR_CLASSES,
     TruthRanges,
     draw_truths,
+    paper_case_draw,
     simulate_truths,
     specular_class,
     specular_share,
@@ -158,3 +160,17 @@ def test_conjugation_by_an_increment_turns_a_rotation_vector_by_its_attitude_mat
     delta, e = random_quats(6, seed=6), 0.2 * torch.randn(6, 3, generator=torch.Generator().manual_seed(7), dtype=DT)
     turned = quat_to_rotvec(quat_mul(quat_mul(delta, rotvec_to_quat(e)), quat_conj(delta)))
     assert torch.allclose(turned, (attitude_matrix(delta) @ e.unsqueeze(-1)).squeeze(-1), atol=1e-12)
+
+
+def test_the_paper_case_draw_is_the_scenario_command_seed_by_seed():
+    cfg = load_config(CONFIG)
+    seeds = [3, 0]
+    truths = simulate_truths(cfg, paper_case_draw(cfg, seeds, rho=0.7))
+    sc = simulate_scenario(cfg, seeds=seeds, rho_true=0.7)
+    assert torch.allclose(truths.q_true, sc.q_true.expand(2, -1, -1), atol=1e-12, rtol=0)
+    assert torch.allclose(truths.observations, sc.observations, atol=1e-10, rtol=0)
+    assert torch.allclose(truths.draw.q_est0, sc.q_est0.expand(2, 4), atol=1e-12, rtol=0)
+    assert torch.allclose(truths.P0, torch.deg2rad(torch.tensor(cfg.filter.p0_deg, dtype=DT)) ** 2
+                          * torch.eye(3, dtype=DT).expand(2, 3, 3), atol=1e-15, rtol=0)
+    with pytest.raises(ValueError, match=r"rho: 0 must lie in \(0, 1\]"):
+        paper_case_draw(cfg, seeds, rho=0)

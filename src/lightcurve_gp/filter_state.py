@@ -1,8 +1,9 @@
 """The state and the record of a batched USQUE run: the state's block layout, the posterior carried from step to
 step, what each step records, and the history a run returns (:mod:`lightcurve_gp.ukf`).
 
-State layout ``[δp (3, GRP attitude error), ω (3), b (1, magnitude offset)]``, a block present only when it is
-estimated; ω is known in this toolkit (not estimated), ``b`` is estimated by the offset filter.
+State layout ``[δp (3, GRP attitude error), ω (3), b (1, magnitude offset), θ (p, observation-model parameters)]``,
+a block present only when it is estimated; ω is known in this toolkit (not estimated), ``b`` is estimated by the
+offset filter, ``θ`` (e.g. the surface's reflectance parameters) by a filter whose model takes them as inputs.
 """
 
 from __future__ import annotations
@@ -19,35 +20,45 @@ __all__ = ["FilterHistory", "FilterState", "HistoryBuilder", "StateLayout", "Ste
 
 @dataclass(frozen=True)
 class StateLayout:
-    """Blocks of the filter state ``[δp (3), ω (3), b (1)]``, each present only when estimated (ω: not yet).
+    """Blocks of the filter state ``[δp (3), ω (3), b (1), θ (p)]``, each present only when estimated (ω: not yet).
 
     Attributes:
         offset: whether the magnitude offset ``b`` is in the state.
+        parameters: ``p``, the number of observation-model parameters ``θ`` in the state (0: none).
     """
 
     offset: bool = False
+    parameters: int = 0
 
     @property
     def dim(self) -> int:
-        return 3 + int(self.offset)
+        return 3 + int(self.offset) + self.parameters
 
     @property
     def offset_index(self) -> int:
         """Index of ``b`` in the state (after ``δp``)."""
         return 3
 
+    @property
+    def parameter_slice(self) -> slice:
+        """Indices of ``θ`` in the state (after ``δp`` and ``b``)."""
+        start = 3 + int(self.offset)
+        return slice(start, start + self.parameters)
+
 
 class FilterState(NamedTuple):
     """The posterior of ``B`` filters at one step: ``q̂ (B, 4)``, ``b̂ (B,)`` (``None`` when not estimated),
     ``P (B, n, n)`` of the state about ``[0, b̂]``, the running mean ``m_past (B,)`` for the next prediction and,
     with adaptive measurement noise, the running average ``noise_excess (B,)`` of the innovation excess (mag²;
-    ``R̂ = max(R, noise_excess)``, :func:`lightcurve_gp.ukf.adapted_noise`), else ``None``."""
+    ``R̂ = max(R, noise_excess)``, :func:`lightcurve_gp.ukf.adapted_noise`), else ``None``; and the estimated
+    observation-model parameters ``theta (B, p)``, or ``None``."""
 
     q_hat: Tensor
     offset: Tensor | None
     P: Tensor
     m_past: Tensor
     noise_excess: Tensor | None = None
+    theta: Tensor | None = None
 
 
 class StepRecord(NamedTuple):
@@ -84,6 +95,8 @@ class FilterHistory:
         m_past_final: the running mean after the last observation ``(B,)``.
         offset: posterior offset estimates ``b_k`` ``(B, T+1)`` (mag; ``k = 0`` the prior mean), or ``None``.
         offset_var: posterior offset variances ``(B, T+1)`` (mag²), or ``None``.
+        theta: posterior estimates of the observation-model parameters ``(B, T+1, p)`` (the model's units), or
+            ``None``; their variances are the diagonal of ``P_full`` at :attr:`StateLayout.parameter_slice`.
     """
 
     q_est: Tensor
@@ -100,6 +113,7 @@ class FilterHistory:
     m_past_final: Tensor
     offset: Tensor | None = None
     offset_var: Tensor | None = None
+    theta: Tensor | None = None
 
     def nis(self) -> Tensor:
         """Normalised innovation squared ``ν² / Pyy`` ``(B, T+1)`` (NaN where no innovation)."""
@@ -125,10 +139,12 @@ class HistoryBuilder:
         offset = None
         if self.layout.offset:
             offset = torch.stack([s.offset for s in self.states], 1)
+        theta = torch.stack([s.theta for s in self.states], 1) if self.layout.parameters else None
         i = self.layout.offset_index
         return FilterHistory(
             q_est=torch.stack([s.q_hat for s in self.states], 1), P=P_full[..., :3, :3], P_full=P_full,
             y_pred=cols["y_pred"], y_var=cols["y_var"], model_var=cols["model_var"],
             innovation=torch.where(observed, cols["innovation"], math.nan), m_past=cols["m_past"],
             updated=cols["updated"], fallbacks=cols["fallback"].sum(1), rejected=cols["rejected"].sum(1),
-            m_past_final=final.m_past, offset=offset, offset_var=P_full[..., i, i] if self.layout.offset else None)
+            m_past_final=final.m_past, offset=offset, offset_var=P_full[..., i, i] if self.layout.offset else None,
+            theta=theta)

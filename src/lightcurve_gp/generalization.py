@@ -9,6 +9,9 @@ Every filter uses the tuning of the config's ``filter`` section and starts from 
 * ``matched_ukf`` — the renderer with the seed's true surface (knows everything);
 * ``joint_ukf`` — the renderer at the reference surface (``model.rho_reference`` and the config's F0, n_u, n_v,
   the GP's training surface) with the offset state: it does not know F0, n_u, n_v;
+* ``surface_ukf`` — the renderer with the surface as states (:mod:`~.surface_state`: log ρ, logit F0, log n_u,
+  log n_v beside the attitude, the MAP's prior): surface unknown, shape known, the ideal emulator of a GP whose
+  inputs include the surface;
 * ``map_surface`` — the batch MAP reference with attitude, ρ, F0, n_u, n_v unknown (:mod:`~.map_surface`);
 * ``map_offset`` — the batch MAP with attitude and offset on the reference surface (the joint UKF's model);
 * ``no_update`` — the initial estimate propagated with the known ω (its covariance stays ``P0``).
@@ -32,18 +35,20 @@ from .brdf import Surface
 from .config import Config
 from .map_surface import batch_map, cumulative_increments
 from .metrics import attitude_error_vector, attitude_errors_deg, chi2_band, nees
-from .observation.parametric import Parametric
+from .observation.parametric import Parametric, SurfaceStateRenderer
 from .render import Scene
 from .rotations import quat_mul
+from .surface_state import surface_state_prior
 from .truths import TruthBatch
 from .ukf import UsqueParams, run_usque
 from .ukf_offset import initial_offset
 
 __all__ = ["SUITE_ESTIMATORS", "FILTERS", "Scored", "nees_band", "score", "run_suite"]
 
-SUITE_ESTIMATORS = ("robust_gpukf", "matched_ukf", "joint_ukf", "map_surface", "map_offset", "no_update")
+SUITE_ESTIMATORS = ("robust_gpukf", "matched_ukf", "joint_ukf", "surface_ukf", "map_surface", "map_offset",
+                    "no_update")
 #: estimators that need the trained GP
-FILTERS = ("robust_gpukf", "matched_ukf", "joint_ukf")
+FILTERS = ("robust_gpukf", "matched_ukf", "joint_ukf", "surface_ukf")
 
 
 def nees_band(independent_samples: int = 1, confidence: float = 0.95) -> tuple[float, float]:
@@ -96,11 +101,17 @@ def _window(cfg: Config, times: Tensor) -> Tensor:
     return ((times >= lo) & (times <= hi)).nonzero().squeeze(-1)
 
 
-def _offset_covariance(sigma0: Tensor, offset_std: float) -> Tensor:
-    P0 = torch.zeros(sigma0.shape[0], 4, 4, dtype=sigma0.dtype)
-    P0[:, :3, :3] = sigma0.pow(2).view(-1, 1, 1) * torch.eye(3, dtype=sigma0.dtype)
-    P0[:, 3, 3] = offset_std ** 2
-    return P0
+def _augmented_covariance(sigma0: Tensor, stds: Tensor) -> Tensor:
+    """``P0 = diag(σ0² I₃, stds²)`` ``(S, 3 + p, 3 + p)`` for the state ``[δp, b]`` or ``[δp, θ]``."""
+    return torch.diag_embed(torch.cat([sigma0.pow(2).unsqueeze(-1).expand(-1, 3),
+                                       stds.pow(2).to(sigma0).expand(sigma0.shape[0], -1)], -1))
+
+
+def _reference_surface(cfg: Config, scene: Scene) -> Surface:
+    """The reference surface, fields ``(1,)``: ``model.rho_reference`` and the scene's (the config's) material."""
+    ref = scene.facets
+    return Surface(*(torch.tensor([v], dtype=torch.float64) for v in
+                     (cfg.model.rho_reference, float(ref.f0[0]), float(ref.n_u[0]), float(ref.n_v[0]))))
 
 
 def _run_filter(name: str, cfg: Config, truths: TruthBatch, scene: Scene,
@@ -112,8 +123,15 @@ def _run_filter(name: str, cfg: Config, truths: TruthBatch, scene: Scene,
     if name == "matched_ukf":
         h = run_usque(model=Parametric(scene, surface=truths.draw.surface), P0=truths.P0, **run)
         return h.q_est, h.P, None
+    if name == "surface_ukf":
+        theta0, std = surface_state_prior(scene=scene, q_est0=q_est0, y0=obs[:, 0],
+                                          reference=_reference_surface(cfg, scene),
+                                          offset_std=cfg.filter.offset_prior_std)
+        h = run_usque(model=SurfaceStateRenderer(scene), P0=_augmented_covariance(truths.draw.sigma0, std),
+                      theta0=theta0, **run)
+        return h.q_est, h.P, None
     model = gp_model if name == "robust_gpukf" else Parametric(scene, cfg.model.rho_reference)
-    P0 = _offset_covariance(truths.draw.sigma0, cfg.filter.offset_prior_std)
+    P0 = _augmented_covariance(truths.draw.sigma0, torch.tensor([cfg.filter.offset_prior_std]))
     h = run_usque(model=model, P0=P0, offset0=initial_offset(model, q_est0, obs[:, 0], obs[:, 0]), **run)
     return h.q_est, h.P, h.offset[:, -1]
 
@@ -123,9 +141,7 @@ def _run_map(name: str, cfg: Config, truths: TruthBatch, scene: Scene, every_s: 
     dt = cfg.scenario.dt_s
     count = int(round((hi - lo) / every_s))
     checkpoints = [int(round((lo + i * every_s) / dt)) for i in range(count + 1)]
-    ref = scene.facets
-    reference = Surface(*(torch.tensor([v], dtype=torch.float64) for v in
-                          (cfg.model.rho_reference, float(ref.f0[0]), float(ref.n_u[0]), float(ref.n_v[0]))))
+    reference = _reference_surface(cfg, scene)
     start = time.perf_counter()
     est = batch_map(scene, q_est0=truths.draw.q_est0, sigma0=truths.draw.sigma0, observations=truths.observations,
                     increments=truths.increments, checkpoints=checkpoints,

@@ -8,10 +8,8 @@ differences; every seed in one batch, warm-started from the previous checkpoint)
 * attitude: ``e`` (3, rad), the rotation vector with ``q_0 = q(e) ⊗ q̂_0``; prior ``N(0, σ0² I)`` (the filters' P0);
 * ``surface=False``: the magnitude offset ``b`` (mag) on the renderer at a reference surface,
   ``y = h_ref(q) + b`` (what the honest joint UKF assumes); prior ``N(ỹ_0 − h_ref(q̂_0), offset_std²)``;
-* ``surface=True``: ``(log ρ, logit F0, log n_u, log n_v)`` of the renderer — the surface unknown, the shape known.
-  Prior: ``log ρ`` as the offset prior mapped through ``b = −2.5 log10(ρ/ρ_ref)``; the others Gaussian with the mean
-  and standard deviation of the drawing distribution of :class:`~lightcurve_gp.truths.TruthRanges` in those
-  coordinates (uniform F0 mapped to logit, log-uniform ``n`` to log).
+* ``surface=True``: ``(log ρ, logit F0, log n_u, log n_v)`` of the renderer — the surface unknown, the shape known —
+  with the prior of :func:`lightcurve_gp.surface_state.surface_state_prior` (the surface-state filter's).
 
 The estimate at ``t`` uses no later sample, so its errors at the checkpoints compare with a filter's over the same
 window. Its covariance is the inverse Gauss–Newton Hessian; the attitude block, turned to time ``t`` by ``A(Δ_t)``
@@ -20,7 +18,6 @@ window. Its covariance is the inverse Gauss–Newton Hessian; the attitude block
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -30,12 +27,10 @@ from torch import Tensor
 from .brdf import Surface
 from .render import Scene
 from .rotations import attitude_matrix, quat_mul, quat_normalize, rotvec_to_quat
+from .surface_state import surface_from_state, surface_state_prior
 from .truths import TruthRanges
 
 __all__ = ["MapEstimate", "cumulative_increments", "batch_map"]
-
-#: lobe exponents are held in [1, e^12 ≈ 1.6e5] while iterating (the truths draw 10 … 10⁴)
-LOG_LOBE_MAX = 12.0
 
 
 @dataclass
@@ -73,22 +68,15 @@ class _Problem:
                  reference: Surface, offset_std: float, surface: bool, ranges: TruthRanges) -> None:
         self.scene, self.q_est0, self.cum, self.surface, self.reference = scene, q_est0, cumulative, surface, reference
         S = q_est0.shape[0]
-        b0 = y0 - self._magnitude(q_est0.unsqueeze(1), self._reference(S))[:, 0]
-        b0 = torch.where(torch.isfinite(b0), b0, torch.zeros_like(b0))
         if surface:
-            to_log_rho = math.log(10.0) / 2.5
-            lo_n, hi_n = (math.log(v) for v in ranges.lobe_exponent)
-            lo_f, hi_f = (math.log(v / (1.0 - v)) for v in ranges.f0)
-            mean = [math.log(float(reference.rho[0])) - to_log_rho * b0, (lo_f + hi_f) / 2, (lo_n + hi_n) / 2,
-                    (lo_n + hi_n) / 2]
-            std = [offset_std * to_log_rho, (hi_f - lo_f) / math.sqrt(12), (hi_n - lo_n) / math.sqrt(12),
-                   (hi_n - lo_n) / math.sqrt(12)]
+            mean, std = surface_state_prior(scene=scene, q_est0=q_est0, y0=y0, reference=reference,
+                                            offset_std=offset_std, ranges=ranges)
         else:
-            mean, std = [b0], [offset_std]
-        self.mean = torch.cat([torch.zeros(S, 3, dtype=q_est0.dtype)]
-                              + [torch.as_tensor(m, dtype=q_est0.dtype).expand(S).unsqueeze(-1) for m in mean], -1)
-        self.precision = torch.cat([sigma0.pow(-2).unsqueeze(-1).expand(S, 3),
-                                    torch.tensor([s ** -2 for s in std], dtype=q_est0.dtype).expand(S, -1)], -1)
+            b0 = y0 - self._magnitude(q_est0.unsqueeze(1), self._reference(S))[:, 0]
+            mean = torch.where(torch.isfinite(b0), b0, torch.zeros_like(b0)).unsqueeze(-1)
+            std = torch.tensor([offset_std], dtype=q_est0.dtype)
+        self.mean = torch.cat([torch.zeros(S, 3, dtype=q_est0.dtype), mean], -1)
+        self.precision = torch.cat([sigma0.pow(-2).unsqueeze(-1).expand(S, 3), std.pow(-2).expand(S, -1)], -1)
 
     def _magnitude(self, q: Tensor, surface: Surface) -> Tensor:
         return self.scene.magnitude(q, surface=surface)
@@ -98,9 +86,7 @@ class _Problem:
         q0 = quat_mul(rotvec_to_quat(x[:, :3]), self.q_est0[rows])
         q = quat_mul(self.cum[rows, 1:t + 1], q0.unsqueeze(1))
         if self.surface:
-            log_rho, logit_f0, log_nu, log_nv = x[:, 3:].unbind(-1)
-            n_u, n_v = (v.clamp(0.0, LOG_LOBE_MAX).exp() for v in (log_nu, log_nv))
-            return self._magnitude(q, Surface(log_rho.exp(), torch.sigmoid(logit_f0), n_u, n_v))
+            return self._magnitude(q, surface_from_state(x[:, 3:]))
         return self._magnitude(q, self._reference(x.shape[0])) + x[:, 3:4]
 
     def _reference(self, rows: int) -> Surface:

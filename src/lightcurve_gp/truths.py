@@ -13,7 +13,9 @@ order, so a seed's truth is reproducible and does not depend on the other seeds 
   fixed-angle mode (``error_deg=θ``) the same ``z`` gives the axis only: ``e = θ z/|z|``, ``P0 = (θ/√3)² I`` (again
   ``E|e|² = θ²``), so every seed keeps its attitude, spin and surface across the angles.
 
-The estimate starts at ``q_est,0 = q(e) ⊗ q_0`` (the scenario's convention). The geometry, the time grid, the inertia
+The estimate starts at ``q_est,0 = q(e) ⊗ q_0`` (the scenario's convention). :func:`paper_case_draw` gives the
+paper's case in the same form (every seed the config's truth, the seeds differing by noise alone), so the suite's
+estimators also run on it. The geometry, the time grid, the inertia
 and the noise variance are those of the config (the paper's: fixed Sun and observer, 600 s at 1 Hz, variance 0.5).
 """
 
@@ -30,11 +32,11 @@ from .brdf import Surface
 from .config import Config
 from .dynamics import propagate, quaternion_increments
 from .render import Scene
-from .rotations import quat_mul, rotvec_to_quat
+from .rotations import euler321_to_quat, quat_mul, quat_normalize, quat_to_rotvec, rotvec_to_quat
 from .scenario import noisy_observations
 
 __all__ = ["TRUTH_STREAM", "SPECULAR_CLASSES", "TruthRanges", "TruthDraw", "TruthBatch", "draw_truths",
-           "simulate_truths", "specular_share", "specular_class"]
+           "paper_case_draw", "simulate_truths", "specular_share", "specular_class"]
 
 #: offset of the truth generators' seeds from the noise seeds
 TRUTH_STREAM = 1 << 40
@@ -120,6 +122,25 @@ def draw_truths(seeds: Sequence[int], *, ranges: TruthRanges = TruthRanges(),
         sigma0 = torch.full((len(seeds),), theta / math.sqrt(3.0), dtype=torch.float64)
         error = theta * z / torch.linalg.vector_norm(z, dim=-1, keepdim=True)
     return TruthDraw(seeds, q0, omega0, surface, error, sigma0)
+
+
+def paper_case_draw(cfg: Config, seeds: Sequence[int], *, rho: float) -> TruthDraw:
+    """The scenario of ``cfg`` for every seed: attitude ``scenario.q0``, spin ``scenario.omega0_deg_s``, the config's
+    surface with reflectance ``rho``, the initial error ``scenario.initial_error_deg`` (yaw, pitch, roll) and
+    ``σ0 = filter.p0_deg``. With the noise seeded per seed as in :func:`lightcurve_gp.scenario.simulate_scenario`,
+    seed ``s`` is that command's seed ``s`` (the paper's case with ``cfg = configs/boxwing*.yaml``)."""
+    seeds = [int(s) for s in seeds]
+    if not seeds:
+        raise ValueError("seeds must name at least one seed")
+    if not 0.0 < float(rho) <= 1.0:
+        raise ValueError(f"rho: {rho!r} must lie in (0, 1]")
+    sc, S = cfg.scenario, len(seeds)
+    full = lambda values: torch.tensor(values, dtype=torch.float64).expand(S, -1).clone()  # noqa: E731
+    material = (float(rho), cfg.surface.f0, cfg.surface.n_u, cfg.surface.n_v)
+    error = quat_to_rotvec(euler321_to_quat(torch.deg2rad(torch.tensor(sc.initial_error_deg, dtype=torch.float64))))
+    return TruthDraw(seeds, quat_normalize(full(sc.q0)), torch.deg2rad(full(sc.omega0_deg_s)),
+                     Surface(*(torch.full((S,), v, dtype=torch.float64) for v in material)), error.expand(S, 3).clone(),
+                     torch.full((S,), math.radians(cfg.filter.p0_deg), dtype=torch.float64))
 
 
 @dataclass

@@ -4,9 +4,11 @@ Paper sections 2.5 (UKF) and 3.3 (GPUKF); USQUE after Crassidis & Markley (2003)
 spacecraft attitude estimation". Many independent filters advance together: every tensor carries a leading batch
 dimension ``B`` and one step of all filters is a handful of batched tensor operations (:func:`usque_step`).
 
-State layout ``[δp (3, GRP attitude error), ω (3), b (1, magnitude offset)]`` with a block present only when it is
-estimated (:class:`StateLayout`): ``δp`` always, ``b`` with an offset prior (``y = h(q, m_past) + b``, the bias-state
-pattern of Crassidis & Markley's gyro-bias filter, here a measurement bias); ω is known (not estimated), so the
+State layout ``[δp (3, GRP attitude error), ω (3), b (1, magnitude offset), θ (p, model parameters)]`` with a block
+present only when it is estimated (:class:`StateLayout`): ``δp`` always, ``b`` with an offset prior
+(``y = h(q, m_past) + b``, the bias-state pattern of Crassidis & Markley's gyro-bias filter, here a measurement bias),
+``θ`` with a parameter prior (``y = h(q, m_past; θ)``: the model takes each sigma point's ``θ``, e.g. the surface's
+reflectance parameters, :mod:`lightcurve_gp.surface_state`); ω is known (not estimated), so the
 prediction model enters only through per-step kinematic increments ``δ_k`` with ``q_{k+1} = normalise(δ_k ⊗ q_k)``
 for every attitude (torque-free ω(t) does not depend on q).
 
@@ -71,6 +73,8 @@ class UsqueParams:
             ``"none"``, the mean predictive variance ``Σ wm var_i`` is added to ``Pyy``.
         t_span_past: ``T`` of the running mean ``m_past ← (T m_past + ỹ) / (T + 1)`` (paper Sec. 3.3, Eq. (54)).
         offset_process_noise: random-walk variance of the offset ``b`` per step (mag²), when ``b`` is estimated.
+        parameter_process_noise: random-walk variance of each model parameter ``θ_j`` per step (its units²), when
+            ``θ`` is estimated.
         adaptive_noise: ``"none"`` (``R`` fixed) or ``"innovation"``: each filter's ``R̂_k`` by covariance matching
             (:func:`adapted_noise`).
         adaptive_noise_rate: ``λ = dt / τ`` of that rule's exponential average, in ``(0, 1]``.
@@ -87,6 +91,7 @@ class UsqueParams:
     variance: Variance = "fast"
     t_span_past: float = 20.0
     offset_process_noise: float = 0.0
+    parameter_process_noise: float = 0.0
     adaptive_noise: str = "none"
     adaptive_noise_rate: float = 0.01
 
@@ -96,8 +101,9 @@ class UsqueParams:
             raise ValueError(f"adaptive_noise must be one of {', '.join(ADAPTIVE_NOISE)}, got {self.adaptive_noise!r}")
         if not 0.0 < float(self.adaptive_noise_rate) <= 1.0:
             raise ValueError(f"adaptive_noise_rate must be in (0, 1], got {self.adaptive_noise_rate!r}")
-        if not float(self.offset_process_noise) >= 0.0:
-            raise ValueError(f"offset_process_noise must be >= 0, got {self.offset_process_noise!r}")
+        for name in ("offset_process_noise", "parameter_process_noise"):
+            if not float(getattr(self, name)) >= 0.0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
         if not float(self.t_span_past) >= 0:
             raise ValueError(f"t_span_past must be >= 0, got {self.t_span_past}")
 
@@ -142,8 +148,8 @@ class _Run:
     adaptive_rate: float | None  # λ of the innovation rule; None: R fixed
 
 
-def _check_run_inputs(q_est0: Tensor, P0: Tensor, offset0: Tensor | None, observations: Tensor, m_past0: Tensor,
-                      increments: Tensor, layout: StateLayout) -> tuple[int, int]:
+def _check_run_inputs(q_est0: Tensor, P0: Tensor, offset0: Tensor | None, theta0: Tensor | None, observations: Tensor,
+                      m_past0: Tensor, increments: Tensor, layout: StateLayout) -> tuple[int, int]:
     """Shapes and finiteness of a run's inputs; returns ``(B, T)``."""
     if q_est0.ndim != 2 or q_est0.shape[-1] != 4:
         raise ValueError(f"q_est0 must have shape (B, 4), got {tuple(q_est0.shape)}")
@@ -155,15 +161,20 @@ def _check_run_inputs(q_est0: Tensor, P0: Tensor, offset0: Tensor | None, observ
         raise ValueError("observations must hold at least t_0")
     n = layout.dim
     if P0.shape not in ((n, n), (B, n, n)):
-        state = " for the state [dp, b]" if layout.offset else ""
+        blocks = ["dp"] + ["b"] * layout.offset + [f"theta ({layout.parameters})"] * bool(layout.parameters)
+        state = f" for the state [{', '.join(blocks)}]" if len(blocks) > 1 else ""
         raise ValueError(f"P0 must have shape ({n}, {n}) or (B={B}, {n}, {n}){state}, got {tuple(P0.shape)}")
     if offset0 is not None and offset0.shape not in ((B,), ()):
         raise ValueError(f"offset0 must have shape (B={B},) or (), got {tuple(offset0.shape)}")
+    p = layout.parameters
+    if theta0 is not None and theta0.shape not in ((B, p), (p,)):
+        raise ValueError(f"theta0 must have shape (B={B}, {p}) or ({p},), got {tuple(theta0.shape)}")
     if m_past0.shape not in ((B,), ()):
         raise ValueError(f"m_past0 must have shape (B={B},), got {tuple(m_past0.shape)}")
     if increments.shape not in ((T, 4), (B, T, 4)):
         raise ValueError(f"increments must have shape (T={T}, 4) or (B={B}, T={T}, 4), got {tuple(increments.shape)}")
-    named = [("q_est0", q_est0), ("P0", P0), ("offset0", offset0), ("m_past0", m_past0), ("increments", increments)]
+    named = [("q_est0", q_est0), ("P0", P0), ("offset0", offset0), ("theta0", theta0), ("m_past0", m_past0),
+             ("increments", increments)]
     for name, t in named:
         if t is not None and not bool(torch.isfinite(t).all()):
             raise ValueError(f"{name} contains non-finite values")
@@ -171,7 +182,8 @@ def _check_run_inputs(q_est0: Tensor, P0: Tensor, offset0: Tensor | None, observ
 
 
 def _process_noise(params: UsqueParams, layout: StateLayout, B: int, like: Tensor) -> Tensor:
-    """``Q̄ (B, n, n)``: ``params.Q`` on the attitude block, ``offset_process_noise`` on ``b``."""
+    """``Q̄ (B, n, n)``: ``params.Q`` on the attitude block, ``offset_process_noise`` on ``b``,
+    ``parameter_process_noise`` on each ``θ_j``."""
     eye = torch.eye(3, dtype=like.dtype, device=like.device)
     Q_att = params.Q.to(like) if isinstance(params.Q, Tensor) else float(params.Q) * eye
     if Q_att.ndim == 0:
@@ -183,6 +195,8 @@ def _process_noise(params: UsqueParams, layout: StateLayout, B: int, like: Tenso
     if layout.offset:
         i = layout.offset_index
         Q[:, i, i] = float(params.offset_process_noise)
+    j = torch.arange(layout.dim, device=like.device)[layout.parameter_slice]
+    Q[:, j, j] = float(params.parameter_process_noise)
     return Q
 
 
@@ -223,7 +237,9 @@ def usque_step(run: _Run, state: FilterState, *, L_k: Tensor, G_k: Tensor, y_k: 
     q_m = torch.bmm(L_k, state.q_hat.unsqueeze(-1)).squeeze(-1)
     R_qm = quat_right_matrix(q_m)
     q_sig = torch.bmm(grp_to_quat(chi[..., :3], a, f), R_qm.mT)  # (B, 2n+1, 4)
-    y_sig, var_sig = run.model(q=q_sig, m_past=state.m_past.unsqueeze(1).expand(B, 2 * n + 1), variance=run.variance)
+    theta = {} if state.theta is None else {"theta": state.theta.unsqueeze(1) + chi[..., run.layout.parameter_slice]}
+    y_sig, var_sig = run.model(q=q_sig, m_past=state.m_past.unsqueeze(1).expand(B, 2 * n + 1), variance=run.variance,
+                               **theta)
     if state.offset is not None:
         y_sig = y_sig + (state.offset.unsqueeze(1) + chi[..., run.layout.offset_index])
     y_hat = y_sig @ run.wm
@@ -249,6 +265,7 @@ def usque_step(run: _Run, state: FilterState, *, L_k: Tensor, G_k: Tensor, y_k: 
     q_hat = torch.bmm(R_qm, grp_to_quat(dx[:, :3], a, f).unsqueeze(-1)).squeeze(-1)
     q_hat = q_hat / torch.linalg.vector_norm(q_hat, dim=-1, keepdim=True)
     offset = None if state.offset is None else state.offset + dx[:, run.layout.offset_index]
+    theta_hat = None if state.theta is None else state.theta + dx[:, run.layout.parameter_slice]
     # 9. fold the observation into m_past (the record keeps the m_past used for this prediction)
     tsp = run.t_span_past
     m_past = torch.where(observed_k, (tsp * state.m_past + y_k) / (tsp + 1.0), state.m_past)
@@ -257,7 +274,7 @@ def usque_step(run: _Run, state: FilterState, *, L_k: Tensor, G_k: Tensor, y_k: 
         noise_excess = torch.where(upd, adapted_noise(noise_excess, nu=nu, P_yy=P_yy, R_k=R_k, rate=run.adaptive_rate),
                                    noise_excess)
     record = StepRecord(y_hat, P_yy, m_var, nu, state.m_past, upd, failed, observed_k & ~good)
-    return FilterState(q_hat, offset, P, m_past, noise_excess), record
+    return FilterState(q_hat, offset, P, m_past, noise_excess, theta_hat), record
 
 
 def adapted_noise(average: Tensor, *, nu: Tensor, P_yy: Tensor, R_k: Tensor, rate: float) -> Tensor:
@@ -280,19 +297,20 @@ def adapted_noise(average: Tensor, *, nu: Tensor, P_yy: Tensor, R_k: Tensor, rat
 
 
 def run_usque(*, model: ObservationModel, q_est0: Tensor, P0: Tensor, observations: Tensor, m_past0: Tensor,
-              increments: Tensor, params: UsqueParams | None = None,
-              offset0: Tensor | None = None) -> FilterHistory:
+              increments: Tensor, params: UsqueParams | None = None, offset0: Tensor | None = None,
+              theta0: Tensor | None = None) -> FilterHistory:
     """Run ``B`` independent USQUE filters over ``T`` steps in one set of tensors.
 
     Step ``k = 1 … T`` (Crassidis & Markley 2003, Q added to the sigma-point covariance and again to ``P⁻``):
 
-    1. ``χ_i = x̂⁺ ± cols √((n+λ)(P⁺ + Q))`` with ``x̂⁺ = [0, b̂]``; 2. ``q_i = grp_to_quat(χ_i) ⊗ q̂``;
+    1. ``χ_i = x̂⁺ ± cols √((n+λ)(P⁺ + Q))`` with ``x̂⁺ = [0, b̂, θ̂]``; 2. ``q_i = grp_to_quat(χ_i) ⊗ q̂``;
     3. ``q_i⁻ = normalise(δ_{k−1} ⊗ q_i)``; 4. ``χ_i⁻ = quat_to_grp(q_i⁻ ⊗ (q_0⁻)⁻¹)``, ``b_i`` unchanged;
     5. ``x̂⁻ = Σ wm χ_i⁻``, ``P⁻ = Σ wc (χ_i⁻ − x̂⁻)(·)ᵀ + Q``;
-    6. ``Y_i = model(q_i⁻, m_past) (+ b_i)``, ``ŷ = Σ wm Y_i``, ``Pyy = Σ wc (Y_i − ŷ)² + R (+ Σ wm var_i)``,
+    6. ``Y_i = model(q_i⁻, m_past[, θ_i]) (+ b_i)``, ``ŷ = Σ wm Y_i``, ``Pyy = Σ wc (Y_i − ŷ)² + R (+ Σ wm var_i)``,
        ``Pxy = Σ wc (χ_i⁻ − x̂⁻)(Y_i − ŷ)``;
     7. ``K = Pxy / Pyy``, ``x̂⁺ = x̂⁻ + K (ỹ_k − ŷ)``, ``P⁺ = P⁻ − K Pyy Kᵀ``;
-    8. reset ``q̂ ← grp_to_quat(x̂⁺[:3]) ⊗ q_0⁻``, ``b̂ ← x̂⁺[3]``; 9. ``m_past ← (T m_past + ỹ_k) / (T + 1)``.
+    8. reset ``q̂ ← grp_to_quat(x̂⁺[:3]) ⊗ q_0⁻``, ``b̂ ← x̂⁺[3]``, ``θ̂ ← x̂⁺[θ]``;
+    9. ``m_past ← (T m_past + ỹ_k) / (T + 1)``.
 
     With ω known, steps 2–5 are a rotation: ``q_i⁻ ⊗ (q_0⁻)⁻¹ = δ ⊗ δq(χ_i) ⊗ δ⁻¹`` has the GRP ``A(δ) χ_i``
     (conjugation by ``δ`` rotates a quaternion's vector part by ``A(δ)``), so ``χ_i⁻ = A(δ) χ_i`` and
@@ -317,14 +335,17 @@ def run_usque(*, model: ObservationModel, q_est0: Tensor, P0: Tensor, observatio
         params: :class:`UsqueParams` (default: the paper's filter).
         offset0: initial offset estimates ``(B,)`` or ``()`` (mag) to estimate ``y = h(q, m_past) + b``
             (:func:`lightcurve_gp.ukf_offset.initial_offset`); ``None``: no offset in the state.
+        theta0: initial estimates ``(B, p)`` or ``(p,)`` of ``p`` model parameters carried as states; the model is
+            then called with ``theta (B, 2n+1, p)`` too (each sigma point's parameters, e.g.
+            :class:`lightcurve_gp.surface_state.SurfaceStateRenderer`); ``None``: no parameters in the state.
 
     Returns:
         :class:`FilterHistory`. Emits :class:`~lightcurve_gp.unscented.SqrtFallbackWarning` once when any filter
         needed the square-root fallback (counts in ``fallbacks``).
     """
     params = params or UsqueParams()
-    layout = StateLayout(offset=offset0 is not None)
-    B, T = _check_run_inputs(q_est0, P0, offset0, observations, m_past0, increments, layout)
+    layout = StateLayout(offset=offset0 is not None, parameters=0 if theta0 is None else int(theta0.shape[-1]))
+    B, T = _check_run_inputs(q_est0, P0, offset0, theta0, observations, m_past0, increments, layout)
     dtype, device = q_est0.dtype, q_est0.device
     with torch.no_grad():
         lam, wm, wc = params.weights(layout.dim, dtype=dtype, device=device)
@@ -346,7 +367,8 @@ def run_usque(*, model: ObservationModel, q_est0: Tensor, P0: Tensor, observatio
             offset=None if offset0 is None else offset0.to(dtype=dtype, device=device).expand(B).clone(),
             P=symmetrise(P0.to(dtype=dtype, device=device).expand(B, layout.dim, layout.dim)).clone(),
             m_past=m_past0.to(dtype=dtype, device=device).expand(B).clone(),
-            noise_excess=None if run.adaptive_rate is None else run.R.clone())
+            noise_excess=None if run.adaptive_rate is None else run.R.clone(),
+            theta=None if theta0 is None else theta0.to(dtype=dtype, device=device).expand(B, -1).clone())
         history = HistoryBuilder(layout)
         nan_b = torch.full((B,), math.nan, dtype=dtype, device=device)
         no = torch.zeros(B, dtype=torch.bool, device=device)
