@@ -9,6 +9,8 @@ Estimators (names used in tables, figures and JSON):
 * ``matched_ukf`` — an oracle UKF whose renderer knows ``rho_true`` (a reference the paper does not show);
 * ``joint_ukf`` — the renderer at ``model.rho_reference`` with the offset in the state: a conventional UKF that
   estimates ρ (it needs every other surface parameter);
+* ``surface_ukf`` — the renderer with the surface as states (log ρ, logit F0, log n_u, log n_v beside the attitude,
+  :mod:`lightcurve_gp.surface_state`): surface unknown, shape known;
 * ``no_update`` — the initial estimate merely propagated with the known ω (a filter that learned nothing).
 
 Every filter starts from ``q_est,0 = q(error) ⊗ q_true,0`` with ``P0 = (p0_deg)² I`` and ``m_past,0 = ỹ_0``
@@ -28,18 +30,19 @@ from torch import Tensor
 from .config import Config
 from .metrics import attitude_error_vector, attitude_errors_deg, chi2_band, lightcurve_rmse, nees, rmse_over_window
 from .observation.base import ObservationModel
-from .observation.parametric import Parametric
+from .observation.parametric import Parametric, SurfaceStateRenderer
 from .render import Scene
 from .reporting import quantiles
 from .rotations import quat_mul, quat_normalize
 from .scenario import Scenario, simulate_scenario
+from .surface_state import reference_surface, surface_state_prior
 from .ukf import FilterHistory, UsqueParams, initial_covariance, run_usque
 from .ukf_offset import initial_offset, offset_covariance
 
 __all__ = ["ESTIMATORS", "DEFAULT_ESTIMATORS", "EstimatorResult", "ScenarioResult", "propagate_only",
-           "run_offset_filter", "run_estimators", "score_estimator"]
+           "run_offset_filter", "run_surface_filter", "run_estimators", "score_estimator"]
 
-ESTIMATORS = ("gpukf", "ukf", "matched_ukf", "joint_ukf", "no_update")
+ESTIMATORS = ("gpukf", "ukf", "matched_ukf", "joint_ukf", "surface_ukf", "no_update")
 #: what the tables and the estimate command run unless told otherwise
 DEFAULT_ESTIMATORS = ("gpukf", "ukf", "matched_ukf", "no_update")
 
@@ -150,6 +153,27 @@ def run_offset_filter(cfg: Config, model: ObservationModel, observations: Tensor
                      increments=increments, params=UsqueParams.from_config(cfg), offset0=b0)
 
 
+def run_surface_filter(cfg: Config, scene: Scene, *, observations: Tensor, q_est0: Tensor, increments: Tensor,
+                       P0_attitude: Tensor) -> FilterHistory:
+    """One batched USQUE run on ``[δp, θ]`` with the surface state ``θ`` (:mod:`lightcurve_gp.surface_state`): the
+    renderer of ``scene`` (the known shape) with every sigma point's surface, the prior of
+    :func:`~lightcurve_gp.surface_state.surface_state_prior` about ``cfg``'s reference surface.
+
+    Args:
+        observations: ``(B, T+1)`` (mag); q_est0: ``(B, 4)``; increments: ``(T, 4)`` or ``(B, T, 4)``.
+        P0_attitude: the attitude block of ``P0`` ``(3, 3)`` or ``(B, 3, 3)`` (rad²).
+    """
+    B = q_est0.shape[0]
+    theta0, std = surface_state_prior(scene=scene, q_est0=q_est0, y0=observations[:, 0],
+                                      reference=reference_surface(cfg), offset_std=cfg.filter.offset_prior_std)
+    P0 = torch.zeros(B, 7, 7, dtype=q_est0.dtype, device=q_est0.device)
+    P0[:, :3, :3] = P0_attitude
+    P0[:, 3:, 3:] = torch.diag(std.pow(2)).to(P0)
+    return run_usque(model=SurfaceStateRenderer(scene), q_est0=q_est0, P0=P0, observations=observations,
+                     m_past0=observations[:, 0], increments=increments, params=UsqueParams.from_config(cfg),
+                     theta0=theta0)
+
+
 def run_estimators(cfg: Config, gp_model: ObservationModel | None = None, *, seeds: Sequence[int] | None = None,
                    rho_true: float | None = None, estimators: Sequence[str] = DEFAULT_ESTIMATORS,
                    scene: Scene | None = None) -> ScenarioResult:
@@ -181,7 +205,8 @@ def run_estimators(cfg: Config, gp_model: ObservationModel | None = None, *, see
     P0 = initial_covariance(cfg.filter.p0_deg, dtype=dtype, device=device)
     q_est0 = sc.q_est0.expand(S, 4)
     models = {"gpukf": gp_model, "ukf": Parametric(scene, cfg.filter.rho_assumed),
-              "matched_ukf": Parametric(scene, sc.rho_true), "joint_ukf": Parametric(scene, cfg.model.rho_reference)}
+              "matched_ukf": Parametric(scene, sc.rho_true), "joint_ukf": Parametric(scene, cfg.model.rho_reference),
+              "surface_ukf": SurfaceStateRenderer(scene)}
     with_offset = {"joint_ukf", "gpukf"} if cfg.filter.estimate_offset else {"joint_ukf"}
     out = ScenarioResult(sc, window)
     for name in estimators:
@@ -192,6 +217,9 @@ def run_estimators(cfg: Config, gp_model: ObservationModel | None = None, *, see
             model = models[name].to(device=device, dtype=dtype) if name != "gpukf" else models[name].to(device)
             if name in with_offset:
                 history = run_offset_filter(cfg, model, sc.observations, q_est0, sc.increments)
+            elif name == "surface_ukf":
+                history = run_surface_filter(cfg, scene, observations=sc.observations, q_est0=q_est0,
+                                             increments=sc.increments, P0_attitude=P0)
             else:
                 history = run_usque(model=model, q_est0=q_est0, P0=P0, observations=sc.observations,
                                     m_past0=sc.observations[:, 0], increments=sc.increments, params=params)

@@ -31,14 +31,14 @@ from typing import Sequence
 import torch
 from torch import Tensor
 
-from .brdf import Surface
 from .config import Config
+from .estimation import run_surface_filter
 from .map_surface import batch_map, cumulative_increments
 from .metrics import attitude_error_vector, attitude_errors_deg, chi2_band, nees
-from .observation.parametric import Parametric, SurfaceStateRenderer
+from .observation.parametric import Parametric
 from .render import Scene
 from .rotations import quat_mul
-from .surface_state import surface_state_prior
+from .surface_state import reference_surface
 from .truths import TruthBatch
 from .ukf import UsqueParams, run_usque
 from .ukf_offset import initial_offset
@@ -101,17 +101,12 @@ def _window(cfg: Config, times: Tensor) -> Tensor:
     return ((times >= lo) & (times <= hi)).nonzero().squeeze(-1)
 
 
-def _augmented_covariance(sigma0: Tensor, stds: Tensor) -> Tensor:
-    """``P0 = diag(σ0² I₃, stds²)`` ``(S, 3 + p, 3 + p)`` for the state ``[δp, b]`` or ``[δp, θ]``."""
-    return torch.diag_embed(torch.cat([sigma0.pow(2).unsqueeze(-1).expand(-1, 3),
-                                       stds.pow(2).to(sigma0).expand(sigma0.shape[0], -1)], -1))
-
-
-def _reference_surface(cfg: Config, scene: Scene) -> Surface:
-    """The reference surface, fields ``(1,)``: ``model.rho_reference`` and the scene's (the config's) material."""
-    ref = scene.facets
-    return Surface(*(torch.tensor([v], dtype=torch.float64) for v in
-                     (cfg.model.rho_reference, float(ref.f0[0]), float(ref.n_u[0]), float(ref.n_v[0]))))
+def _offset_covariance(sigma0: Tensor, offset_std: float) -> Tensor:
+    """``P0 = diag(σ0² I₃, offset_std²)`` ``(S, 4, 4)`` for the state ``[δp, b]``."""
+    P0 = torch.zeros(sigma0.shape[0], 4, 4, dtype=sigma0.dtype)
+    P0[:, :3, :3] = sigma0.pow(2).view(-1, 1, 1) * torch.eye(3, dtype=sigma0.dtype)
+    P0[:, 3, 3] = offset_std ** 2
+    return P0
 
 
 def _run_filter(name: str, cfg: Config, truths: TruthBatch, scene: Scene,
@@ -124,14 +119,11 @@ def _run_filter(name: str, cfg: Config, truths: TruthBatch, scene: Scene,
         h = run_usque(model=Parametric(scene, surface=truths.draw.surface), P0=truths.P0, **run)
         return h.q_est, h.P, None
     if name == "surface_ukf":
-        theta0, std = surface_state_prior(scene=scene, q_est0=q_est0, y0=obs[:, 0],
-                                          reference=_reference_surface(cfg, scene),
-                                          offset_std=cfg.filter.offset_prior_std)
-        h = run_usque(model=SurfaceStateRenderer(scene), P0=_augmented_covariance(truths.draw.sigma0, std),
-                      theta0=theta0, **run)
+        h = run_surface_filter(cfg, scene, observations=obs, q_est0=q_est0, increments=truths.increments,
+                               P0_attitude=truths.P0)
         return h.q_est, h.P, None
     model = gp_model if name == "robust_gpukf" else Parametric(scene, cfg.model.rho_reference)
-    P0 = _augmented_covariance(truths.draw.sigma0, torch.tensor([cfg.filter.offset_prior_std]))
+    P0 = _offset_covariance(truths.draw.sigma0, cfg.filter.offset_prior_std)
     h = run_usque(model=model, P0=P0, offset0=initial_offset(model, q_est0, obs[:, 0], obs[:, 0]), **run)
     return h.q_est, h.P, h.offset[:, -1]
 
@@ -141,7 +133,7 @@ def _run_map(name: str, cfg: Config, truths: TruthBatch, scene: Scene, every_s: 
     dt = cfg.scenario.dt_s
     count = int(round((hi - lo) / every_s))
     checkpoints = [int(round((lo + i * every_s) / dt)) for i in range(count + 1)]
-    reference = _reference_surface(cfg, scene)
+    reference = reference_surface(cfg)
     start = time.perf_counter()
     est = batch_map(scene, q_est0=truths.draw.q_est0, sigma0=truths.draw.sigma0, observations=truths.observations,
                     increments=truths.increments, checkpoints=checkpoints,

@@ -31,10 +31,11 @@ import torch
 from torch import Tensor
 
 from .brdf import Surface
+from .config import Config
 from .render import Scene
 from .truths import TruthRanges
 
-__all__ = ["LOG_LOBE_MAX", "PARAMETERS", "surface_from_state", "surface_state_prior"]
+__all__ = ["LOG_LOBE_MAX", "PARAMETERS", "reference_surface", "surface_from_state", "surface_state_prior"]
 
 #: lobe exponents are held in [1, e^12 ≈ 1.6e5] when rendered (the truths draw 10 … 10⁴)
 LOG_LOBE_MAX = 12.0
@@ -49,6 +50,13 @@ def surface_from_state(theta: Tensor) -> Surface:
     log_rho, logit_f0, log_nu, log_nv = theta.unbind(-1)
     n_u, n_v = (v.clamp(0.0, LOG_LOBE_MAX).exp() for v in (log_nu, log_nv))
     return Surface(log_rho.exp(), torch.sigmoid(logit_f0), n_u, n_v)
+
+
+def reference_surface(cfg: Config) -> Surface:
+    """The reference surface of ``cfg``, fields ``(1,)`` (float64): ``model.rho_reference`` and the ``surface``
+    section's F0, n_u, n_v (the GP's training surface)."""
+    values = (cfg.model.rho_reference, cfg.surface.f0, cfg.surface.n_u, cfg.surface.n_v)
+    return Surface(*(torch.tensor([float(v)], dtype=torch.float64) for v in values))
 
 
 def surface_state_prior(*, scene: Scene, q_est0: Tensor, y0: Tensor, reference: Surface, offset_std: float,
