@@ -1,0 +1,61 @@
+"""Each config's observation model against the renderer along the scenario's true trajectory (noise-free, ρ0).
+
+The error of a model along the very trajectory a filter follows is what biases the filter: a constant part the offset
+state absorbs, an attitude-dependent part (``rms_about_mean``) it cannot, which the filter answers with an attitude
+error. Prints one Markdown row per config (mag): mean error, RMS about it, RMS, mean predictive std and the share of
+samples within two predictive standard deviations; models come from the model store ``<runs>/models/`` (trained
+there when missing).
+
+    python -m experiments.trajectory_model_error configs/boxwing_robust.yaml configs/boxwing_surface.yaml
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import torch
+
+from experiments._models import trained_model
+from lightcurve_gp.config import ConfigError, load_config
+from lightcurve_gp.render import Scene
+from lightcurve_gp.reporting import markdown_table
+from lightcurve_gp.scenario import simulate_scenario
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def trajectory_error_row(cfg, model) -> list[str]:
+    """One table row: the model's error against the renderer at ``model.rho_reference`` along the truth."""
+    scene = Scene.from_config(cfg).to(dtype=cfg.torch_dtype)
+    sc = simulate_scenario(cfg, seeds=[0], rho_true=cfg.model.rho_reference, scene=scene)
+    with torch.no_grad():
+        mean, var = model(q=sc.q_true, m_past=sc.m_clean, variance="exact")
+    err = mean - sc.m_clean
+    within = (err.abs() <= 2.0 * var.sqrt()).double().mean()
+    values = (err.mean(), (err - err.mean()).pow(2).mean().sqrt(), err.pow(2).mean().sqrt(), var.sqrt().mean())
+    return [cfg.name, *(f"{float(v):+.3f}" if i == 0 else f"{float(v):.3f}" for i, v in enumerate(values)),
+            f"{100 * float(within):.0f} %"]
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("configs", nargs="+", help="configs whose models to compare")
+    p.add_argument("--runs", default=str(ROOT / "runs"), type=Path, help="the model store's parent folder")
+    p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    args = p.parse_args(argv)
+    try:
+        cfgs = [load_config(c) for c in args.configs]
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    torch.set_num_threads(args.threads)
+    rows = [trajectory_error_row(cfg, trained_model(cfg, args.runs)) for cfg in cfgs]
+    print(markdown_table(("config", "mean error", "RMS about the mean", "RMS", "mean predictive std",
+                          "within 2 std"), rows), end="")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
