@@ -34,8 +34,8 @@ def _random(shape, seed):
 @pytest.fixture(scope="module")
 def cfg():
     return load_config(ROOT / "configs" / "geo_pass.yaml",
-                       overrides=["data.num_random=256", "model.sparse.num_inducing=64", "model.fit_hyperparameters=false",
-                                  "data.heldout_size=50"])
+                       overrides=["data.num_random=256", "model.sparse.num_inducing=64",
+                                  "model.fit_hyperparameters=false", "data.heldout_size=50"])
 
 
 @pytest.fixture(scope="module")

@@ -1,13 +1,12 @@
 """The one model store: trained observation models keyed by the hash of everything that changes them.
 
 Layout: ``<root>/<model-key>/`` is a ``train`` run folder (``model.pt``, ``metrics.json``, ``config.yaml`` and
-the held-out figures), written atomically by :func:`lightcurve_gp.train.train`. The key
-(:func:`model_key`) hashes the ``geometry`` (not for a ``body_geometry`` GP), ``shape``, ``surface``, ``data`` and
-``model`` sections with the
+the held-out figures), written atomically by :func:`lightcurve_gp.train.train`. The key (:func:`model_key`) hashes
+the ``geometry`` (not for a ``body_geometry`` GP), ``shape``, ``surface``, ``data`` and ``model`` sections with the
 mesh file's *content* hash in place of its path (:func:`~lightcurve_gp.config.content_hash`), the dtype and
-:data:`STORE_FORMAT`; the run name is not part of it. :func:`get_or_train` is used by sweeps, the experiments
-and the benchmarks; ``train`` records the key of the model it writes and ``estimate`` checks a model file
-against its config with :func:`check_model_matches`.
+:data:`STORE_FORMAT`; the run name is not part of it. :func:`get_or_train` is used by sweeps, the experiments and
+the benchmarks; ``train`` records the key of the model it writes and ``estimate`` checks a model file against its
+config with :func:`check_model_matches`.
 
 Model files are opened with :func:`open_model`, which turns anything that is not a lightcurve-gp model file
 (a text file, a YAML file renamed ``.pt``, a foreign pickle) into one :class:`ModelFileError` line.
@@ -24,8 +23,8 @@ from .io import file_sha256
 from .observation.base import ObservationModel
 from .observation.serialization import ModelFileError, load_model
 
-__all__ = ["MODEL_SECTIONS", "IGNORED_KEYS", "model_sections", "STORE_FORMAT", "ModelMismatchError", "model_key", "model_record",
-           "store_folder", "get_or_train", "open_model", "model_file_record", "training_mismatch",
+__all__ = ["MODEL_SECTIONS", "IGNORED_KEYS", "model_sections", "STORE_FORMAT", "ModelMismatchError", "model_key",
+           "model_record", "store_folder", "get_or_train", "open_model", "model_file_record", "training_mismatch",
            "check_model_matches"]
 
 #: config sections a trained model depends on (with the dtype)
