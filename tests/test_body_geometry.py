@@ -134,3 +134,18 @@ def test_filter_along_a_constant_pass_equals_the_fixed_filter():
     along = run_usque(model=AlongPass(Parametric(fixed, 0.5), geometry), **kwargs)
     assert torch.allclose(plain.q_est, along.q_est, rtol=0, atol=1e-9)
     assert torch.allclose(plain.P, along.P, rtol=0, atol=1e-9)
+
+
+def test_along_pass_binds_a_body_geometry_gp_sample_by_sample(gp):
+    from lightcurve_gp.geometry import PassGeometry
+
+    T = 5
+    geometry = PassGeometry.from_columns(times_s=torch.arange(T), sun=_random((T, 3), 20),
+                                         observer=_random((T, 3), 21), range_m=3.6e7 + 1e6 * torch.arange(T))
+    along = AlongPass(gp, geometry, first=0)
+    q = _unit(_random((T, 4, 7, 4), 22))
+    for k in range(T):
+        bound = GeometryBound(gp, sun=geometry.sun[k], observer=geometry.observer[k], range_m=geometry.range_m[k])
+        expected, _ = bound(q=q[k], m_past=torch.zeros(4, 7, dtype=F64))
+        mean, _ = along(q=q[k], m_past=torch.zeros(4, 7, dtype=F64))
+        assert torch.allclose(mean, expected, rtol=0, atol=1e-12)

@@ -15,7 +15,7 @@ from __future__ import annotations
 from torch import Tensor
 
 from .base import ObservationModel, ObservationModule, Prediction, Variance
-from .body_geometry import GeometryBound
+from .body_geometry import GeometryBound, bound_geometry, predict_bound
 from .parametric import Parametric
 
 __all__ = ["bind_geometry", "AlongPass"]
@@ -41,12 +41,18 @@ class AlongPass(ObservationModule):
         self.geometry = geometry
         self.next_sample = int(first)
         self.uses_m_past = bool(getattr(model, "uses_m_past", True))
+        # a body_geometry GP: every sample's canonical frame, phase angle and range term at once
+        self._frames = (bound_geometry(model, sun=geometry.sun, observer=geometry.observer, range_m=geometry.range_m)
+                        if getattr(model, "config", {}).get("inputs") == "body_geometry" else None)
 
     def _predict(self, q: Tensor, m_past: Tensor, variance: Variance) -> Prediction:
         k = self.next_sample
         if k >= len(self.geometry):
             raise RuntimeError(f"AlongPass: called for sample {k} of a pass of {len(self.geometry)} samples")
         self.next_sample += 1
+        if self._frames is not None:
+            c, alpha, range_term = (t[k] for t in self._frames)
+            return predict_bound(self.model, q, c=c, alpha=alpha, range_term=range_term, variance=variance)
         g = self.geometry
         bound = bind_geometry(self.model, sun=g.sun[k], observer=g.observer[k], range_m=float(g.range_m[k]))
         return bound(q=q, m_past=m_past, variance=variance)

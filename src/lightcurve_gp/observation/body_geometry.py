@@ -17,15 +17,13 @@ filter's ``q`` under a real geometry into ``(q', α)`` and adds the range term.
 
 from __future__ import annotations
 
-import math
-
 import torch
 from torch import Tensor
 
 from ..rotations import matrix_to_quat, quat_mul
 from .base import ObservationModel, ObservationModule, Prediction, Variance
 
-__all__ = ["canonical_frame", "GeometryBound"]
+__all__ = ["canonical_frame", "GeometryBound", "bound_geometry", "predict_bound"]
 
 
 def canonical_frame(sun: Tensor, observer: Tensor) -> tuple[Tensor, Tensor]:
@@ -57,20 +55,34 @@ class GeometryBound(ObservationModule):
 
     uses_m_past = False
 
-    def __init__(self, gp: ObservationModel, *, sun: Tensor, observer: Tensor, range_m: float) -> None:
+    def __init__(self, gp: ObservationModel, *, sun: Tensor, observer: Tensor, range_m: float | Tensor) -> None:
         super().__init__()
-        config = getattr(gp, "config", {})
-        if config.get("inputs") != "body_geometry":
-            raise ValueError(f"model.inputs: binding a geometry needs a body_geometry GP, this one has "
-                             f"{config.get('inputs')!r}")
         self.gp = gp
-        c, alpha = canonical_frame(torch.as_tensor(sun, dtype=torch.float64),
-                                   torch.as_tensor(observer, dtype=torch.float64))
+        c, alpha, range_term = bound_geometry(gp, sun=sun, observer=observer, range_m=range_m)
         self.register_buffer("c", c)
         self.register_buffer("alpha", alpha)
-        self.range_term = 5.0 * math.log10(float(range_m) / (1e3 * float(config["reference_range_km"])))
+        self.register_buffer("range_term", range_term)
 
     def _predict(self, q: Tensor, m_past: Tensor, variance: Variance) -> Prediction:
-        q_canonical = quat_mul(q, self.c.to(q))
-        mean, var = self.gp(q=q_canonical, m_past=self.alpha.to(q).expand(q.shape[:-1]), variance=variance)
-        return mean + self.range_term, var
+        return predict_bound(self.gp, q, c=self.c, alpha=self.alpha, range_term=self.range_term, variance=variance)
+
+
+def bound_geometry(gp: ObservationModel, *, sun: Tensor, observer: Tensor,
+                   range_m: float | Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """``(c (..., 4), α (...), 5 log10(r / r_ref) (...))`` of geometries ``sun``, ``observer`` ``(..., 3)`` and
+    ranges (m) for the ``body_geometry`` GP ``gp`` (its ``config`` holds ``reference_range_km``); float64."""
+    config = getattr(gp, "config", {})
+    if config.get("inputs") != "body_geometry":
+        raise ValueError(f"model.inputs: binding a geometry needs a body_geometry GP, this one has "
+                         f"{config.get('inputs')!r}")
+    f64 = lambda x: torch.as_tensor(x, dtype=torch.float64)  # noqa: E731
+    c, alpha = canonical_frame(f64(sun), f64(observer))
+    range_term = 5.0 * torch.log10(f64(range_m) / (1e3 * float(config["reference_range_km"])))
+    return c, alpha, range_term
+
+
+def predict_bound(gp: ObservationModel, q: Tensor, *, c: Tensor, alpha: Tensor, range_term: Tensor,
+                  variance: Variance) -> Prediction:
+    """``GP(q ⊗ c, α) + 5 log10(r / r_ref)`` for ``q (..., 4)`` under one geometry (``c (4,)``, scalars)."""
+    mean, var = gp(q=quat_mul(q, c.to(q)), m_past=alpha.to(q).expand(q.shape[:-1]), variance=variance)
+    return mean + range_term.to(mean), var
