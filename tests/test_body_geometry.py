@@ -149,3 +149,21 @@ def test_along_pass_binds_a_body_geometry_gp_sample_by_sample(gp):
         expected, _ = bound(q=q[k], m_past=torch.zeros(4, 7, dtype=F64))
         mean, _ = along(q=q[k], m_past=torch.zeros(4, 7, dtype=F64))
         assert torch.allclose(mean, expected, rtol=0, atol=1e-12)
+
+
+def test_along_pass_passes_the_filters_parameters_to_a_surface_state_renderer():
+    from lightcurve_gp.geometry import PassGeometry
+    from lightcurve_gp.observation.parametric import SurfaceStateRenderer
+    from lightcurve_gp.surface_state import surface_from_state
+
+    T = 4
+    _, scene = _pass_scene(T, seed=30)
+    geometry = PassGeometry.from_columns(times_s=torch.arange(T), sun=scene.sun, observer=scene.observer,
+                                         range_m=scene.r_obs)
+    along = AlongPass(SurfaceStateRenderer(scene), geometry, first=2)
+    q = _unit(_random((2, 3, 4), 31))
+    theta = torch.tensor([-0.7, 0.0, 5.0, 6.0], dtype=F64) + 0.1 * _random((2, 3, 4), 32)
+    mean, _ = along(q=q, m_past=torch.zeros(2, 3, dtype=F64), theta=theta)
+    expected = scene.sample(2).magnitude(q.reshape(-1, 1, 4), surface=surface_from_state(theta.reshape(-1, 4)))
+    assert torch.allclose(mean, expected.reshape(2, 3), rtol=0, atol=1e-12)
+    assert along.next_sample == 3
