@@ -29,7 +29,15 @@ import yaml
 
 from . import config_schema
 from .config_schema import *  # noqa: F403 (the typed sections are importable from here)
-from .config_schema import MODEL_KIND_SECTIONS, Config, ConfigError, DataConfig, FilterConfig, ModelConfig
+from .config_schema import (
+    MODEL_KIND_SECTIONS,
+    Config,
+    ConfigError,
+    DataConfig,
+    FilterConfig,
+    GeometryConfig,
+    ModelConfig,
+)
 
 __all__ = [
     *config_schema.__all__,
@@ -170,6 +178,57 @@ def _cross_check(cfg: Config) -> None:
                           f"{'rho_normalised or surface_normalised' if cfg.filter.estimate_offset else 'magnitude'} "
                           f"(got {cfg.model.target})")
     _check_training_surfaces(cfg)
+    _check_geometry(cfg)
+    if cfg.model.inputs == "body_geometry" and cfg.data.surfaces is not None:
+        raise ConfigError("model.inputs: body_geometry is not supported with data.surfaces")
+    lo_phase, hi_phase = cfg.data.phase_angle_deg
+    if not lo_phase < hi_phase:
+        raise ConfigError(f"data.phase_angle_deg: low {lo_phase:g} must be below high {hi_phase:g}")
+
+
+_FIXED_ONLY = ("observer_km", "sun_km")
+_ORBIT_ONLY = ("tle", "elements", "site", "start_utc", "timestamps_s", "gap_fraction", "gap_seed", "min_elevation_deg")
+
+
+def _check_geometry(cfg: Config) -> None:
+    """The keys of ``geometry.kind``: a fixed Sun and observer, or an orbit, a site and a start time."""
+    geo = cfg.geometry
+    if geo.kind == "fixed":
+        for key in _FIXED_ONLY:
+            if getattr(geo, key) is None:
+                raise ConfigError(f"geometry.{key}: required when geometry.kind is fixed")
+        return
+    if (geo.tle is None) == (geo.elements is None):
+        raise ConfigError("geometry.tle: give exactly one of geometry.tle and geometry.elements for an orbit")
+    for key in ("site", "start_utc"):
+        if getattr(geo, key) is None:
+            raise ConfigError(f"geometry.{key}: required when geometry.kind is orbit")
+    from .orbit import check_tle, parse_utc
+
+    try:
+        parse_utc(geo.start_utc)
+    except ValueError as exc:
+        raise ConfigError(f"geometry.start_utc: {exc}") from None
+    if geo.tle is not None:
+        for i, line in enumerate(geo.tle):
+            try:
+                check_tle(line, i + 1)
+            except ValueError as exc:
+                raise ConfigError(f"geometry.tle[{i}]: {exc}") from None
+    if geo.timestamps_s is not None:
+        _check_timestamps(geo.timestamps_s, cfg.scenario.dt_s, cfg.scenario.duration_s)
+
+
+def _check_timestamps(times: list[float], dt: float, duration: float) -> None:
+    for i in range(1, len(times)):
+        if not times[i] > times[i - 1]:
+            raise ConfigError(f"geometry.timestamps_s[{i}]: {times[i]:g} is not after {times[i - 1]:g}")
+    for i, t in enumerate(times):
+        if abs(t / dt - round(t / dt)) > 1e-9:
+            raise ConfigError(f"geometry.timestamps_s[{i}]: {t:g} is not a multiple of scenario.dt_s ({dt:g})")
+    if times[-1] > duration:
+        raise ConfigError(f"geometry.timestamps_s[{len(times) - 1}]: {times[-1]:g} is after scenario.duration_s "
+                          f"({duration:g})")
 
 
 def _check_training_surfaces(cfg: Config) -> None:
@@ -241,6 +300,15 @@ def config_to_dict(cfg: Any) -> dict:
     filt = out.get("filter") if isinstance(cfg, Config) else out if isinstance(cfg, FilterConfig) else None
     if filt is not None and filt.get("adaptive_noise") == "none":
         del filt["adaptive_noise"], filt["adaptive_noise_time_s"]
+    geo = out.get("geometry") if isinstance(cfg, Config) else out if isinstance(cfg, GeometryConfig) else None
+    if geo is not None:
+        for key in _ORBIT_ONLY + ("kind",) if geo["kind"] == "fixed" else _FIXED_ONLY:
+            del geo[key]
+    body_geometry = model is not None and model["inputs"] == "body_geometry"
+    if model is not None and not body_geometry:
+        del model["reference_range_km"]
+    if data is not None and not (body_geometry or (isinstance(cfg, DataConfig))):
+        del data["phase_angle_deg"]
     return out
 
 

@@ -14,6 +14,8 @@ __all__ = [
     "ConfigError",
     "Config",
     "GeometryConfig",
+    "OrbitElementsConfig",
+    "SiteConfig",
     "ShapeConfig",
     "SurfaceConfig",
     "DataConfig",
@@ -47,11 +49,49 @@ def _spec(default: Any = dataclasses.MISSING, *, lo: float | None = None, hi: fl
 
 
 @dataclass(kw_only=True)
-class GeometryConfig:
-    """Fixed object–observer–Sun geometry in the inertial frame, object at the origin (paper Table 3)."""
+class OrbitElementsConfig:
+    """Osculating Keplerian elements at ``geometry.start_utc`` in the GCRS axes, propagated as a two-body orbit."""
 
-    observer_km: list[float] = _spec(length=3, doc="observer position (km)")
-    sun_km: list[float] = _spec(length=3, doc="Sun position (km)")
+    a_km: float = _spec(lo=6378.137, doc="semi-major axis (km), above the Earth's equatorial radius")
+    e: float = _spec(0.0, lo=0.0, hi=0.99, doc="eccentricity")
+    i_deg: float = _spec(0.0, lo=0.0, hi=180.0, doc="inclination (deg)")
+    raan_deg: float = _spec(0.0, doc="right ascension of the ascending node (deg)")
+    argp_deg: float = _spec(0.0, doc="argument of perigee (deg)")
+    mean_anomaly_deg: float = _spec(0.0, doc="mean anomaly at start_utc (deg)")
+
+
+@dataclass(kw_only=True)
+class SiteConfig:
+    """An observer on the ground: WGS84 geodetic coordinates."""
+
+    lat_deg: float = _spec(lo=-90.0, hi=90.0, doc="geodetic latitude (deg)")
+    lon_deg: float = _spec(lo=-180.0, hi=360.0, doc="longitude, east positive (deg)")
+    alt_km: float = _spec(0.0, lo=-0.5, hi=10.0, doc="height above the WGS84 ellipsoid (km)")
+
+
+@dataclass(kw_only=True)
+class GeometryConfig:
+    """Object–observer–Sun geometry (:mod:`lightcurve_gp.geometry`).
+
+    ``kind: fixed`` (the paper, Table 3): one Sun and one observer position, object at the origin, for every sample.
+    ``kind: orbit``: the object on an orbit (``tle`` or ``elements``), the observer at ``site``, the Sun from astropy,
+    per sample from ``start_utc`` at the scenario's cadence (or at ``timestamps_s``), with ``gap_fraction`` of the
+    samples dropped at random; samples below ``min_elevation_deg`` or in the Earth's shadow are missing observations.
+    """
+
+    kind: str = _spec("fixed", choices=("fixed", "orbit"))
+    observer_km: list[float] | None = _spec(None, length=3, doc="fixed: observer position (km)")
+    sun_km: list[float] | None = _spec(None, length=3, doc="fixed: Sun position (km)")
+    tle: list[str] | None = _spec(None, length=2, doc="orbit: the two lines of a TLE (propagated with SGP4)")
+    elements: OrbitElementsConfig | None = _spec(None, doc="orbit: Keplerian elements instead of a TLE")
+    site: SiteConfig | None = _spec(None, doc="orbit: the observer's site")
+    start_utc: str | None = _spec(None, doc="orbit: UTC time of the first sample (ISO 8601)")
+    timestamps_s: list[float] | None = _spec(None, lo=0.0, min_length=2,
+                                             doc="orbit: sample times after start_utc (s), on the scenario.dt_s "
+                                                 "grid; null: every scenario.dt_s up to scenario.duration_s")
+    gap_fraction: float = _spec(0.0, lo=0.0, hi=0.9, doc="orbit: share of the samples dropped at random (gaps)")
+    gap_seed: int = _spec(0, lo=0, doc="orbit: seed of the dropped samples")
+    min_elevation_deg: float = _spec(10.0, lo=-90.0, hi=90.0, doc="orbit: lowest usable elevation at the site")
 
 
 @dataclass(kw_only=True)
@@ -114,6 +154,8 @@ class DataConfig:
     dt_s: float = _spec(lo=0.0, lo_open=True)
     t_span_past: float = _spec(lo=0.0, lo_open=True, doc="seconds averaged into m_app_past")
     heldout_size: int = _spec(2000, lo=1)
+    phase_angle_deg: list[float] = _spec([0.0, 120.0], lo=0.0, hi=179.0, length=2,
+                                         doc="model.inputs body_geometry: range of training phase angles (deg)")
     surfaces: TrainingSurfacesConfig | None = _spec(None, doc="render each attitude with many surfaces "
                                                               "(model.target: surface_normalised); null: the "
                                                               "surface section and rho_grid")
@@ -152,8 +194,12 @@ class ModelConfig:
     """
 
     kind: str = _spec(choices=("exact", "sparse"))
-    inputs: str = _spec("quaternion", choices=("quaternion", "attitude_matrix"),
-                        doc="GP input map: quaternion = [q, m_past] (paper); attitude_matrix = A(q), sign-invariant")
+    inputs: str = _spec("quaternion", choices=("quaternion", "attitude_matrix", "body_geometry"),
+                        doc="GP input map: quaternion = [q, m_past] (paper); attitude_matrix = A(q), sign-invariant; "
+                            "body_geometry = [A(q) s, A(q) v], trained over geometries (data.phase_angle_deg)")
+    reference_range_km: float = _spec(36000.0, lo=0.0, lo_open=True,
+                                      doc="body_geometry: range the target is normalised to, "
+                                          "y = m + 5 log10(r_ref / r)")
     target: str = _spec("magnitude", choices=("magnitude", "rho_normalised", "surface_normalised"),
                         doc="GP output: m_app as rendered (paper), m_app + 2.5 log10(rho / rho_reference), or "
                             "m_app + 2.5 log10(rho (1 - F0) / (rho_reference (1 - surface.f0))) over data.surfaces "

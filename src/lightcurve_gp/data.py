@@ -29,7 +29,7 @@ from .io import save_torch_atomic
 from .render import Scene
 from .rotations import quat_canonical
 
-__all__ = ["TrainingSet", "initial_attitudes", "drop_duplicate_attitudes", "window_samples",
+__all__ = ["TrainingSet", "initial_attitudes", "training_scene", "drop_duplicate_attitudes", "window_samples",
            "generate_training_set", "generate_heldout_set", "load_or_generate", "normalised_targets",
            "model_targets", "data_cache_key", "DATA_FORMAT_VERSION"]
 
@@ -158,6 +158,14 @@ def _apply_sign_policy(ts: TrainingSet, policy: str) -> TrainingSet:
     return TrainingSet(torch.cat([canon, -canon]), ts.m_past.repeat(2), ts.y.repeat(2), ts.rho.repeat(2), ts.dropped)
 
 
+def training_scene(cfg: Config, dtype: torch.dtype) -> Scene:
+    """The fixed scene the training trajectories are rendered in: ``geometry.kind: fixed`` as given; along a pass
+    (``orbit``) the geometry of its first sample — the paper's fixed-geometry assumption, taken where the pass
+    starts (a ``body_geometry`` GP is trained over geometries instead)."""
+    scene = Scene.from_config(cfg, dtype=dtype, device="cpu")
+    return scene.sample(0) if scene.per_sample else scene
+
+
 def _inertia(cfg: Config) -> Tensor:
     return torch.tensor(cfg.shape.inertia_kg_m2, dtype=cfg.torch_dtype)
 
@@ -169,8 +177,12 @@ def generate_training_set(cfg: Config, progress: bool = True) -> TrainingSet:
         from .surface_training import generate_surface_training_set
 
         return generate_surface_training_set(cfg, progress=progress)
+    if cfg.model.inputs == "body_geometry":
+        from .geometry_training import geometry_training_set
+
+        return geometry_training_set(cfg)
     dtype = cfg.torch_dtype
-    scene = Scene.from_config(cfg, dtype=dtype, device="cpu")
+    scene = training_scene(cfg, dtype=dtype)
     q0 = initial_attitudes(cfg.data, dtype=dtype)
     rho = torch.tensor(cfg.data.rho_grid, dtype=dtype).unsqueeze(-1)
     return window_samples(scene, q0, rho, cfg.data, _inertia(cfg), progress=progress)
@@ -188,8 +200,12 @@ def generate_heldout_set(cfg: Config) -> TrainingSet:
         from .surface_training import generate_surface_heldout_set
 
         return generate_surface_heldout_set(cfg)
+    if cfg.model.inputs == "body_geometry":
+        from .geometry_training import geometry_heldout_set
+
+        return geometry_heldout_set(cfg)
     dtype = cfg.torch_dtype
-    scene = Scene.from_config(cfg, dtype=dtype, device="cpu")
+    scene = training_scene(cfg, dtype=dtype)
     n = cfg.data.heldout_size
     q0 = random_attitudes(n, seed=cfg.data.seed + 1, dtype=dtype)
     gen = torch.Generator().manual_seed(cfg.data.seed + 1)
@@ -224,9 +240,13 @@ def model_targets(ts: TrainingSet, model: ModelConfig) -> TrainingSet:
 def data_cache_key(cfg: Config) -> str:
     """Hash of everything that determines the training set: the geometry, shape, surface and data sections with
     the mesh file's content hash in place of its path (:func:`~lightcurve_gp.config.content_hash`), the dtype and
-    the file format. Editing a mesh in place therefore misses the cache instead of loading stale data."""
-    return content_hash(cfg, "geometry", "shape", "surface", "data", extra={"format": DATA_FORMAT_VERSION,
-                                                                            "dtype": cfg.dtype})
+    the file format (for ``model.inputs: body_geometry`` the reference range instead of the geometry). Editing a
+    mesh in place therefore misses the cache instead of loading stale data."""
+    extra = {"format": DATA_FORMAT_VERSION, "dtype": cfg.dtype}
+    if cfg.model.inputs == "body_geometry":  # no pass's geometry: the canonical geometries at the reference range
+        extra.update(inputs="body_geometry", reference_range_km=cfg.model.reference_range_km)
+        return content_hash(cfg, "shape", "surface", "data", extra=extra)
+    return content_hash(cfg, "geometry", "shape", "surface", "data", extra=extra)
 
 
 def load_or_generate(cfg: Config, cache_dir: str | Path = "runs/cache",

@@ -29,6 +29,7 @@ from torch import Tensor
 
 from .config import Config
 from .metrics import attitude_error_vector, attitude_errors_deg, chi2_band, lightcurve_rmse, nees, rmse_over_window
+from .observation.along_pass import AlongPass, bind_geometry
 from .observation.base import ObservationModel
 from .observation.parametric import Parametric, SurfaceStateRenderer
 from .render import Scene
@@ -40,7 +41,7 @@ from .ukf import FilterHistory, UsqueParams, initial_covariance, run_usque
 from .ukf_offset import initial_offset, offset_covariance
 
 __all__ = ["ESTIMATORS", "DEFAULT_ESTIMATORS", "EstimatorResult", "ScenarioResult", "propagate_only",
-           "run_offset_filter", "run_surface_filter", "run_estimators", "score_estimator"]
+           "run_offset_filter", "run_surface_filter", "run_estimators", "score_estimator", "first_observation"]
 
 ESTIMATORS = ("gpukf", "ukf", "matched_ukf", "joint_ukf", "surface_ukf", "no_update")
 #: what the tables and the estimate command run unless told otherwise
@@ -144,17 +145,18 @@ def score_estimator(sc: Scenario, q_est: Tensor, window, history: FilterHistory 
 
 
 def run_offset_filter(cfg: Config, model: ObservationModel, observations: Tensor, q_est0: Tensor,
-                      increments: Tensor) -> FilterHistory:
-    """One batched offset-augmented USQUE run with the tuning of ``cfg`` (``b0 = ỹ_0 − h(q̂_0)``)."""
-    m_past0 = observations[:, 0]
-    b0 = initial_offset(model, q_est0, observations[:, 0], m_past0)
+                      increments: Tensor, *, start_model: ObservationModel | None = None) -> FilterHistory:
+    """One batched offset-augmented USQUE run with the tuning of ``cfg`` (``b0 = ỹ_0 − h(q̂_0)``, ``h`` =
+    ``start_model``, default ``model``: along a pass the model of sample 0 while ``model`` serves steps 1 … T)."""
+    m_past0 = first_observation(observations)
+    b0 = initial_offset(start_model or model, q_est0, observations[:, 0], m_past0)
     P0 = offset_covariance(cfg.filter.p0_deg, cfg.filter.offset_prior_std, dtype=q_est0.dtype, device=q_est0.device)
     return run_usque(model=model, q_est0=q_est0, P0=P0, observations=observations, m_past0=m_past0,
                      increments=increments, params=UsqueParams.from_config(cfg), offset0=b0)
 
 
 def run_surface_filter(cfg: Config, scene: Scene, *, observations: Tensor, q_est0: Tensor, increments: Tensor,
-                       P0_attitude: Tensor) -> FilterHistory:
+                       P0_attitude: Tensor, model: ObservationModel | None = None) -> FilterHistory:
     """One batched USQUE run on ``[δp, θ]`` with the surface state ``θ`` (:mod:`lightcurve_gp.surface_state`): the
     renderer of ``scene`` (the known shape) with every sigma point's surface, the prior of
     :func:`~lightcurve_gp.surface_state.surface_state_prior` about ``cfg``'s reference surface.
@@ -162,6 +164,8 @@ def run_surface_filter(cfg: Config, scene: Scene, *, observations: Tensor, q_est
     Args:
         observations: ``(B, T+1)`` (mag); q_est0: ``(B, 4)``; increments: ``(T, 4)`` or ``(B, T, 4)``.
         P0_attitude: the attitude block of ``P0`` ``(3, 3)`` or ``(B, 3, 3)`` (rad²).
+        model: the filter's observation model (default ``SurfaceStateRenderer(scene)``; along a pass an
+            :class:`~lightcurve_gp.observation.along_pass.AlongPass` of it, ``scene`` then the first sample's).
     """
     B = q_est0.shape[0]
     theta0, std = surface_state_prior(scene=scene, q_est0=q_est0, y0=observations[:, 0],
@@ -169,9 +173,31 @@ def run_surface_filter(cfg: Config, scene: Scene, *, observations: Tensor, q_est
     P0 = torch.zeros(B, 7, 7, dtype=q_est0.dtype, device=q_est0.device)
     P0[:, :3, :3] = P0_attitude
     P0[:, 3:, 3:] = torch.diag(std.pow(2)).to(P0)
-    return run_usque(model=SurfaceStateRenderer(scene), q_est0=q_est0, P0=P0, observations=observations,
-                     m_past0=observations[:, 0], increments=increments, params=UsqueParams.from_config(cfg),
-                     theta0=theta0)
+    return run_usque(model=model or SurfaceStateRenderer(scene), q_est0=q_est0, P0=P0, observations=observations,
+                     m_past0=first_observation(observations), increments=increments,
+                     params=UsqueParams.from_config(cfg), theta0=theta0)
+
+
+def first_observation(observations: Tensor) -> Tensor:
+    """Each row's first finite observation ``(S,)`` (0 for a row without one): the filters' ``m_past,0``. With the
+    fixed geometry this is ``ỹ_0``; along a pass the first samples may be unobservable (NaN)."""
+    finite = torch.isfinite(observations)
+    first = finite.double().argmax(-1, keepdim=True)
+    value = torch.gather(observations, -1, first).squeeze(-1)
+    return torch.where(finite.any(-1), value, torch.zeros_like(value))
+
+
+def _pass_models(model: ObservationModel, sc: Scenario, scene: Scene) -> tuple[ObservationModel, ObservationModel]:
+    """``(model at sample 0, model of steps 1 … T)``: along a pass bound sample by sample (:class:`AlongPass`);
+    under the fixed geometry a geometry-aware model bound to it once."""
+    if sc.geometry is not None:
+        g = sc.geometry
+        return (bind_geometry(model, sun=g.sun[0], observer=g.observer[0], range_m=float(g.range_m[0])),
+                AlongPass(model, g, first=1))
+    if getattr(model, "config", {}).get("inputs") != "body_geometry":  # the renderers hold the fixed geometry
+        return model, model
+    bound = bind_geometry(model, sun=scene.sun, observer=scene.observer, range_m=scene.r_obs)
+    return bound, bound
 
 
 def run_estimators(cfg: Config, gp_model: ObservationModel | None = None, *, seeds: Sequence[int] | None = None,
@@ -186,6 +212,10 @@ def run_estimators(cfg: Config, gp_model: ObservationModel | None = None, *, see
         rho_true: overrides ``cfg.scenario.rho_true``.
         estimators: any of :data:`ESTIMATORS`.
         scene: renderer (default ``Scene.from_config(cfg)``), shared by the truth and the parametric filters.
+
+    Along a pass (``geometry.kind: orbit``) every filter's model predicts step ``k`` with the geometry of sample
+    ``k`` (:class:`~lightcurve_gp.observation.along_pass.AlongPass`): the renderer of the UKFs and a
+    ``body_geometry`` GP; a GP trained under one fixed geometry keeps its assumption.
     """
     unknown = [e for e in estimators if e not in ESTIMATORS]
     if unknown:
@@ -215,14 +245,18 @@ def run_estimators(cfg: Config, gp_model: ObservationModel | None = None, *, see
             q_est, history = propagate_only(sc.q_est0, sc.increments).expand(S, -1, -1), None
         else:
             model = models[name].to(device=device, dtype=dtype) if name != "gpukf" else models[name].to(device)
+            start_model, model = _pass_models(model, sc, scene)
             if name in with_offset:
-                history = run_offset_filter(cfg, model, sc.observations, q_est0, sc.increments)
+                history = run_offset_filter(cfg, model, sc.observations, q_est0, sc.increments,
+                                            start_model=start_model)
             elif name == "surface_ukf":
-                history = run_surface_filter(cfg, scene, observations=sc.observations, q_est0=q_est0,
-                                             increments=sc.increments, P0_attitude=P0)
+                history = run_surface_filter(cfg, scene.sample(0) if scene.per_sample else scene,
+                                             observations=sc.observations, q_est0=q_est0, increments=sc.increments,
+                                             P0_attitude=P0, model=model)
             else:
                 history = run_usque(model=model, q_est0=q_est0, P0=P0, observations=sc.observations,
-                                    m_past0=sc.observations[:, 0], increments=sc.increments, params=params)
+                                    m_past0=first_observation(sc.observations), increments=sc.increments,
+                                    params=params)
             q_est = history.q_est
         out.results[name] = score_estimator(sc, q_est, window, history, time.perf_counter() - start)
     return out

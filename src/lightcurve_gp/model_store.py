@@ -1,12 +1,12 @@
 """The one model store: trained observation models keyed by the hash of everything that changes them.
 
 Layout: ``<root>/<model-key>/`` is a ``train`` run folder (``model.pt``, ``metrics.json``, ``config.yaml`` and
-the held-out figures), written atomically by :func:`lightcurve_gp.train.train`. The key
-(:func:`model_key`) hashes the ``geometry``, ``shape``, ``surface``, ``data`` and ``model`` sections with the
+the held-out figures), written atomically by :func:`lightcurve_gp.train.train`. The key (:func:`model_key`) hashes
+the ``geometry`` (not for a ``body_geometry`` GP), ``shape``, ``surface``, ``data`` and ``model`` sections with the
 mesh file's *content* hash in place of its path (:func:`~lightcurve_gp.config.content_hash`), the dtype and
-:data:`STORE_FORMAT`; the run name is not part of it. :func:`get_or_train` is used by sweeps, the experiments
-and the benchmarks; ``train`` records the key of the model it writes and ``estimate`` checks a model file
-against its config with :func:`check_model_matches`.
+:data:`STORE_FORMAT`; the run name is not part of it. :func:`get_or_train` is used by sweeps, the experiments and
+the benchmarks; ``train`` records the key of the model it writes and ``estimate`` checks a model file against its
+config with :func:`check_model_matches`.
 
 Model files are opened with :func:`open_model`, which turns anything that is not a lightcurve-gp model file
 (a text file, a YAML file renamed ``.pt``, a foreign pickle) into one :class:`ModelFileError` line.
@@ -23,8 +23,8 @@ from .io import file_sha256
 from .observation.base import ObservationModel
 from .observation.serialization import ModelFileError, load_model
 
-__all__ = ["MODEL_SECTIONS", "IGNORED_KEYS", "STORE_FORMAT", "ModelMismatchError", "model_key", "model_record",
-           "store_folder", "get_or_train", "open_model", "model_file_record", "training_mismatch",
+__all__ = ["MODEL_SECTIONS", "IGNORED_KEYS", "model_sections", "STORE_FORMAT", "ModelMismatchError", "model_key",
+           "model_record", "store_folder", "get_or_train", "open_model", "model_file_record", "training_mismatch",
            "check_model_matches"]
 
 #: config sections a trained model depends on (with the dtype)
@@ -38,9 +38,17 @@ class ModelMismatchError(ConfigError):
     """A model file was trained with settings other than the run's; the message names the first differing key."""
 
 
+def model_sections(cfg: Config) -> tuple[str, ...]:
+    """:data:`MODEL_SECTIONS` less ``geometry`` for a ``body_geometry`` GP, which is trained over geometries and
+    serves every pass."""
+    if cfg.model.inputs == "body_geometry":
+        return tuple(s for s in MODEL_SECTIONS if s != "geometry")
+    return MODEL_SECTIONS
+
+
 def model_key(cfg: Config) -> str:
     """16 hex digits: the store key of the model ``cfg`` trains (see the module docstring)."""
-    return content_hash(cfg, *MODEL_SECTIONS, extra={"dtype": cfg.dtype, "store_format": STORE_FORMAT})
+    return content_hash(cfg, *model_sections(cfg), extra={"dtype": cfg.dtype, "store_format": STORE_FORMAT})
 
 
 def model_record(cfg: Config) -> dict[str, Any]:
@@ -49,7 +57,7 @@ def model_record(cfg: Config) -> dict[str, Any]:
     from .config import config_to_dict
 
     return {"config": config_to_dict(cfg), "model_key": model_key(cfg), "dtype": cfg.dtype,
-            "trained_on": content_dict(cfg, *MODEL_SECTIONS)}
+            "trained_on": content_dict(cfg, *model_sections(cfg))}
 
 
 def store_folder(cfg: Config, root: str | Path) -> Path:
@@ -138,7 +146,7 @@ def training_mismatch(model: ObservationModel, cfg: Config) -> str | None:
     trained = _trained_on(model)
     if trained is None:
         return "the model file does not record the config it was trained with (older format); retrain it"
-    mine = _flatten({"dtype": cfg.dtype, **content_dict(cfg, *MODEL_SECTIONS)})
+    mine = _flatten({"dtype": cfg.dtype, **content_dict(cfg, *model_sections(cfg))})
     theirs = _flatten(trained)
     for key in list(mine) + [k for k in theirs if k not in mine]:
         if key in IGNORED_KEYS:

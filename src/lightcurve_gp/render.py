@@ -29,6 +29,7 @@ such trajectories and counts them; the scenario refuses a truth trajectory with 
 
 from __future__ import annotations
 
+import copy
 import math
 
 import torch
@@ -46,33 +47,50 @@ SUN_MAGNITUDE = -26.7
 
 
 def apparent_magnitude(flux: Tensor, r_obs: float | Tensor) -> Tensor:
-    """``−26.7 − 2.5 log10(flux / r_obs²)`` with ``r_obs`` in metres; zero flux gives ``+inf`` (see :class:`Scene`)."""
+    """``−26.7 − 2.5 log10(flux / r_obs²)`` with ``r_obs`` in metres (a number, or a tensor broadcasting against
+    ``flux``, e.g. ``(T,)`` per sample); zero flux gives ``+inf`` (see :class:`Scene`)."""
+    if isinstance(r_obs, Tensor) and r_obs.ndim:
+        return SUN_MAGNITUDE - 2.5 * (torch.log10(flux) - 2.0 * torch.log10(r_obs.to(flux)))
     return SUN_MAGNITUDE - 2.5 * (torch.log10(flux) - 2.0 * math.log10(float(r_obs)))
 
 
 class Scene:
-    """A facet model under a fixed Sun and observer (object at the inertial origin).
+    """A facet model under a Sun and an observer (object at the inertial origin), fixed or per sample.
 
     Args:
         facets: the object's facets (body frame).
-        sun: inertial direction (or position) of the Sun ``(3,)``; normalised here.
-        observer: inertial direction (or position) of the observer ``(3,)``; normalised here.
-        r_obs: object–observer distance in metres.
+        sun: inertial direction (or position) of the Sun ``(3,)``, or one per sample ``(T, 3)``; normalised here.
+        observer: inertial direction (or position) of the observer, shaped like ``sun``; normalised here.
+        r_obs: object–observer distance in metres: a number, or ``(T,)`` with per-sample directions.
         grouped: merge facets with identical BRDF terms (see the module docstring).
         chunk_elements: attitudes are processed in chunks of about this many (attitude, facet) pairs
             (the default keeps the per-chunk temporaries in the CPU cache: ~3× faster than 1M-pair chunks).
+
+    Per-sample geometry (a pass, :class:`~lightcurve_gp.geometry.PassGeometry`): attitudes ``q (..., T, 4)`` are
+    rendered with the geometry of their sample along the last batch dimension (broadcast like any batch
+    dimension); :meth:`sample` gives the fixed scene of one sample.
     """
 
-    def __init__(self, facets: Facets, sun: Tensor, observer: Tensor, r_obs: float, *, grouped: bool = True,
+    def __init__(self, facets: Facets, sun: Tensor, observer: Tensor, r_obs: float | Tensor, *, grouped: bool = True,
                  chunk_elements: int = 1 << 16) -> None:
+        self.facets = facets
+        self.grouped = bool(grouped)
+        self.chunk_elements = int(chunk_elements)
+        self._facets_eval = facets.grouped()[0] if grouped else facets
+        self._set_geometry(sun, observer, r_obs)
+
+    def _set_geometry(self, sun, observer, r_obs) -> None:
+        as_t = lambda x: torch.as_tensor(x, dtype=self.facets.normals.dtype,  # noqa: E731
+                                         device=self.facets.normals.device)
+        sun, observer = as_t(sun), as_t(observer)
+        if sun.ndim == 2:
+            self._set_sample_geometry(sun, observer, as_t(r_obs))
+            return
         if not float(r_obs) > 0.0:
             raise ValueError(f"r_obs: {float(r_obs):g} m must be > 0")
-        as_t = lambda x: torch.as_tensor(x, dtype=facets.normals.dtype, device=facets.normals.device)  # noqa: E731
-        sun, observer = as_t(sun), as_t(observer)
         for name, vec in (("sun", sun), ("observer", observer)):
             if vec.shape != (3,) or not float(torch.linalg.vector_norm(vec)) > 0.0:
                 raise ValueError(f"{name}: expected a non-zero vector of shape (3,), got {vec.tolist()}")
-        self.facets = facets
         self.sun = sun / torch.linalg.vector_norm(sun)
         self.observer = observer / torch.linalg.vector_norm(observer)
         half = self.sun + self.observer
@@ -80,29 +98,72 @@ class Scene:
             raise ValueError("sun and observer are in opposite directions: no facet can be lit and visible")
         self.half = half / torch.linalg.vector_norm(half)
         self.r_obs = float(r_obs)
-        self.grouped = bool(grouped)
-        self.chunk_elements = int(chunk_elements)
-        self._facets_eval = facets.grouped()[0] if grouped else facets
+
+    def _set_sample_geometry(self, sun: Tensor, observer: Tensor, r_obs: Tensor) -> None:
+        T = sun.shape[0]
+        if sun.shape != (T, 3) or observer.shape != (T, 3) or r_obs.shape != (T,):
+            raise ValueError(f"per-sample geometry: expected sun and observer (T, 3) and r_obs (T,), got "
+                             f"{tuple(sun.shape)}, {tuple(observer.shape)}, {tuple(r_obs.shape)}")
+        if not bool((r_obs > 0).all()):
+            raise ValueError("r_obs: every per-sample range must be > 0 m")
+        norm = lambda x: torch.linalg.vector_norm(x, dim=-1, keepdim=True)  # noqa: E731
+        if not bool((norm(sun) > 0).all() & (norm(observer) > 0).all()):
+            raise ValueError("sun, observer: every per-sample vector must be non-zero")
+        self.sun, self.observer = sun / norm(sun), observer / norm(observer)
+        half = self.sun + self.observer
+        if not bool((norm(half) > 0).all()):
+            raise ValueError("sun and observer are in opposite directions at some sample: nothing lit and visible")
+        self.half = half / norm(half)
+        self.r_obs = r_obs
+
+    @property
+    def per_sample(self) -> bool:
+        """Whether the geometry is given per sample (``sun (T, 3)``)."""
+        return self.sun.ndim == 2
 
     # ------------------------------------------------------------------------------------------ construction
 
     @classmethod
     def from_config(cls, cfg: Config, *, rho: float | None = None, grouped: bool = True,
                     dtype: torch.dtype | None = None, device=None) -> "Scene":
-        """Scene of ``cfg.shape``, ``cfg.surface`` and ``cfg.geometry`` (km converted to metres).
+        """Scene of ``cfg.shape``, ``cfg.surface`` and ``cfg.geometry`` (km converted to metres): fixed for
+        ``geometry.kind: fixed``, per sample along the pass (:func:`~lightcurve_gp.geometry.pass_geometry`) for
+        ``orbit``.
 
         ``rho`` defaults to ``cfg.scenario.rho_true`` (the surface section holds no ρ; pass ``rho=`` to the
         rendering methods to use another); ``dtype``/``device`` default to the config's.
         """
         facets = facets_from_config(cfg, rho=rho, dtype=dtype, device=device)
+        if cfg.geometry.kind == "orbit":
+            from .geometry import pass_geometry
+
+            return cls.from_geometry(facets, pass_geometry(cfg), grouped=grouped)
         obs_m = torch.tensor(cfg.geometry.observer_km, dtype=torch.float64) * 1e3
         sun_m = torch.tensor(cfg.geometry.sun_km, dtype=torch.float64) * 1e3
         return cls(facets, sun_m, obs_m, float(torch.linalg.vector_norm(obs_m)), grouped=grouped)
 
+    @classmethod
+    def from_geometry(cls, facets: Facets, geometry, *, grouped: bool = True) -> "Scene":
+        """Per-sample scene of a :class:`~lightcurve_gp.geometry.PassGeometry`."""
+        return cls(facets, geometry.sun, geometry.observer, geometry.range_m, grouped=grouped)
+
+    def with_geometry(self, sun: Tensor, observer: Tensor, r_obs: float | Tensor) -> "Scene":
+        """The same facets (and facet groups) under another geometry (fixed or per sample)."""
+        scene = copy.copy(self)
+        scene._set_geometry(sun, observer, r_obs)
+        return scene
+
+    def sample(self, k: int) -> "Scene":
+        """The fixed scene of sample ``k`` of a per-sample scene."""
+        if not self.per_sample:
+            raise ValueError("sample(k) needs a per-sample scene")
+        return self.with_geometry(self.sun[k], self.observer[k], float(self.r_obs[k]))
+
     def to(self, device=None, dtype=None) -> "Scene":
         """Copy on another device and/or dtype (directions are renormalised in the new dtype)."""
+        r_obs = self.r_obs.to(device=device, dtype=dtype) if isinstance(self.r_obs, Tensor) else self.r_obs
         return Scene(self.facets.to(device=device, dtype=dtype), self.sun.to(device=device, dtype=dtype),
-                     self.observer.to(device=device, dtype=dtype), self.r_obs, grouped=self.grouped,
+                     self.observer.to(device=device, dtype=dtype), r_obs, grouped=self.grouped,
                      chunk_elements=self.chunk_elements)
 
     def with_grouping(self, grouped: bool) -> "Scene":
@@ -111,8 +172,10 @@ class Scene:
                      chunk_elements=self.chunk_elements)
 
     @property
-    def phase_angle_deg(self) -> float:
-        """Sun–object–observer angle in degrees."""
+    def phase_angle_deg(self) -> float | Tensor:
+        """Sun–object–observer angle in degrees (a tensor ``(T,)`` for a per-sample scene)."""
+        if self.per_sample:
+            return torch.rad2deg(torch.acos((self.sun * self.observer).sum(-1).clamp(-1.0, 1.0)))
         return math.degrees(math.acos(float(torch.dot(self.sun, self.observer).clamp(-1.0, 1.0))))
 
     # ------------------------------------------------------------------------------------------ rendering
@@ -132,19 +195,23 @@ class Scene:
         batch = q.shape[:-1]
         flat = q.reshape(-1, 4)
         rows = None if surface is None else _surface_rows(surface, batch, q)  # (N, 1) each, or None
-        frame = torch.stack([self.sun, self.observer, self.half], -1)  # (3, 3): columns ŝ, v̂, ĥ (inertial)
+        frame = torch.stack([self.sun, self.observer, self.half], -1)  # (3, 3) | (T, 3, 3): columns ŝ, v̂, ĥ
         normals_t, u_t, w_t = fac.normals.T, fac.u.T, fac.v.T  # (3, G)
         area_d = fac.areas if unit_rho or rows is not None else fac.areas * fac.rho
-        vh = torch.dot(self.observer, self.half)  # v·h does not depend on the attitude
+        if self.per_sample:  # v·h does not depend on the attitude
+            frame, vh = self._per_attitude(frame, (self.observer * self.half).sum(-1), batch)
+        else:
+            vh = torch.dot(self.observer, self.half)
         chunk = max(1, self.chunk_elements // max(1, len(fac)))
         diffuse, specular = [], []
         for start in range(0, flat.shape[0], chunk):
             part = slice(start, start + chunk)
             f0, n_u, n_v = (fac.f0, fac.n_u, fac.n_v) if rows is None else (r[part] for r in rows[1:])
-            body = (attitude_matrix(flat[part]) @ frame).transpose(-1, -2)  # (N, 3 [s,v,h], 3)
+            frame_c, vh_c = (frame[part], vh[part]) if self.per_sample else (frame, vh)
+            body = (attitude_matrix(flat[part]) @ frame_c).transpose(-1, -2)  # (N, 3 [s,v,h], 3)
             s_b, v_b, h_b = body.unbind(-2)
             hn = h_b @ normals_t
-            d, c = ashikhmin_shirley_projected(s_b @ normals_t, v_b @ normals_t, hn, vh, h_b @ u_t, h_b @ w_t,
+            d, c = ashikhmin_shirley_projected(s_b @ normals_t, v_b @ normals_t, hn, vh_c, h_b @ u_t, h_b @ w_t,
                                                1.0, f0, n_u, n_v)  # diffuse at ρ = 1, (N, G)
             d_sum = d @ area_d
             diffuse.append(d_sum if rows is None or unit_rho else d_sum * rows[0][part, 0])
@@ -153,6 +220,15 @@ class Scene:
             empty = flat.new_zeros(0)
             return empty.reshape(batch), empty.reshape(batch)
         return torch.cat(diffuse).reshape(batch), torch.cat(specular).reshape(batch)
+
+    def _per_attitude(self, frame: Tensor, vh: Tensor, batch: torch.Size) -> tuple[Tensor, Tensor]:
+        """Per-sample ``frame (T, 3, 3)`` and ``v·h (T,)`` broadcast over ``batch = (..., T)`` and flattened to
+        ``(N, 3, 3)`` and ``(N, 1)``."""
+        T = frame.shape[0]
+        if not len(batch) or batch[-1] != T:
+            raise ValueError(f"q of batch shape {tuple(batch)}: a per-sample scene of {T} samples needs them along "
+                             f"the last batch dimension")
+        return frame.expand(*batch, 3, 3).reshape(-1, 3, 3), vh.expand(batch).reshape(-1, 1)
 
     def _rho(self, rho, like: Tensor) -> Tensor:
         return torch.as_tensor(rho, dtype=like.dtype, device=like.device)

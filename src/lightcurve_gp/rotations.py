@@ -26,6 +26,7 @@ __all__ = [
     "quat_normalize",
     "quat_canonical",
     "attitude_matrix",
+    "matrix_to_quat",
     "axis_angle_to_quat",
     "rotvec_to_quat",
     "quat_to_rotvec",
@@ -119,6 +120,26 @@ def attitude_matrix(q: Tensor) -> Tensor:
         torch.stack([2 * (xz + wy), 2 * (yz - wx), ww - xx - yy + zz], -1),
     ]
     return torch.stack(rows, -2)
+
+
+def matrix_to_quat(a: Tensor) -> Tensor:
+    """The unit quaternion ``q`` (``q4 ≥ 0``) with ``attitude_matrix(q) = a`` for rotation matrices ``(..., 3, 3)``.
+
+    Shepperd's method: of the four equivalent formulas the one with the largest square root is used, so the
+    result is accurate for every rotation.
+    """
+    a11, a22, a33 = a[..., 0, 0], a[..., 1, 1], a[..., 2, 2]
+    d23, d31, d12 = a[..., 1, 2] - a[..., 2, 1], a[..., 2, 0] - a[..., 0, 2], a[..., 0, 1] - a[..., 1, 0]
+    s12, s13, s23 = a[..., 0, 1] + a[..., 1, 0], a[..., 0, 2] + a[..., 2, 0], a[..., 1, 2] + a[..., 2, 1]
+    candidates = torch.stack([  # rows proportional to 4 q_i [q1, q2, q3, q4] for i = 4, 1, 2, 3
+        torch.stack([d23, d31, d12, 1 + a11 + a22 + a33], -1),
+        torch.stack([1 + a11 - a22 - a33, s12, s13, d23], -1),
+        torch.stack([s12, 1 - a11 + a22 - a33, s23, d31], -1),
+        torch.stack([s13, s23, 1 - a11 - a22 + a33, d12], -1),
+    ], -2)
+    best = torch.stack([a11 + a22 + a33, a11, a22, a33], -1).argmax(-1)
+    q = torch.gather(candidates, -2, best[..., None, None].expand(*best.shape, 1, 4)).squeeze(-2)
+    return quat_canonical(q / torch.linalg.vector_norm(q, dim=-1, keepdim=True))
 
 
 def rotate(q: Tensor, v: Tensor) -> Tensor:

@@ -5,6 +5,12 @@ for ``duration_s``; samples ``k = 0 … T`` lie at ``t_k = k dt``. Its light cur
 ``scenario.rho_true``; observation ``k`` of seed ``s`` adds ``N(0, noise_var)`` noise drawn from a generator seeded
 with ``s`` alone, so a seed's curve does not depend on which other seeds run beside it.
 The filter's initial estimate is ``q_est,0 = q(Euler error) ⊗ q_true,0`` (docs/design.md).
+
+Along a pass (``geometry.kind: orbit``) the truth is still integrated every ``dt_s``, but it is sampled at the
+pass's times (:func:`~lightcurve_gp.geometry.sample_times`: gaps and explicit timestamps lie on that grid) and
+rendered with each sample's geometry; the increment of a longer step is the product of the ``dt_s`` increments it
+spans. A sample below the minimum elevation, in the Earth's shadow or with zero flux has no observation (NaN in
+``observations`` and ``m_clean``) and is counted in ``Scenario.unobservable``.
 """
 
 from __future__ import annotations
@@ -18,10 +24,11 @@ from torch import Tensor
 
 from .config import Config
 from .dynamics import propagate, quaternion_increments
+from .geometry import PassGeometry, pass_geometry
 from .render import Scene
 from .rotations import euler321_to_quat, quat_mul, quat_normalize
 
-__all__ = ["Scenario", "simulate_scenario", "noisy_observations"]
+__all__ = ["Scenario", "simulate_scenario", "noisy_observations", "span_increments"]
 
 
 @dataclass
@@ -39,6 +46,8 @@ class Scenario:
         q_est0: the filters' initial estimate ``(4,)``.
         rho_true: the object's diffuse reflectance.
         noise_var: variance of the magnitude noise (mag²).
+        geometry: the per-sample geometry of a pass (``None`` for ``geometry.kind: fixed``).
+        unobservable: samples with no observation (below the horizon limit, in shadow or with zero flux).
     """
 
     times: Tensor
@@ -51,6 +60,8 @@ class Scenario:
     q_est0: Tensor
     rho_true: float
     noise_var: float
+    geometry: PassGeometry | None = None
+    unobservable: int = 0
 
 
 def noisy_observations(m_clean: Tensor, noise_var: float, seeds: Sequence[int]) -> Tensor:
@@ -85,6 +96,8 @@ def simulate_scenario(cfg: Config, seeds: Sequence[int] | None = None, rho_true:
     steps = sc.duration_s / sc.dt_s
     if abs(steps - round(steps)) > 1e-9:
         raise ValueError(f"scenario.duration_s ({sc.duration_s:g}) must be a multiple of scenario.dt_s ({sc.dt_s:g})")
+    if cfg.geometry.kind == "orbit":
+        return _simulate_pass(cfg, seeds, rho, scene)
     n_steps = int(round(steps))
     scene = (scene or Scene.from_config(cfg, rho=rho)).to(device=device, dtype=dtype)
 
@@ -111,3 +124,44 @@ def simulate_scenario(cfg: Config, seeds: Sequence[int] | None = None, rho_true:
         rho_true=rho,
         noise_var=sc.noise_var,
     )
+
+
+def _simulate_pass(cfg: Config, seeds: list[int], rho: float, scene: Scene | None) -> Scenario:
+    """:func:`simulate_scenario` along a pass: the truth on the ``dt_s`` grid, sampled and rendered at the pass."""
+    sc = cfg.scenario
+    dtype, device = cfg.torch_dtype, torch.device(cfg.device)
+    geometry = pass_geometry(cfg)
+    if scene is None:
+        scene = Scene.from_config(cfg, rho=rho).with_geometry(geometry.sun, geometry.observer, geometry.range_m)
+    scene = scene.to(device=device, dtype=dtype)
+    if not scene.per_sample or scene.sun.shape[0] != len(geometry):
+        raise ValueError(f"scene: a pass of {len(geometry)} samples needs a per-sample scene of as many samples")
+    tensor = lambda values: torch.tensor(values, dtype=dtype, device=device)  # noqa: E731
+    index = torch.round(geometry.times_s / sc.dt_s).long()
+    q0 = quat_normalize(tensor(sc.q0))
+    omega0 = torch.deg2rad(tensor(sc.omega0_deg_s))
+    inertia = tensor(cfg.shape.inertia_kg_m2)
+    q_grid, omega_grid = propagate(q0, omega0, inertia, sc.dt_s, int(index[-1]))
+    increments = span_increments(quaternion_increments(omega0, inertia, sc.dt_s, int(index[-1])), index)
+    q_true = q_grid[index]
+    m_clean = scene.magnitude(q_true, rho=tensor(rho))
+    seen = geometry.observable.to(device) & torch.isfinite(m_clean)
+    m_clean = torch.where(seen, m_clean, torch.full_like(m_clean, math.nan))
+    error = euler321_to_quat(torch.deg2rad(tensor(sc.initial_error_deg)))
+    return Scenario(times=(geometry.times_s - geometry.times_s[0]).to(device=device, dtype=dtype), q_true=q_true,
+                    omega_true=omega_grid[index], increments=increments, m_clean=m_clean,
+                    observations=noisy_observations(m_clean, sc.noise_var, seeds), seeds=seeds,
+                    q_est0=quat_mul(error, q0), rho_true=rho, noise_var=sc.noise_var, geometry=geometry,
+                    unobservable=int((~seen).sum()))
+
+
+def span_increments(grid_increments: Tensor, index: Tensor) -> Tensor:
+    """Increments ``(T−1, 4)`` between grid samples ``index (T,)`` (increasing) from the per-grid-step increments
+    ``(n, 4)``: ``δ_{i→j} = δ_{j−1} ⊗ … ⊗ δ_i`` (not normalised: ``normalise(δ ⊗ q)`` is the same either way)."""
+    out = grid_increments[index[:-1]].clone()
+    for j in torch.nonzero(index[1:] - index[:-1] > 1).flatten().tolist():
+        delta = out[j]
+        for k in range(int(index[j]) + 1, int(index[j + 1])):
+            delta = quat_mul(grid_increments[k], delta)
+        out[j] = delta
+    return out

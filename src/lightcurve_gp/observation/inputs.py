@@ -1,7 +1,8 @@
 """GP input maps ``x = features(q, m_past)`` (paper section 3.1), kept in a small registry.
 
-The paper's input is ``x = [q1, q2, q3, q4, m_past]`` (kind ``"quaternion"``). Further kinds (e.g. sign-invariant
-body-frame Sun/observer directions) register a feature function with :func:`register_input_kind`.
+The paper's input is ``x = [q1, q2, q3, q4, m_past]`` (kind ``"quaternion"``); ``"attitude_matrix"`` is ``A(q)``;
+``"body_geometry"`` the body-frame Sun and observer directions, whose second input is a phase angle
+(:mod:`.body_geometry`). Further kinds register a feature function with :func:`register_input_kind`.
 
 :class:`InputMap` applies the feature function and, optionally, a per-dimension standardisation whose
 mean/std come from the training inputs and are stored as buffers (so they move with ``.to()`` and are saved).
@@ -22,6 +23,7 @@ __all__ = [
     "InputKind",
     "InputMap",
     "attitude_matrix_features",
+    "body_geometry_features",
     "quaternion_features",
     "register_input_kind",
 ]
@@ -66,6 +68,19 @@ def attitude_matrix_features(q: Tensor, m_past: Tensor) -> Tensor:
 
 
 register_input_kind("attitude_matrix", 9, attitude_matrix_features)
+
+
+def body_geometry_features(q: Tensor, phase_angle: Tensor) -> Tensor:
+    """``[s_b, v_b] = [A(q) e_x, A(q) (cos α, sin α, 0)]`` ``(..., 6)``: the body-frame Sun and observer directions
+    of the canonical geometry frame (:mod:`lightcurve_gp.observation.body_geometry`); the second input is the phase
+    angle ``α`` (rad), not ``m_past``. Sign-invariant in ``q``; ``q`` need not be normalised."""
+    a = attitude_matrix(quat_normalize(q))
+    s_b = a[..., 0]
+    alpha = phase_angle.to(q.dtype).unsqueeze(-1)
+    return torch.cat([s_b, torch.cos(alpha) * s_b + torch.sin(alpha) * a[..., 1]], dim=-1)
+
+
+register_input_kind("body_geometry", 6, body_geometry_features)
 
 
 class InputMap(nn.Module):
