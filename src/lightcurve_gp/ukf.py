@@ -19,6 +19,7 @@ filter: it stays continuous along a run, because ``q`` and ``−q`` are differen
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -68,7 +69,8 @@ class UsqueParams:
         lam: λ given directly; ``None`` derives ``α² (n + κ) − n``.
         grp_a, grp_f: GRP parameters ``a`` and ``f``.
         Q: process noise on the GRP error per step (rad²): scalar (× I), ``(3, 3)`` or ``(B, 3, 3)``.
-        R: measurement noise variance (mag²): scalar or ``(B,)``.
+        R: measurement noise variance (mag²): scalar, ``(B,)`` or per sample ``(B, T+1)`` (e.g. ``mag_err²`` of a
+            light-curve file; column ``k`` is used at step ``k``, column 0 is not used).
         variance: what the filter asks of the observation model (``"none"``, ``"fast"``, ``"exact"``); unless
             ``"none"``, the mean predictive variance ``Σ wm var_i`` is added to ``Pyy``.
         t_span_past: ``T`` of the running mean ``m_past ← (T m_past + ỹ) / (T + 1)`` (paper Sec. 3.3, Eq. (54)).
@@ -350,10 +352,11 @@ def run_usque(*, model: ObservationModel, q_est0: Tensor, P0: Tensor, observatio
     with torch.no_grad():
         lam, wm, wc = params.weights(layout.dim, dtype=dtype, device=device)
         R = torch.as_tensor(params.R, dtype=dtype, device=device)
-        if R.shape not in ((), (B,)):
-            raise ValueError(f"R must be a scalar or (B={B},), got {tuple(R.shape)}")
+        if R.shape not in ((), (B,), (B, T + 1)):
+            raise ValueError(f"R must be a scalar, (B={B},) or (B={B}, T+1={T + 1}), got {tuple(R.shape)}")
+        R_steps = R.unbind(1) if R.ndim == 2 else None  # per-sample noise: step k uses column k
         run = _Run(model=model, layout=layout, wm=wm, wc=wc, scale=layout.dim + lam,
-                   Q=_process_noise(params, layout, B, q_est0), R=R.expand(B),
+                   Q=_process_noise(params, layout, B, q_est0), R=R[:, 0] if R.ndim == 2 else R.expand(B),
                    grp=(float(params.grp_a), float(params.grp_f)), variance=params.variance,
                    t_span_past=float(params.t_span_past),
                    adaptive_rate=float(params.adaptive_noise_rate) if params.adaptive_noise == "innovation" else None)
@@ -374,7 +377,8 @@ def run_usque(*, model: ObservationModel, q_est0: Tensor, P0: Tensor, observatio
         no = torch.zeros(B, dtype=torch.bool, device=device)
         history.add(state, StepRecord(nan_b, nan_b, nan_b, nan_b, state.m_past, no, no, no))
         for k in range(1, T + 1):
-            state, record = usque_step(run, state, L_k=L_steps[k - 1], G_k=G_steps[k - 1], y_k=y_steps[k],
+            run_k = run if R_steps is None else dataclasses.replace(run, R=R_steps[k])
+            state, record = usque_step(run_k, state, L_k=L_steps[k - 1], G_k=G_steps[k - 1], y_k=y_steps[k],
                                        observed_k=observed_steps[k])
             history.add(state, record)
         out = history.build(observed, state)
