@@ -132,11 +132,12 @@ def run_interruptible(fn: Callable[[], Any], *, status: str = "", progress: bool
 def run_command(body: Callable[[], int], *, debug: bool) -> int:
     """Run a command's body with the error policy of the module docstring; returns the exit code."""
     from .config import ConfigError
+    from .lightcurve_file import LightCurveFileError
     from .observation.serialization import ModelFileError
 
     try:
         return body()
-    except (UserError, ConfigError, ModelFileError) as exc:
+    except (UserError, ConfigError, ModelFileError, LightCurveFileError) as exc:
         if debug:
             raise
         print(f"error: {exc}", file=sys.stderr)

@@ -35,7 +35,8 @@ from astropy.time import Time, TimeDelta
 from .io import atomic_path
 
 __all__ = ["LightCurve", "LightCurveFileError", "GEOMETRY_COLUMNS", "MAG_LIMIT", "TLE_VALIDITY_DAYS",
-           "read_light_curve", "write_light_curve", "light_curve_format"]
+           "iso_times", "light_curve_format", "light_curve_table", "read_light_curve", "tle_epoch", "write_table",
+           "write_light_curve"]
 
 GEOMETRY_COLUMNS = ("sun_x", "sun_y", "sun_z", "obs_x", "obs_y", "obs_z", "range_km")
 SITE_KEYS = ("site_lat_deg", "site_lon_deg", "site_alt_m")
@@ -100,14 +101,15 @@ def light_curve_format(path: str | Path) -> str:
 
 # ---------------------------------------------------------------------------------------------------- writing
 
-def _iso(times: Time):
+def iso_times(times: Time):
     """ISO UTC strings with microseconds (the resolution of :attr:`LightCurve.t`)."""
     return Time(times.utc, precision=6).isot
 
 
-def _table(lc: LightCurve, time_format: str) -> Table:
+def light_curve_table(lc: LightCurve, time_format: str = "iso") -> Table:
+    """``lc`` as an astropy table with ``time`` given as ``time_format`` (:func:`write_light_curve`)."""
     if time_format == "iso":
-        time = _iso(lc.times)
+        time = iso_times(lc.times)
     elif time_format == "mjd":
         time = lc.times.utc.mjd
     elif time_format == "seconds":
@@ -125,9 +127,23 @@ def _table(lc: LightCurve, time_format: str) -> Table:
     table = Table({name: cols[name] for name in ("time", "mag", "mag_err", *GEOMETRY_COLUMNS) if name in cols})
     meta = {k: v for k, v in lc.meta.items() if k != "epoch"}
     if time_format == "seconds":
-        meta["epoch"] = _iso(lc.start)
+        meta["epoch"] = iso_times(lc.start)
     table.meta.update(meta)
     return table
+
+
+def write_table(table: Table, path: str | Path, *, fmt: str) -> None:
+    """Write a table in the astropy format ``fmt`` (not atomic: give it a temporary path); CSV metadata becomes
+    ``# key: value`` comment lines."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # FITS: long metadata keys become HIERARCH cards, as intended
+        if fmt == "ascii.csv":
+            table = table.copy(copy_data=False)
+            table.meta = {"comments": [f"{k}: {yaml.safe_dump(v, default_flow_style=True).strip()}"
+                                       .removesuffix("\n...") for k, v in table.meta.items()]}
+            table.write(path, format=fmt, comment="# ", overwrite=True)
+        else:
+            table.write(path, format=fmt, overwrite=True)
 
 
 def write_light_curve(lc: LightCurve, path: str | Path, *, time_format: str = "iso") -> Path:
@@ -135,15 +151,9 @@ def write_light_curve(lc: LightCurve, path: str | Path, *, time_format: str = "i
     microseconds), ``"mjd"`` or ``"seconds"`` (from ``lc.start``, written as the ``epoch`` metadata)."""
     path = Path(path)
     fmt = light_curve_format(path)
-    table = _table(lc, time_format)
-    with atomic_path(path) as tmp, warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # FITS: long metadata keys become HIERARCH cards, as intended
-        if fmt == "ascii.csv":
-            table.meta = {"comments": [f"{k}: {yaml.safe_dump(v, default_flow_style=True).strip()}"
-                                       .removesuffix("\n...") for k, v in table.meta.items()]}
-            table.write(tmp, format=fmt, comment="# ", overwrite=True)
-        else:
-            table.write(tmp, format=fmt, overwrite=True)
+    table = light_curve_table(lc, time_format)
+    with atomic_path(path) as tmp:
+        write_table(table, tmp, fmt=fmt)
     return path
 
 
