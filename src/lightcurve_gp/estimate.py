@@ -1,5 +1,7 @@
 """``python -m lightcurve_gp.estimate CONFIG --model runs/<name>/model.pt``: GPUKF vs UKF on the paper's scenario.
 
+With ``--light-curve FILE`` it runs the GPUKF on a light-curve file instead (:mod:`lightcurve_gp.estimate_file`).
+
 Runs the GPUKF (trained model), the conventional UKF (renderer with ``filter.rho_assumed``), the matched-ρ UKF
 (an oracle knowing ``rho_true``) and the no-update baseline over ``--seeds`` noise realisations, prints median
 and inter-quartile RMSE per axis, and writes to ``<out>/<name>/estimate_rho<rho>/``: ``results.json``,
@@ -34,6 +36,7 @@ from .cli import (
     run_interruptible,
 )
 from .config import load_config
+from .estimate_file import add_file_arguments, run_on_file
 from .estimation import DEFAULT_ESTIMATORS, ESTIMATORS, ScenarioResult, run_estimators
 from .io import RunFolder, write_json_atomic
 from .model_store import check_model_matches, model_file_record, open_model, training_mismatch
@@ -121,6 +124,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY.PATH=VALUE",
                         help="override a config value (repeatable)")
     parser.add_argument("--out", default="runs", type=Path, help="output folder (default: runs)")
+    add_file_arguments(parser)
     add_common_arguments(parser)
     return parser
 
@@ -177,6 +181,10 @@ def _run(args: argparse.Namespace) -> int:
     apply_threads(args.threads)
     _check_numbers(args)
     cfg = load_config(args.config, args.overrides)
+    if args.light_curve is not None:  # an observed light curve: the GPUKF alone (estimate_file)
+        if args.model is None:
+            raise UserError("--model: --light-curve runs the GPUKF, which needs a trained model file")
+        return run_on_file(args, cfg, *_load_checked_model(args, cfg))
     estimators = _estimators(args.estimators, args.model is not None)
     model, model_info = _load_checked_model(args, cfg)
     check_output_root(args.out)
