@@ -1,7 +1,8 @@
 """Global start: a bank of filters from a grid over SO(3), ranked by their innovation likelihood (MMAE).
 
 No initial guess is needed: ``N`` filters (:func:`bank_attitudes`: a scrambled Sobol' set, uniform on SO(3), with
-``N ≥ 1000`` every attitude lies within about 20° of a member) start from the grid with the config's ``P0`` and run
+``N = 1024`` the nearest member of 20 000 random attitudes was 12.5° away in the median, 19.2° at the 95th
+percentile and 25.9° at most) start from the grid with the config's ``P0`` and run
 together in one batch of :func:`lightcurve_gp.ukf.run_usque` over the whole light curve. Each filter accumulates
 the Gaussian log-likelihood of its innovations,
 
@@ -10,7 +11,8 @@ the Gaussian log-likelihood of its innovations,
 and the bank's posterior weights under a uniform prior are ``w_i = exp(ℓ_i) / Σ_j exp(ℓ_j)`` — multiple-model
 adaptive estimation (Magill 1965; for light curves, Linares et al. 2014). The bank is ranked by ``ℓ``; the best
 ``keep`` filters are run again alone with the config's own settings (the bank may leave out the GP's predictive
-variance, ``bank_variance``, which at ``Pyy ≈ R`` changes little and costs most of a step) and returned.
+variance, ``bank_variance``: an ``M × M`` quadratic form per sigma point, about ``M/d`` times the arithmetic of the
+mean) and returned.
 
 With the offset state (``filter.estimate_offset``) each member starts from its own ``b0 = ỹ_0 − h(q_i)``.
 """
