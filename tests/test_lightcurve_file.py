@@ -152,7 +152,8 @@ def test_damaged_tle(tmp_path):
     broken = TLE2[:20] + "9" + TLE2[21:]  # the '.' of 211.2001 (counts 0) becomes 9: the sum mod 10 goes 2 -> 1
     meta = f"# - {{tle_line1: '{TLE1}'}}\n# - {{tle_line2: '{broken}'}}\n"
     path = write(tmp_path, iso_file(GOOD, meta))
-    assert message(path) == f"{path}: metadata tle_line2: checksum '2' does not match 1 (a damaged TLE)"
+    assert message(path) == (f"{path}: metadata tle_line2: line 2 checksum: the line sums to 1, its last digit is 2 "
+                             "(a damaged TLE)")
 
 
 def test_partial_geometry(tmp_path):

@@ -33,6 +33,7 @@ from astropy.table import Table
 from astropy.time import Time, TimeDelta
 
 from .io import atomic_path
+from .orbit import check_tle
 
 __all__ = ["LightCurve", "LightCurveFileError", "GEOMETRY_COLUMNS", "MAG_LIMIT", "TLE_VALIDITY_DAYS",
            "iso_times", "light_curve_format", "light_curve_table", "read_light_curve", "tle_epoch", "write_table",
@@ -311,22 +312,15 @@ def _geometry(table: Table, path: Path, where: _Locator) -> dict[str, np.ndarray
     return geometry
 
 
-def _tle_checksum(line: str) -> int:
-    return sum(int(c) if c.isdigit() else (1 if c == "-" else 0) for c in line[:68]) % 10
-
-
 def tle_epoch(line1: str, line2: str, path: Path | str = "") -> Time:
     """UTC epoch of a TLE after checking its two lines (numbers, lengths, checksums, parse by sgp4)."""
     from sgp4.api import Satrec
 
     for number, line in ((1, line1), (2, line2)):
-        key = f"tle_line{number}"
-        if len(line) != 69 or not line.startswith(f"{number} "):
-            raise LightCurveFileError(f"{path}: metadata {key}: not line {number} of a TLE (69 characters "
-                                      f"starting with '{number} ', got {len(line)} characters)")
-        if not line[68].isdigit() or int(line[68]) != _tle_checksum(line):
-            raise LightCurveFileError(f"{path}: metadata {key}: checksum {line[68]!r} does not match "
-                                      f"{_tle_checksum(line)} (a damaged TLE)")
+        try:
+            check_tle(line, number)
+        except ValueError as exc:
+            raise LightCurveFileError(f"{path}: metadata tle_line{number}: {exc} (a damaged TLE)") from None
     try:
         sat = Satrec.twoline2rv(line1, line2)
     except ValueError as exc:
