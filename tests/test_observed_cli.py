@@ -122,9 +122,9 @@ def test_geometry_the_renderer_cannot_use_is_refused(tmp_path, model_file, capsy
     code, folder = estimated(tmp_path, model_file, geo, "--initial-attitude=0,0,0,1")
     assert code == 2 and not folder.parent.exists()
     assert capsys.readouterr().err == (
-        f"error: {geo}: the file gives per-sample geometry columns (sun_*, obs_*, range_km), which the renderer "
-        f"cannot use yet: it renders with the config's fixed Sun and observer (geometry section); remove them from "
-        f"the file to run with the config's geometry\n")
+        f"error: {geo}: the file gives per-sample geometry columns (sun_*, obs_*, range_km), which estimate "
+        f"--light-curve does not use yet: it runs with the config's fixed Sun and observer (geometry section); remove "
+        f"them from the file to run with the config's geometry\n")
 
 
 def test_a_bad_file_is_one_line_exit_2_and_nothing_written(tmp_path, model_file, capsys):

@@ -6,7 +6,7 @@ file gives ``mag_err`` (else ``filter.measurement_noise``). It starts from a giv
 global-start bank (:mod:`lightcurve_gp.global_start`). The user has no truth, so the run is judged by its innovations:
 the NIS ``ν²/Pyy`` of a consistent filter is χ²(1), its mean over ``n`` samples lies in :func:`metrics.chi2_band`.
 
-Geometry. The renderer and the GP take the config's fixed Sun and observer (``geometry``); a file with per-sample
+Geometry. The filter on a file takes the config's fixed Sun and observer (``geometry``); a file with per-sample
 geometry columns or a TLE is refused (:func:`check_geometry_usable`) rather than run with a geometry it does not have.
 Per-sample geometry enters here: the observation model would take the body-frame Sun and observer directions per
 step (``A(q) s_k``, ``A(q) v_k``) and the range ``r_k`` (Eq. (8): ``+5 log10(r_k / r_ref)``).
@@ -35,7 +35,7 @@ __all__ = ["ObservedRun", "GeometryNotSupported", "check_geometry_usable", "file
 
 
 class GeometryNotSupported(ValueError):
-    """The file carries geometry the renderer cannot use yet."""
+    """The file carries geometry that ``estimate --light-curve`` does not use yet."""
 
 
 @dataclass
@@ -50,13 +50,14 @@ class ObservedRun:
 
 
 def check_geometry_usable(lc: LightCurve) -> None:
-    """Refuse a file whose geometry the renderer cannot use yet (module docstring)."""
+    """Refuse a file whose geometry ``estimate --light-curve`` does not use yet (module docstring)."""
     what = "per-sample geometry columns (sun_*, obs_*, range_km)" if lc.geometry is not None else \
         "a TLE (tle_line1, tle_line2)" if lc.has_tle else None
     if what is not None:
         raise GeometryNotSupported(
-            f"{lc.source}: the file gives {what}, which the renderer cannot use yet: it renders with the config's "
-            f"fixed Sun and observer (geometry section); remove them from the file to run with the config's geometry")
+            f"{lc.source}: the file gives {what}, which estimate --light-curve does not use yet: it runs with the "
+            f"config's fixed Sun and observer (geometry section); remove them from the file to run with the config's "
+            f"geometry")
 
 
 def file_inputs(cfg, lc: LightCurve) -> tuple[Tensor, Tensor, Tensor | None]:
