@@ -22,7 +22,7 @@ from lightcurve_gp.observation.fitting import gpytorch_exact_model
 from lightcurve_gp.observation.inputs import InputMap
 from lightcurve_gp.observation.kernels import lengthscale_to_theta2, theta2_to_lengthscale
 from lightcurve_gp.observation.serialization import FORMAT_VERSION, ModelFileError, build_model, load_model, save_model
-from lightcurve_gp.observation.sparse_gp import SparseGP, kmeans
+from lightcurve_gp.observation.sparse_gp import FLOAT32_VARIANCE_TOL, SparseGP, kmeans, variance_factor
 
 F64 = torch.float64
 PAPER = dict(theta1=1.0, theta2=0.25, noise_std=0.1)
@@ -281,6 +281,38 @@ def test_sparse_with_training_inputs_as_inducing_equals_exact(train, test_pts):
     mean, var = sparse.predict(*test_pts)
     torch.testing.assert_close(mean, mean_ref, rtol=0, atol=1e-6)
     torch.testing.assert_close(var, var_ref, rtol=0, atol=1e-6)
+
+
+def _sgpr_variance_float64(model: SparseGP, q, m_past):
+    """``θ1 − k*uᵀ P k*u`` in float64 from the model's saved ``z``, ``p`` (the form before the float32 factor)."""
+    from lightcurve_gp.observation.kernels import kernel_matrix, scaled
+
+    xs = scaled(model.inputs(q, m_past), model.lengthscale)
+    ks = kernel_matrix(xs, scaled(model.z, model.lengthscale), model.outputscale)
+    return model.outputscale - (ks @ model.p * ks).sum(-1)
+
+
+def test_sparse_float32_variance_agrees_with_the_float64_form(sparse, train, test_pts):
+    assert sparse.p_factor is not None and sparse.p_factor.dtype == torch.float32
+    q, m, _ = train
+    for pts in (test_pts, (q[:40], m[:40] + 0.01)):  # far from and next to the training inputs
+        var = sparse.predict(*pts)[1]
+        ref = _sgpr_variance_float64(sparse, *pts).clamp_min(0.0)
+        assert float((var - ref).abs().max()) <= FLOAT32_VARIANCE_TOL * sparse.theta1
+        assert not torch.equal(var, ref)  # the float32 path did run
+
+
+def test_variance_factor_refuses_what_float32_cannot_hold():
+    g = torch.Generator().manual_seed(3)
+    basis = torch.linalg.qr(torch.randn(40, 40, generator=g, dtype=F64))[0]
+    e = torch.rand(8, 40, generator=g, dtype=F64)
+    well = basis @ torch.diag(torch.linspace(0.1, 10.0, 40, dtype=F64)) @ basis.T
+    factor = variance_factor(well, e, 1.0)
+    torch.testing.assert_close(factor.double() @ factor.double().T, well, rtol=0, atol=1e-5)
+    # a form of size ~1e8 whose float32 rounding exceeds the tolerance, and an indefinite matrix
+    assert variance_factor(well * 1e7, e, 1.0) is None
+    indefinite = basis @ torch.diag(torch.linspace(-1.0, 10.0, 40, dtype=F64)) @ basis.T
+    assert variance_factor(indefinite, e, 1.0) is None
 
 
 def test_sparse_error_decreases_with_m(train, test_pts):
