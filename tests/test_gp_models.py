@@ -20,7 +20,13 @@ from lightcurve_gp.config import (
 from lightcurve_gp.observation.exact_gp import ExactGP, fast_variance_error
 from lightcurve_gp.observation.fitting import gpytorch_exact_model
 from lightcurve_gp.observation.inputs import InputMap
-from lightcurve_gp.observation.kernels import lengthscale_to_theta2, theta2_to_lengthscale
+from lightcurve_gp.observation.kernels import (
+    EXP_CLAMP,
+    cross_kernel_cache,
+    exp_neg_sqdist,
+    lengthscale_to_theta2,
+    theta2_to_lengthscale,
+)
 from lightcurve_gp.observation.serialization import FORMAT_VERSION, ModelFileError, build_model, load_model, save_model
 from lightcurve_gp.observation.sparse_gp import FLOAT32_VARIANCE_TOL, SparseGP, kmeans, variance_factor
 
@@ -281,6 +287,21 @@ def test_sparse_with_training_inputs_as_inducing_equals_exact(train, test_pts):
     mean, var = sparse.predict(*test_pts)
     torch.testing.assert_close(mean, mean_ref, rtol=0, atol=1e-6)
     torch.testing.assert_close(var, var_ref, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_exp_neg_sqdist_against_cdist(dtype):
+    g = torch.Generator().manual_seed(5)
+    ref = torch.randn(300, 5, generator=g, dtype=F64)
+    xs = torch.cat([ref[:4] + 0.01, 3.0 * torch.randn(3, 5, generator=g, dtype=F64)])  # near and far points
+    expected = torch.exp(-torch.cdist(xs, ref) ** 2)
+    got = exp_neg_sqdist(xs.to(dtype), cross_kernel_cache(ref.to(dtype)))
+    assert got.dtype == dtype and got.shape == (7, 300)
+    if dtype == torch.float64:
+        torch.testing.assert_close(got, expected, rtol=1e-10, atol=1e-14)
+    else:  # exponents clamped to [-EXP_CLAMP, 0]
+        torch.testing.assert_close(got.double(), expected.clamp_min(math.exp(-EXP_CLAMP)), rtol=1e-4, atol=1e-6)
+        assert float(got.min()) >= math.exp(-EXP_CLAMP) * (1 - 1e-6) and float(got.max()) <= 1.0
 
 
 def _sgpr_variance_float64(model: SparseGP, q, m_past):

@@ -79,9 +79,7 @@ class ExactGP(CachedGP):
         self.register_buffer("alpha", alpha.to(**f64))
         xs = scaled(self.x_train, self.lengthscale)
         self.register_buffer("xs_train", xs, persistent=False)
-        ref_t2, ref_sq_neg = cross_kernel_cache(xs)
-        self.register_buffer("xs_train_t2", ref_t2, persistent=False)
-        self.register_buffer("xs_sq_neg", ref_sq_neg, persistent=False)
+        self.register_buffer("xs_train_cache", cross_kernel_cache(xs), persistent=False)
         self.register_buffer("alpha_scaled", self.alpha * self.outputscale, persistent=False)  # θ1 α
         self._chol = chol  # float64 lower factor of K + σ²I (not a buffer: 3 GB at N = 19260, never saved)
 
@@ -125,7 +123,7 @@ class ExactGP(CachedGP):
 
     def _predict_sets(self, xs_sets: Tensor, variance: Variance) -> Prediction:
         """Mean ``k*ᵀα + μ`` (paper Eq. (25)) and the chosen variance of scaled test sets ``(C, S, d)``."""
-        e = exp_neg_sqdist(xs_sets.reshape(-1, xs_sets.shape[-1]), self.xs_train_t2, self.xs_sq_neg)  # k*/θ1
+        e = exp_neg_sqdist(xs_sets.reshape(-1, xs_sets.shape[-1]), self.xs_train_cache)  # k*/θ1
         mean = torch.mv(e, self.alpha_scaled).add_(self.y_mean)
         if variance == "none":
             return mean, None

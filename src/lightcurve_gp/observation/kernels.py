@@ -58,16 +58,26 @@ def _sqdist(xs1: Tensor, xs2: Tensor) -> Tensor:
     return d2.clamp_(0.0, EXP_CLAMP)
 
 
-def cross_kernel_cache(xs_ref: Tensor) -> tuple[Tensor, Tensor]:
-    """``(2 xs_refᵀ (d, R), −‖xs_ref‖² (R,))``: what :func:`exp_neg_sqdist` needs of fixed scaled inputs."""
-    return (2.0 * xs_ref).T.contiguous(), -(xs_ref * xs_ref).sum(-1)
+def cross_kernel_cache(xs_ref: Tensor) -> Tensor:
+    """``[2 xs_refᵀ; −‖xs_ref‖²; −1]`` ``(d + 2, R)``: what :func:`exp_neg_sqdist` needs of fixed scaled inputs
+    ``xs_ref (R, d)``, so that ``[xs, 1, ‖xs‖²]`` times it is ``−‖xs − xs_ref‖²`` in one matrix product."""
+    ones = torch.ones_like(xs_ref[:, :1])
+    return torch.cat([2.0 * xs_ref, -(xs_ref * xs_ref).sum(-1, keepdim=True), -ones], dim=-1).T.contiguous()
 
 
-def exp_neg_sqdist(xs: Tensor, ref_t2: Tensor, ref_sq_neg: Tensor) -> Tensor:
+def exp_neg_sqdist(xs: Tensor, ref_cache: Tensor) -> Tensor:
     """``exp(−‖xs_i − r_j‖²)`` ``(P, R)`` of scaled inputs ``xs (P, d)`` against cached references
-    (:func:`cross_kernel_cache`): one matrix product ``2 xs·r − ‖r‖²`` and three in-place passes."""
-    e = torch.addmm(ref_sq_neg, xs, ref_t2)
-    return e.sub_((xs * xs).sum(-1, keepdim=True)).clamp_(-EXP_CLAMP, 0.0).exp_()
+    (:func:`cross_kernel_cache`): one matrix product gives the exponents, one in-place pass their ``exp``.
+
+    Float64 exponents are not clamped (a rounding above 0 is ~1e-13; ``exp`` underflows to 0 without a slow path
+    down to −708, far beyond any kernel-scaled distance of this toolkit's inputs); others are clamped to
+    ``[−EXP_CLAMP, 0]`` (float32 ``exp`` below about −87 takes a slow denormal path).
+    """
+    aug = torch.cat([xs, torch.ones_like(xs[:, :1]), (xs * xs).sum(-1, keepdim=True)], dim=-1)
+    e = torch.mm(aug, ref_cache)
+    if e.dtype != torch.float64:
+        e.clamp_(-EXP_CLAMP, 0.0)
+    return e.exp_()
 
 
 def kernel_matrix(xs1: Tensor, xs2: Tensor, outputscale: float | Tensor) -> Tensor:

@@ -149,12 +149,10 @@ class SparseGP(CachedGP):
         self.register_buffer("p", p.to(**f64))
         # derived prediction buffers (not saved): the scaled inducing inputs as exp_neg_sqdist needs them, θ1 w and
         # θ1² P, so that e = exp(−‖xs − zs‖²) = k*u / θ1 gives the mean e·(θ1 w) and the quadratic form eᵀ(θ1² P)e
-        zs_t2, zs_sq_neg = cross_kernel_cache(scaled(self.z, self.lengthscale))
-        self.register_buffer("zs_t2", zs_t2, persistent=False)
-        self.register_buffer("zs_sq_neg", zs_sq_neg, persistent=False)
+        self.register_buffer("zs_cache", cross_kernel_cache(scaled(self.z, self.lengthscale)), persistent=False)
         self.register_buffer("w_scaled", self.w * self.outputscale, persistent=False)
         self.register_buffer("p_scaled", self.p * self.outputscale**2, persistent=False)
-        e_z = exp_neg_sqdist(scaled(self.z[:VARIANCE_CHECK_POINTS], self.lengthscale), zs_t2, zs_sq_neg)
+        e_z = exp_neg_sqdist(scaled(self.z[:VARIANCE_CHECK_POINTS], self.lengthscale), self.zs_cache)
         self.register_buffer("p_factor", variance_factor(self.p_scaled, e_z, self.outputscale), persistent=False)
 
     @classmethod
@@ -192,7 +190,7 @@ class SparseGP(CachedGP):
 
     def _predict_sets(self, xs_sets: Tensor, variance: Variance) -> Prediction:
         """Mean and variance (module docstring) of scaled test points ``(P, 1, d)``."""
-        e = exp_neg_sqdist(xs_sets.reshape(-1, xs_sets.shape[-1]), self.zs_t2, self.zs_sq_neg)  # k*u / θ1 (P, M)
+        e = exp_neg_sqdist(xs_sets.reshape(-1, xs_sets.shape[-1]), self.zs_cache)  # k*u / θ1 (P, M)
         mean = torch.mv(e, self.w_scaled).add_(self.y_mean)
         if variance == "none":
             return mean, None
