@@ -37,6 +37,7 @@ from .config_schema import (
     FilterConfig,
     GeometryConfig,
     ModelConfig,
+    ScenarioConfig,
 )
 
 __all__ = [
@@ -287,7 +288,8 @@ def config_from_dict(raw: dict) -> Config:
 def config_to_dict(cfg: Any) -> dict:
     """Plain nested ``dict`` of a config or one of its sections (YAML/JSON serialisable) that
     :func:`config_from_dict` reads back: the model section keeps only the settings of its own kind, and options
-    that are off (``data.surfaces`` null, ``filter.adaptive_noise`` none) are left out."""
+    that are off (``data.surfaces`` null, ``filter.adaptive_noise`` none, ``filter.estimate_omega`` false, the
+    default USQUE variant, a zero ``scenario.initial_omega_error_deg_s``) are left out."""
     out = dataclasses.asdict(cfg)
     model = out.get("model") if isinstance(cfg, Config) else out if isinstance(cfg, ModelConfig) else None
     for section in MODEL_KIND_SECTIONS if model is not None else ():
@@ -309,6 +311,13 @@ def config_to_dict(cfg: Any) -> dict:
         del model["reference_range_km"]
     if data is not None and not (body_geometry or (isinstance(cfg, DataConfig))):
         del data["phase_angle_deg"]
+    if filt is not None and not filt.get("estimate_omega", True):
+        del filt["estimate_omega"], filt["p0_omega_deg_s"], filt["omega_process_noise"]
+    if filt is not None and not filt.get("sigma_redraw", True) and filt.get("q_placement") == "both":
+        del filt["sigma_redraw"], filt["q_placement"]
+    scen = out.get("scenario") if isinstance(cfg, Config) else out if isinstance(cfg, ScenarioConfig) else None
+    if scen is not None and not any(scen.get("initial_omega_error_deg_s", [1.0])):
+        del scen["initial_omega_error_deg_s"]
     return out
 
 

@@ -231,6 +231,10 @@ class ScenarioConfig:
     rho_true: float = _spec(lo=0.0, lo_open=True, hi=1.0, doc="a reflectance of 0 renders no diffuse light")
     noise_var: float = _spec(lo=0.0, doc="variance of the magnitude noise (mag^2)")
     initial_error_deg: list[float] = _spec(length=3)
+    initial_omega_error_deg_s: list[float] = _spec([0.0, 0.0, 0.0], length=3,
+                                                   doc="body-rate error of the filters' initial rate (deg/s): "
+                                                       "omega_est,0 = omega0 + this; the omega-known filters "
+                                                       "propagate with it")
     seeds: int = _spec(lo=1)
 
 
@@ -257,6 +261,16 @@ class FilterConfig:
                                     "nu^2 - (Pyy - R)), from past innovations only")
     adaptive_noise_time_s: float = _spec(100.0, lo=0.0, lo_open=True,
                                          doc="forgetting time tau of the innovation average (s); rate dt / tau")
+    estimate_omega: bool = _spec(False, doc="carry the body rate omega in the state: [GRP error, omega, b?], every "
+                                            "sigma point propagated with its own rate (RK4, torque-free)")
+    p0_omega_deg_s: float = _spec(0.03, lo=0.0, doc="prior std of each omega component (deg/s)")
+    omega_process_noise: float = _spec(0.0, lo=0.0, doc="variance added to each omega component per step "
+                                                        "((rad/s)^2, a torque noise)")
+    sigma_redraw: bool = _spec(False, doc="update with sigma points drawn again from the prior (the paper) "
+                                          "instead of the propagated ones (Crassidis & Markley)")
+    q_placement: str = _spec("both", choices=("both", "after"),
+                             doc="process noise added to P+ before the sigma points and to P- (both; Crassidis & "
+                                 "Markley) or once to P- after the propagation (after; the paper)")
 
 
 @dataclass(kw_only=True)
