@@ -178,6 +178,12 @@ def _cross_check(cfg: Config) -> None:
         raise ConfigError(f"filter.estimate_offset: {str(cfg.filter.estimate_offset).lower()} needs model.target: "
                           f"{'rho_normalised or surface_normalised' if cfg.filter.estimate_offset else 'magnitude'} "
                           f"(got {cfg.model.target})")
+    if cfg.filter.estimate_omega and cfg.model.inputs == "quaternion":
+        raise ConfigError("filter.estimate_omega: true needs an attitude-only GP (model.inputs: attitude_matrix); "
+                          "the [q, m_app_past] GP learned m_app_past at the one spin data.omega0_deg_s")
+    if cfg.filter.estimate_omega and cfg.geometry.kind == "orbit":
+        raise ConfigError("filter.estimate_omega: not supported along a pass (geometry.kind: orbit) yet: the rate "
+                          "filter steps a fixed scenario.dt_s")
     _check_training_surfaces(cfg)
     _check_geometry(cfg)
     if cfg.model.inputs == "body_geometry" and cfg.data.surfaces is not None:

@@ -172,6 +172,8 @@ def _check_run_inputs(q_est0: Tensor, P0: Tensor, offset0: Tensor | None, theta0
     T = observations.shape[1] - 1
     if T < 0:
         raise ValueError("observations must hold at least t_0")
+    if (increments is None) == (omega0 is None):
+        raise ValueError("give increments (omega known) or omega0 (omega estimated), not both or neither")
     n = layout.dim
     if P0.shape not in ((n, n), (B, n, n)):
         names = ["dp"] + ["omega"] * layout.omega + ["b"] * layout.offset \
@@ -187,8 +189,6 @@ def _check_run_inputs(q_est0: Tensor, P0: Tensor, offset0: Tensor | None, theta0
         raise ValueError(f"omega0 must have shape (B={B}, 3) or (3,), got {tuple(omega0.shape)}")
     if m_past0.shape not in ((B,), ()):
         raise ValueError(f"m_past0 must have shape (B={B},), got {tuple(m_past0.shape)}")
-    if (increments is None) == (omega0 is None):
-        raise ValueError("give increments (omega known) or omega0 (omega estimated), not both or neither")
     if increments is not None and increments.shape not in ((T, 4), (B, T, 4)):
         raise ValueError(f"increments must have shape (T={T}, 4) or (B={B}, T={T}, 4), got {tuple(increments.shape)}")
     named = [("q_est0", q_est0), ("P0", P0), ("offset0", offset0), ("theta0", theta0), ("omega0", omega0),
