@@ -115,7 +115,9 @@ class ScenarioResult:
         """Plain-python summary: per estimator median and IQR of the RMSE per axis over the seeds
         (:func:`~lightcurve_gp.reporting.quantiles`, NaN ignored), light-curve RMSE, NEES and timing."""
         out = {"rho_true": self.scenario.rho_true, "seeds": len(self.scenario.seeds), "window_s": list(self.window),
-               "nees_band_95": list(self.nees_band()), "estimators": {}}
+               "nees_band_95": list(self.nees_band()), "estimators": {},
+               "omega_estimated": any(r.history is not None and r.history.omega is not None
+                                      for r in self.results.values())}
         S = len(self.scenario.seeds)
         for name, r in self.results.items():
             per_axis = [quantiles(r.rmse_deg[:, i]) for i in range(3)]
