@@ -10,6 +10,10 @@ prior stds run at durations above 600 s). Estimators:
 * the same two with ω known exactly (``… ω known`` rows: the references of the goal);
 * ``no_update`` — the initial estimate propagated with the wrong initial rate.
 
+Once, at σ_ω = 0.03 °/s, 600 s and the first ρ_true, the matched-ρ UKF with ω is run again with a filter inertia
+10 % off the truth's on each axis (``INERTIA_ERRORS``, ±10 % in alternating signs: a common scale would not change
+the torque-free ω(t)).
+
 Nothing is tuned here: every filter setting is the robust config's (no ω process noise: the truth is torque-free);
 the noise seeds start at ``--seed-start`` (200: the robust config's process noise was chosen on seeds 100-199).
 Every case runs through the sweep machinery (resumable: a rerun reuses finished cases), on the local pool or dask.
@@ -38,6 +42,7 @@ from lightcurve_gp.sweep import EXECUTORS, make_executor, run_sweep
 ROOT = Path(__file__).resolve().parents[1]
 ESTIMATORS_UNKNOWN = ("gpukf", "matched_ukf", "no_update")
 ESTIMATORS_KNOWN = ("gpukf", "matched_ukf")
+INERTIA_ERRORS = ((1.1, 0.9, 1.1), (0.9, 1.1, 0.9))
 GOAL = {"sigma": 0.03, "ratio": 1.5, "fraction": 0.8, "final_omega_deg_s": 0.005}
 HEADER = ("estimator", "yaw", "pitch", "roll", "< 10° all axes", "NEES δp (band)", "NEES full (band)",
           "ω RMSE °/s", "final ω error °/s", "ms / step")
@@ -75,8 +80,9 @@ def case_overrides(duration: float, sigma: float | None) -> list[str]:
     return out
 
 
-def run_all(raw: dict, args) -> dict[tuple[float, float | None], dict[float, CaseRecord]]:
-    """Every sweep on one executor: ``{(duration, σ_ω or None): {ρ_true: record}}``."""
+def run_all(raw: dict, args) -> tuple[dict[tuple[float, float | None], dict[float, CaseRecord]], dict]:
+    """Every sweep on one executor: ``{(duration, σ_ω or None): {ρ_true: record}}`` and the inertia-error records
+    ``{error factors: record}``."""
     seeds = range(args.seed_start, args.seed_start + args.seeds)
     columns = [(d, s) for d in args.durations for s in [None, *(args.sigmas if d <= 600 else args.long_sigmas)]]
     out = {}
@@ -91,7 +97,19 @@ def run_all(raw: dict, args) -> dict[tuple[float, float | None], dict[float, Cas
             for cid in res.failed:
                 print(f"   case {cid} failed: {res.records[cid].error}", file=sys.stderr)
             out[(duration, sigma)] = {rho: res.record(**{"scenario.rho_true": rho}) for rho in args.rhos}
-    return out
+        inertia = inertia_error(raw, args, ex, seeds)
+    return out, inertia
+
+
+def inertia_error(raw: dict, args, executor, seeds) -> dict[tuple, CaseRecord]:
+    """The matched-ρ UKF with ω at σ_ω = 0.03 °/s, 600 s, ρ_true = ``args.rhos[0]``, assuming a wrong inertia."""
+    J = raw["shape"]["inertia_kg_m2"]
+    values = [[round(j * e, 6) for j, e in zip(J, err)] for err in INERTIA_ERRORS]
+    res = run_sweep(apply_overrides(raw, [*case_overrides(600.0, GOAL["sigma"]), f"scenario.rho_true={args.rhos[0]}"]),
+                    [("filter.inertia_kg_m2", values)], seeds, out=args.out, sweep_id="spin_600s_inertia",
+                    workers=args.workers, threads=args.threads, estimators=["matched_ukf"],
+                    progress=not args.no_progress, executor=executor)
+    return {err: res.record(**{"filter.inertia_kg_m2": v}) for err, v in zip(INERTIA_ERRORS, values)}
 
 
 def _band(entry: dict, key: str, band_key: str) -> str:
@@ -113,9 +131,16 @@ def table_row(label: str, record: CaseRecord, name: str) -> list[str]:
             format_quantiles(final, 4), f"{1e3 * e['seconds_per_step']:.1f}"]
 
 
-def tables(records: dict, args) -> tuple[list[str], dict]:
-    """One Markdown table per (duration, ρ_true) and the goal check at σ_ω = 0.03 °/s."""
+def tables(records: dict, inertia: dict, args) -> tuple[list[str], dict]:
+    """One Markdown table per (duration, ρ_true), the inertia-error table and the goal check at σ_ω = 0.03 °/s."""
     lines, goals = [], {}
+    base = records.get((600.0, GOAL["sigma"]), {}).get(args.rhos[0])
+    if base is not None and inertia:
+        rows = [table_row("matched_ukf, inertia exact", base, "matched_ukf")]
+        rows += [table_row(f"matched_ukf, inertia × ({', '.join(f'{e:g}' for e in err)})", rec, "matched_ukf")
+                 for err, rec in inertia.items()]
+        lines += [f"\n#### Inertia error: 600 s, σ_ω = {GOAL['sigma']:g} °/s, ρ_true = {args.rhos[0]:g} "
+                  f"({args.seeds} seeds from {args.seed_start})\n", markdown_table(HEADER, rows).rstrip("\n")]
     for duration in args.durations:
         for rho in args.rhos:
             known = records[(duration, None)][rho]
@@ -168,14 +193,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     apply_threads(args.threads)
     start = time.perf_counter()
     raw = apply_overrides(load_raw_config(args.config), ["name=spin_unknown"])
-    records = run_all(raw, args)
-    lines, goals = tables(records, args)
+    records, inertia = run_all(raw, args)
+    lines, goals = tables(records, inertia, args)
     names = figures(records, args)
     seconds = time.perf_counter() - start
     write_text_atomic("\n".join(lines) + "\n", args.results / "tables.md")
     write_json_atomic({"goals_sigma_0.03": goals, "seconds": seconds, "figures": names, "argv": sys.argv[1:],
                        "summaries": {f"{d:g}s_{'known' if s is None else f'sigma{s:g}'}_rho{rho:g}": r.summary
-                                     for (d, s), by_rho in records.items() for rho, r in by_rho.items()}},
+                                     for (d, s), by_rho in records.items() for rho, r in by_rho.items()},
+                       "inertia_error": {str(err): r.summary for err, r in inertia.items()}},
                       args.results / "summary.json")
     print("\n".join(lines))
     print(f"\ngoals at sigma_omega = 0.03 deg/s: {goals}\n{seconds:.0f} s", file=sys.stderr)

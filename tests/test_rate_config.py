@@ -20,6 +20,7 @@ ROBUST = "configs/boxwing_robust.yaml"
     ("filter.omega_process_noise=-1e-12", "filter.omega_process_noise"),
     ("filter.q_placement=before", "filter.q_placement"),
     ("filter.sigma_redraw=sometimes", "filter.sigma_redraw"),
+    ("filter.inertia_kg_m2=[50, 0, 30]", r"filter.inertia_kg_m2\[1\]"),
     ("scenario.initial_omega_error_deg_s=[0.1, 0.2]", "scenario.initial_omega_error_deg_s"),
 ])
 def test_bad_rate_settings_name_their_key(override, message):
@@ -37,7 +38,8 @@ def test_off_options_leave_the_keys_and_the_model_key_unchanged():
     on = load_config(ROBUST, overrides=["filter.estimate_omega=true", "filter.sigma_redraw=true",
                                         "scenario.initial_omega_error_deg_s=[0.03, -0.03, 0.03]"])
     d = config_to_dict(base)
-    for key in ("estimate_omega", "p0_omega_deg_s", "omega_process_noise", "sigma_redraw", "q_placement"):
+    for key in ("estimate_omega", "p0_omega_deg_s", "omega_process_noise", "sigma_redraw", "q_placement",
+                "inertia_kg_m2"):
         assert key not in d["filter"]
     assert "initial_omega_error_deg_s" not in d["scenario"]
     d_on = config_to_dict(on)
@@ -54,6 +56,8 @@ def test_params_and_prior_from_config_in_code_units():
     p = UsqueParams.from_config(cfg)
     assert (p.omega_process_noise, p.inertia, p.dt, p.q_placement, p.sigma_redraw) == \
         (1e-12, (50.0, 40.0, 30.0), 2.0, "after", False)
+    assumed = load_config(ROBUST, overrides=["filter.inertia_kg_m2=[60.5, 36, 71.5]"])
+    assert UsqueParams.from_config(assumed).inertia == (60.5, 36.0, 71.5)
     P0 = prior_covariance(cfg, offset=True, dtype=torch.float64)
     assert P0.shape == (7, 7)
     expected = [math.radians(10.0) ** 2] * 3 + [math.radians(0.1) ** 2] * 3 + [1.0]

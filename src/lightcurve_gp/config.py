@@ -317,6 +317,8 @@ def config_to_dict(cfg: Any) -> dict:
         del model["reference_range_km"]
     if data is not None and not (body_geometry or (isinstance(cfg, DataConfig))):
         del data["phase_angle_deg"]
+    if filt is not None and filt.get("inertia_kg_m2", 0) is None:
+        del filt["inertia_kg_m2"]
     if filt is not None and not filt.get("estimate_omega", True):
         del filt["estimate_omega"], filt["p0_omega_deg_s"], filt["omega_process_noise"]
     if filt is not None and not filt.get("sigma_redraw", True) and filt.get("q_placement") == "both":

@@ -266,6 +266,9 @@ class FilterConfig:
     p0_omega_deg_s: float = _spec(0.03, lo=0.0, doc="prior std of each omega component (deg/s)")
     omega_process_noise: float = _spec(0.0, lo=0.0, doc="variance added to each omega component per step "
                                                         "((rad/s)^2, a torque noise)")
+    inertia_kg_m2: list[float] | None = _spec(None, lo=0.0, lo_open=True, length=3,
+                                              doc="principal moments the rate filter assumes; null: "
+                                                  "shape.inertia_kg_m2 (the truth's)")
     sigma_redraw: bool = _spec(False, doc="update with sigma points drawn again from the prior (the paper) "
                                           "instead of the propagated ones (Crassidis & Markley)")
     q_placement: str = _spec("both", choices=("both", "after"),

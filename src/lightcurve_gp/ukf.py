@@ -137,7 +137,8 @@ class UsqueParams:
         """Parameters of a :class:`~lightcurve_gp.config.Config`: its ``filter`` section (``Q = process_noise · I``),
         ``data.t_span_past``, ``model.variance`` (``"none"`` unless ``filter.add_model_variance``) and the adaptive
         noise rule with ``λ = min(1, scenario.dt_s / filter.adaptive_noise_time_s)``, the rate filter's
-        ``filter.omega_process_noise``, ``shape.inertia_kg_m2`` and ``scenario.dt_s``, and the variant
+        ``filter.omega_process_noise``, ``filter.inertia_kg_m2`` (default ``shape.inertia_kg_m2``) and
+        ``scenario.dt_s``, and the variant
         (``filter.sigma_redraw``, ``filter.q_placement``)."""
         f = cfg.filter
         return cls(
@@ -146,7 +147,8 @@ class UsqueParams:
             variance=cfg.model.variance if f.add_model_variance else "none", t_span_past=float(cfg.data.t_span_past),
             offset_process_noise=float(f.offset_process_noise), adaptive_noise=f.adaptive_noise,
             adaptive_noise_rate=min(1.0, float(cfg.scenario.dt_s) / float(f.adaptive_noise_time_s)),
-            omega_process_noise=float(f.omega_process_noise), inertia=tuple(float(j) for j in cfg.shape.inertia_kg_m2),
+            omega_process_noise=float(f.omega_process_noise),
+            inertia=tuple(float(j) for j in (f.inertia_kg_m2 or cfg.shape.inertia_kg_m2)),
             dt=float(cfg.scenario.dt_s), sigma_redraw=bool(f.sigma_redraw), q_placement=f.q_placement,
         )
 
