@@ -38,6 +38,7 @@ from .config_schema import (
     GeometryConfig,
     ModelConfig,
     ScenarioConfig,
+    SpinRangeConfig,
 )
 
 __all__ = [
@@ -97,7 +98,7 @@ def _convert(path: str, annotation: Any, value: Any, meta: dict) -> Any:
         if value is None and type(None) in args:
             return None
         inner = [a for a in args if a is not type(None)]
-        return _convert(path, inner[0], value, meta)
+        return _convert(path, _union_member(inner, value), value, meta)
     if value is None:
         raise ConfigError(f"{path}: a value is required, got null")
     if dataclasses.is_dataclass(annotation):
@@ -124,6 +125,33 @@ def _convert(path: str, annotation: Any, value: Any, meta: dict) -> Any:
             raise ConfigError(f"{path}: {value!r} is not one of {', '.join(choices)}")
         return value
     raise TypeError(f"unsupported annotation {annotation!r} at {path}")  # a bug in this module, not user input
+
+
+def _union_member(inner: list, value: Any) -> Any:
+    """The member of a union a value is read as: a dataclass for a mapping, a list of lists for a list whose first
+    element is a list, else the first member."""
+    if isinstance(value, dict):
+        return next((a for a in inner if dataclasses.is_dataclass(a)), inner[0])
+    nested = isinstance(value, (list, tuple)) and bool(value) and isinstance(value[0], (list, tuple))
+    if nested:
+        return next((a for a in inner if typing.get_args(a) and typing.get_origin(typing.get_args(a)[0]) is list),
+                    inner[0])
+    return inner[0]
+
+
+def _check_training_spins(cfg: Config) -> None:
+    """``data.omega0_deg_s``: three numbers, a non-empty list of three-number rates, or a range with low <= high."""
+    spins = cfg.data.omega0_deg_s
+    if isinstance(spins, SpinRangeConfig):
+        for axis, (lo, hi) in enumerate(zip(spins.low, spins.high)):
+            if not lo <= hi:
+                raise ConfigError(f"data.omega0_deg_s.low[{axis}]: {lo:g} is above high {hi:g}")
+    elif spins and isinstance(spins[0], list):
+        for i, rate in enumerate(spins):
+            if len(rate) != 3:
+                raise ConfigError(f"data.omega0_deg_s[{i}]: expected 3 values, got {len(rate)}")
+    elif len(spins) != 3:
+        raise ConfigError(f"data.omega0_deg_s: expected 3 values (or a list of rates, or a range), got {len(spins)}")
 
 
 def _build(cls: type, raw: Any, prefix: str = "") -> Any:
@@ -178,9 +206,13 @@ def _cross_check(cfg: Config) -> None:
         raise ConfigError(f"filter.estimate_offset: {str(cfg.filter.estimate_offset).lower()} needs model.target: "
                           f"{'rho_normalised or surface_normalised' if cfg.filter.estimate_offset else 'magnitude'} "
                           f"(got {cfg.model.target})")
-    if cfg.filter.estimate_omega and cfg.model.inputs == "quaternion":
-        raise ConfigError("filter.estimate_omega: true needs an attitude-only GP (model.inputs: attitude_matrix); "
-                          "the [q, m_app_past] GP learned m_app_past at the one spin data.omega0_deg_s")
+    _check_training_spins(cfg)
+    single_spin = not isinstance(cfg.data.omega0_deg_s, SpinRangeConfig) and not isinstance(cfg.data.omega0_deg_s[0],
+                                                                                           list)
+    if cfg.filter.estimate_omega and cfg.model.inputs == "quaternion" and single_spin:
+        raise ConfigError("filter.estimate_omega: true needs an attitude-only GP (model.inputs: attitude_matrix) or a "
+                          "[q, m_app_past] GP trained over many spins (data.omega0_deg_s a list or a range): this one "
+                          "learned m_app_past at the one spin data.omega0_deg_s")
     if cfg.filter.estimate_omega and cfg.geometry.kind == "orbit":
         raise ConfigError("filter.estimate_omega: not supported along a pass (geometry.kind: orbit) yet: the rate "
                           "filter steps a fixed scenario.dt_s")

@@ -20,6 +20,7 @@ __all__ = [
     "SurfaceConfig",
     "DataConfig",
     "TrainingSurfacesConfig",
+    "SpinRangeConfig",
     "ModelConfig",
     "ExactModelConfig",
     "SparseModelConfig",
@@ -139,6 +140,16 @@ class TrainingSurfacesConfig:
 
 
 @dataclass(kw_only=True)
+class SpinRangeConfig:
+    """A range of initial body rates for the training set (``data.omega0_deg_s: {low: [...], high: [...]}``): each
+    training attitude gets its own rate, uniform per axis between ``low`` and ``high`` (deg/s), drawn from
+    ``data.seed``."""
+
+    low: list[float] = _spec(length=3, doc="lower bound per body axis (deg/s)")
+    high: list[float] = _spec(length=3, doc="upper bound per body axis (deg/s)")
+
+
+@dataclass(kw_only=True)
 class DataConfig:
     """Training set of the GP observation model (paper section 3.2)."""
 
@@ -150,7 +161,9 @@ class DataConfig:
     seed: int = _spec(0, lo=0)
     drop_duplicates: bool = _spec(False)
     quaternion_sign: str = _spec("as_is", choices=("as_is", "canonical", "both"))
-    omega0_deg_s: list[float] = _spec(length=3)
+    omega0_deg_s: list[float] | list[list[float]] | SpinRangeConfig = _spec(
+        doc="initial body rate of the training trajectories (deg/s): one rate [x, y, z]; a list of rates, attitude i "
+            "taking rate i mod K; or a range {low: [...], high: [...]}, one uniform draw per attitude")
     dt_s: float = _spec(lo=0.0, lo_open=True)
     t_span_past: float = _spec(lo=0.0, lo_open=True, doc="seconds averaged into m_app_past")
     heldout_size: int = _spec(2000, lo=1)
