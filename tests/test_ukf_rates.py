@@ -103,7 +103,7 @@ def test_every_sigma_point_moves_as_dynamics_propagate_moves_it():
     P = block_diag_P0(initial_covariance(5.0, dtype=DT), math.radians(0.5) ** 2)
     params = UsqueParams(Q=0.0, variance="none", dt=2.0)
     run = _run_constants(params, StateLayout(omega=True), ToyModel(), B, q_hat)
-    state = FilterState(q_hat, None, P.expand(B, 6, 6), torch.zeros(B, dtype=DT), None, omega_hat)
+    state = FilterState(q_hat, None, P.expand(B, 6, 6), torch.zeros(B, dtype=DT), omega=omega_hat)
     prior = rate_prior(run, state)
     # the sigma points before propagation, as the prior draws them
     chi = sigma_points(torch.zeros(B, 6, dtype=DT), P.expand(B, 6, 6), run.scale - 6, warn=False)[0]
