@@ -37,6 +37,8 @@ from .config_schema import (
     FilterConfig,
     GeometryConfig,
     ModelConfig,
+    ScenarioConfig,
+    SpinRangeConfig,
 )
 
 __all__ = [
@@ -96,7 +98,7 @@ def _convert(path: str, annotation: Any, value: Any, meta: dict) -> Any:
         if value is None and type(None) in args:
             return None
         inner = [a for a in args if a is not type(None)]
-        return _convert(path, inner[0], value, meta)
+        return _convert(path, _union_member(inner, value), value, meta)
     if value is None:
         raise ConfigError(f"{path}: a value is required, got null")
     if dataclasses.is_dataclass(annotation):
@@ -123,6 +125,33 @@ def _convert(path: str, annotation: Any, value: Any, meta: dict) -> Any:
             raise ConfigError(f"{path}: {value!r} is not one of {', '.join(choices)}")
         return value
     raise TypeError(f"unsupported annotation {annotation!r} at {path}")  # a bug in this module, not user input
+
+
+def _union_member(inner: list, value: Any) -> Any:
+    """The member of a union a value is read as: a dataclass for a mapping, a list of lists for a list whose first
+    element is a list, else the first member."""
+    if isinstance(value, dict):
+        return next((a for a in inner if dataclasses.is_dataclass(a)), inner[0])
+    nested = isinstance(value, (list, tuple)) and bool(value) and isinstance(value[0], (list, tuple))
+    if nested:
+        return next((a for a in inner if typing.get_args(a) and typing.get_origin(typing.get_args(a)[0]) is list),
+                    inner[0])
+    return inner[0]
+
+
+def _check_training_spins(cfg: Config) -> None:
+    """``data.omega0_deg_s``: three numbers, a non-empty list of three-number rates, or a range with low <= high."""
+    spins = cfg.data.omega0_deg_s
+    if isinstance(spins, SpinRangeConfig):
+        for axis, (lo, hi) in enumerate(zip(spins.low, spins.high)):
+            if not lo <= hi:
+                raise ConfigError(f"data.omega0_deg_s.low[{axis}]: {lo:g} is above high {hi:g}")
+    elif spins and isinstance(spins[0], list):
+        for i, rate in enumerate(spins):
+            if len(rate) != 3:
+                raise ConfigError(f"data.omega0_deg_s[{i}]: expected 3 values, got {len(rate)}")
+    elif len(spins) != 3:
+        raise ConfigError(f"data.omega0_deg_s: expected 3 values (or a list of rates, or a range), got {len(spins)}")
 
 
 def _build(cls: type, raw: Any, prefix: str = "") -> Any:
@@ -177,6 +206,16 @@ def _cross_check(cfg: Config) -> None:
         raise ConfigError(f"filter.estimate_offset: {str(cfg.filter.estimate_offset).lower()} needs model.target: "
                           f"{'rho_normalised or surface_normalised' if cfg.filter.estimate_offset else 'magnitude'} "
                           f"(got {cfg.model.target})")
+    _check_training_spins(cfg)
+    single_spin = not isinstance(cfg.data.omega0_deg_s, SpinRangeConfig) and not isinstance(cfg.data.omega0_deg_s[0],
+                                                                                           list)
+    if cfg.filter.estimate_omega and cfg.model.inputs == "quaternion" and single_spin:
+        raise ConfigError("filter.estimate_omega: true needs an attitude-only GP (model.inputs: attitude_matrix) or a "
+                          "[q, m_app_past] GP trained over many spins (data.omega0_deg_s a list or a range): this one "
+                          "learned m_app_past at the one spin data.omega0_deg_s")
+    if cfg.filter.estimate_omega and cfg.geometry.kind == "orbit":
+        raise ConfigError("filter.estimate_omega: not supported along a pass (geometry.kind: orbit) yet: the rate "
+                          "filter steps a fixed scenario.dt_s")
     _check_training_surfaces(cfg)
     _check_geometry(cfg)
     if cfg.model.inputs == "body_geometry" and cfg.data.surfaces is not None:
@@ -287,7 +326,8 @@ def config_from_dict(raw: dict) -> Config:
 def config_to_dict(cfg: Any) -> dict:
     """Plain nested ``dict`` of a config or one of its sections (YAML/JSON serialisable) that
     :func:`config_from_dict` reads back: the model section keeps only the settings of its own kind, and options
-    that are off (``data.surfaces`` null, ``filter.adaptive_noise`` none) are left out."""
+    that are off (``data.surfaces`` null, ``filter.adaptive_noise`` none, ``filter.estimate_omega`` false, the
+    default USQUE variant, a zero ``scenario.initial_omega_error_deg_s``) are left out."""
     out = dataclasses.asdict(cfg)
     model = out.get("model") if isinstance(cfg, Config) else out if isinstance(cfg, ModelConfig) else None
     for section in MODEL_KIND_SECTIONS if model is not None else ():
@@ -309,6 +349,15 @@ def config_to_dict(cfg: Any) -> dict:
         del model["reference_range_km"]
     if data is not None and not (body_geometry or (isinstance(cfg, DataConfig))):
         del data["phase_angle_deg"]
+    if filt is not None and filt.get("inertia_kg_m2", 0) is None:
+        del filt["inertia_kg_m2"]
+    if filt is not None and not filt.get("estimate_omega", True):
+        del filt["estimate_omega"], filt["p0_omega_deg_s"], filt["omega_process_noise"]
+    if filt is not None and not filt.get("sigma_redraw", True) and filt.get("q_placement") == "both":
+        del filt["sigma_redraw"], filt["q_placement"]
+    scen = out.get("scenario") if isinstance(cfg, Config) else out if isinstance(cfg, ScenarioConfig) else None
+    if scen is not None and not any(scen.get("initial_omega_error_deg_s", [1.0])):
+        del scen["initial_omega_error_deg_s"]
     return out
 
 

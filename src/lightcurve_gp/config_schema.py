@@ -20,6 +20,7 @@ __all__ = [
     "SurfaceConfig",
     "DataConfig",
     "TrainingSurfacesConfig",
+    "SpinRangeConfig",
     "ModelConfig",
     "ExactModelConfig",
     "SparseModelConfig",
@@ -139,6 +140,16 @@ class TrainingSurfacesConfig:
 
 
 @dataclass(kw_only=True)
+class SpinRangeConfig:
+    """A range of initial body rates for the training set (``data.omega0_deg_s: {low: [...], high: [...]}``): each
+    training attitude gets its own rate, uniform per axis between ``low`` and ``high`` (deg/s), drawn from
+    ``data.seed``."""
+
+    low: list[float] = _spec(length=3, doc="lower bound per body axis (deg/s)")
+    high: list[float] = _spec(length=3, doc="upper bound per body axis (deg/s)")
+
+
+@dataclass(kw_only=True)
 class DataConfig:
     """Training set of the GP observation model (paper section 3.2)."""
 
@@ -150,7 +161,9 @@ class DataConfig:
     seed: int = _spec(0, lo=0)
     drop_duplicates: bool = _spec(False)
     quaternion_sign: str = _spec("as_is", choices=("as_is", "canonical", "both"))
-    omega0_deg_s: list[float] = _spec(length=3)
+    omega0_deg_s: list[float] | list[list[float]] | SpinRangeConfig = _spec(
+        doc="initial body rate of the training trajectories (deg/s): one rate [x, y, z]; a list of rates, attitude i "
+            "taking rate i mod K; or a range {low: [...], high: [...]}, one uniform draw per attitude")
     dt_s: float = _spec(lo=0.0, lo_open=True)
     t_span_past: float = _spec(lo=0.0, lo_open=True, doc="seconds averaged into m_app_past")
     heldout_size: int = _spec(2000, lo=1)
@@ -231,6 +244,10 @@ class ScenarioConfig:
     rho_true: float = _spec(lo=0.0, lo_open=True, hi=1.0, doc="a reflectance of 0 renders no diffuse light")
     noise_var: float = _spec(lo=0.0, doc="variance of the magnitude noise (mag^2)")
     initial_error_deg: list[float] = _spec(length=3)
+    initial_omega_error_deg_s: list[float] = _spec([0.0, 0.0, 0.0], length=3,
+                                                   doc="body-rate error of the filters' initial rate (deg/s): "
+                                                       "omega_est,0 = omega0 + this; the omega-known filters "
+                                                       "propagate with it")
     seeds: int = _spec(lo=1)
 
 
@@ -257,6 +274,19 @@ class FilterConfig:
                                     "nu^2 - (Pyy - R)), from past innovations only")
     adaptive_noise_time_s: float = _spec(100.0, lo=0.0, lo_open=True,
                                          doc="forgetting time tau of the innovation average (s); rate dt / tau")
+    estimate_omega: bool = _spec(False, doc="carry the body rate omega in the state: [GRP error, omega, b?], every "
+                                            "sigma point propagated with its own rate (RK4, torque-free)")
+    p0_omega_deg_s: float = _spec(0.03, lo=0.0, doc="prior std of each omega component (deg/s)")
+    omega_process_noise: float = _spec(0.0, lo=0.0, doc="variance added to each omega component per step "
+                                                        "((rad/s)^2, a torque noise)")
+    inertia_kg_m2: list[float] | None = _spec(None, lo=0.0, lo_open=True, length=3,
+                                              doc="principal moments the rate filter assumes; null: "
+                                                  "shape.inertia_kg_m2 (the truth's)")
+    sigma_redraw: bool = _spec(False, doc="update with sigma points drawn again from the prior (the paper) "
+                                          "instead of the propagated ones (Crassidis & Markley)")
+    q_placement: str = _spec("both", choices=("both", "after"),
+                             doc="process noise added to P+ before the sigma points and to P- (both; Crassidis & "
+                                 "Markley) or once to P- after the propagation (after; the paper)")
 
 
 @dataclass(kw_only=True)

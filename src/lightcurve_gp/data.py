@@ -1,7 +1,8 @@
 """Training sets of the GP observation model (paper section 3.2), cached on disk by content hash.
 
 Each training point is one short torque-free trajectory from an initial attitude ``q(0)`` with the config's
-``data.omega0_deg_s``, sampled every ``dt`` from ``0`` to ``T = t_span_past``, rendered with one reflectance ρ:
+``data.omega0_deg_s`` (one rate, a list of rates taken in turn, or a range drawn per attitude:
+:func:`training_rates`), sampled every ``dt`` from ``0`` to ``T = t_span_past``, rendered with one reflectance ρ:
 
 * ``q      = q(T)``                          — attitude at the end of the window (GP input);
 * ``m_past = mean(m_app(t) for t = 0, dt, …, T − dt)`` — the ``T/dt`` samples strictly *before* the end;
@@ -23,13 +24,14 @@ from torch import Tensor
 from tqdm.auto import tqdm
 
 from .attitudes import grid_attitudes, icosphere_axes, random_attitudes, sobol_attitudes
-from .config import Config, DataConfig, ModelConfig, content_hash
+from .config import Config, DataConfig, ModelConfig, SpinRangeConfig, content_hash
 from .dynamics import propagate
 from .io import save_torch_atomic
 from .render import Scene
 from .rotations import quat_canonical
 
-__all__ = ["TrainingSet", "initial_attitudes", "training_scene", "drop_duplicate_attitudes", "window_samples",
+__all__ = ["TrainingSet", "initial_attitudes", "training_scene", "drop_duplicate_attitudes", "training_rates",
+           "window_samples",
            "generate_training_set", "generate_heldout_set", "load_or_generate", "normalised_targets",
            "model_targets", "data_cache_key", "DATA_FORMAT_VERSION"]
 
@@ -107,13 +109,30 @@ def initial_attitudes(data: DataConfig, dtype=torch.float64, device=None) -> Ten
     return q
 
 
+def training_rates(data: DataConfig, count: int, *, dtype=None, device=None) -> Tensor:
+    """Initial body rates (rad/s) of ``count`` training trajectories from ``data.omega0_deg_s``: ``(3,)`` for one
+    rate (shared), else ``(count, 3)``: attitude ``i`` takes rate ``i mod K`` of a list, or a uniform draw per axis
+    in a range (generator seeded with ``data.seed``, so the draws are reproducible)."""
+    spins = data.omega0_deg_s
+    if isinstance(spins, SpinRangeConfig):
+        low, high = (torch.tensor(b, dtype=torch.float64) for b in (spins.low, spins.high))
+        u = torch.rand(count, 3, generator=torch.Generator().manual_seed(int(data.seed)), dtype=torch.float64)
+        deg = low + (high - low) * u
+    elif isinstance(spins[0], list):
+        rates = torch.tensor(spins, dtype=torch.float64)
+        deg = rates[torch.arange(count) % rates.shape[0]]
+    else:
+        deg = torch.tensor(spins, dtype=torch.float64)
+    return torch.deg2rad(deg).to(dtype=dtype, device=device)
+
+
 def window_samples(scene: Scene, q0: Tensor, rho: Tensor, data: DataConfig, inertia: Tensor,
                    chunk: int = 4096, progress: bool = False) -> TrainingSet:
     """Propagate, render and window trajectories into training points (see the module docstring).
 
     Args:
         scene: renderer with the object's facets and the Sun/observer geometry.
-        q0: initial attitudes ``(A, 4)``.
+        q0: initial attitudes ``(A, 4)``; each starts with its rate of :func:`training_rates`.
         rho: reflectances, ``(R, 1)`` to render every attitude with every ρ (``N = R · A`` points, ρ-major),
             or ``(A,)`` to render attitude ``i`` with ``rho[i]`` (``N = A``).
         data: the ``data`` config section (ω0 in deg/s, dt, t_span_past, quaternion_sign).
@@ -124,14 +143,15 @@ def window_samples(scene: Scene, q0: Tensor, rho: Tensor, data: DataConfig, iner
     Trajectories with a zero-flux sample (no magnitude) are dropped and counted in ``dropped``.
     """
     n_steps = _window_steps(data)
-    omega0 = torch.deg2rad(torch.tensor(data.omega0_deg_s, dtype=q0.dtype, device=q0.device))
+    omega0 = training_rates(data, q0.shape[0], dtype=q0.dtype, device=q0.device)
     paired = rho.ndim == 1
     parts: list[TrainingSet] = []
     starts = range(0, q0.shape[0], chunk)
     for start in tqdm(starts, desc="rendering training trajectories", disable=not progress, unit="chunk"):
         qc = q0[start:start + chunk]
         rc = rho[start:start + chunk] if paired else rho
-        q_hist, _ = propagate(qc, omega0, inertia, data.dt_s, n_steps)
+        wc = omega0 if omega0.ndim == 1 else omega0[start:start + chunk]
+        q_hist, _ = propagate(qc, wc, inertia, data.dt_s, n_steps)
         m = scene.magnitude(q_hist, rho=rc.unsqueeze(-1))  # (A, n_steps + 1) or (R, A, n_steps + 1)
         y = m[..., -1]
         ok = torch.isfinite(m).all(-1)

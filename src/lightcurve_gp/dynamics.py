@@ -24,7 +24,7 @@ from torch import Tensor
 
 from .rotations import quat_mul
 
-__all__ = ["euler_rates", "quaternion_rates", "rk4_step", "propagate", "quaternion_increments"]
+__all__ = ["euler_rates", "quaternion_rates", "rk4_step", "rk4_stepper", "propagate", "quaternion_increments"]
 
 
 # --------------------------------------------------------------------------------------------- validation
@@ -141,17 +141,28 @@ def rk4_step(q: Tensor, omega: Tensor, inertia, dt: float) -> tuple[Tensor, Tens
     """
     _check_last_dim(q, 4, "q")
     _check_last_dim(omega, 3, "omega")
+    return rk4_stepper(inertia, dt, like=omega)(q, omega)
+
+
+def rk4_stepper(inertia, dt: float, *, like: Tensor):
+    """:func:`rk4_step` with the inertia and step validated once: a function ``(q, ω) ↦ (q_next, ω_next)``
+    (shapes as :func:`rk4_step`; ``like`` gives the dtype and device of the inertia). A filter that moves every
+    sigma point with its own rate calls it once per step on all of them."""
     dt = _check_dt(dt)
-    rates = _rates_fn(_as_inertia(inertia, omega))
-    (w1, w2, w3, w4), omega_next = _omega_stages(omega, rates, dt)
-    kq1 = 0.5 * quat_mul(_pure(w1), q)
-    kq2 = 0.5 * quat_mul(_pure(w2), q + (0.5 * dt) * kq1)
-    kq3 = 0.5 * quat_mul(_pure(w3), q + (0.5 * dt) * kq2)
-    kq4 = 0.5 * quat_mul(_pure(w4), q + dt * kq3)
-    q_next = q + (dt / 6.0) * (kq1 + 2.0 * kq2 + 2.0 * kq3 + kq4)
-    q_next = q_next / torch.linalg.vector_norm(q_next, dim=-1, keepdim=True)
-    batch = torch.broadcast_shapes(q.shape[:-1], omega.shape[:-1])
-    return q_next.expand(*batch, 4), omega_next.expand(*batch, 3)
+    rates = _rates_fn(_as_inertia(inertia, like))
+
+    def step(q: Tensor, omega: Tensor) -> tuple[Tensor, Tensor]:
+        (w1, w2, w3, w4), omega_next = _omega_stages(omega, rates, dt)
+        kq1 = 0.5 * quat_mul(_pure(w1), q)
+        kq2 = 0.5 * quat_mul(_pure(w2), q + (0.5 * dt) * kq1)
+        kq3 = 0.5 * quat_mul(_pure(w3), q + (0.5 * dt) * kq2)
+        kq4 = 0.5 * quat_mul(_pure(w4), q + dt * kq3)
+        q_next = q + (dt / 6.0) * (kq1 + 2.0 * kq2 + 2.0 * kq3 + kq4)
+        q_next = q_next / torch.linalg.vector_norm(q_next, dim=-1, keepdim=True)
+        batch = torch.broadcast_shapes(q.shape[:-1], omega.shape[:-1])
+        return q_next.expand(*batch, 4), omega_next.expand(*batch, 3)
+
+    return step
 
 
 def _increment(stages: tuple[Tensor, Tensor, Tensor, Tensor], dt: float) -> Tensor:

@@ -63,6 +63,13 @@ def format_table(summary: dict) -> str:
                      f"{e['nees_mean']:6.2f} {1e3 * e['seconds_per_step']:8.3f} "
                      f"{1e6 * e['seconds_per_filter_step']:14.1f}")
     lo, hi = summary["nees_band_95"]
+    if summary.get("omega_estimated"):
+        lines.append("body rate estimated: median omega RMSE over the window / final omega error (deg/s), mean NEES "
+                     "of [attitude, omega] (95 % band)")
+        for name, e in summary["estimators"].items():
+            band = "{:.2f}-{:.2f}".format(*e["nees_full_band_95"])
+            lines.append(f"  {name:<12} {e['omega_rmse_deg_s_median']:.4f} / {e['omega_error_final_deg_s_median']:.4f}"
+                         f"   NEES {e['nees_full_mean']:.2f} ({band})")
     lines += [f"  {note}" for note in COLUMN_NOTES]
     lines.append(f"  NEES 95 % band for a consistent filter over these seeds: {lo:.2f}-{hi:.2f}; paper: "
                  f"{PAPER_STEP_SECONDS['gpukf']} s per GPUKF step, {PAPER_STEP_SECONDS['ukf']} s per UKF step")

@@ -10,8 +10,12 @@ Estimators (names used in tables, figures and JSON):
 * ``joint_ukf`` — the renderer at ``model.rho_reference`` with the offset in the state: a conventional UKF that
   estimates ρ (it needs every other surface parameter);
 * ``surface_ukf`` — the renderer with the surface as states (log ρ, logit F0, log n_u, log n_v beside the attitude,
-  :mod:`lightcurve_gp.surface_state`): surface unknown, shape known;
-* ``no_update`` — the initial estimate merely propagated with the known ω (a filter that learned nothing).
+  :mod:`lightcurve_gp.surface_state`): surface unknown, shape known (ω taken as known);
+* ``no_update`` — the initial estimate merely propagated with the initial rate (a filter that learned nothing).
+
+With ``filter.estimate_omega`` every filter carries the body rate in its state (``[δp, ω, b?]``,
+:mod:`lightcurve_gp.ukf_rates`), starting from ``ω_est,0 = ω_0 + scenario.initial_omega_error_deg_s`` with the prior
+std ``filter.p0_omega_deg_s`` per axis; otherwise the filters propagate with ``ω_est,0`` as if it were exact.
 
 Every filter starts from ``q_est,0 = q(error) ⊗ q_true,0`` with ``P0 = (p0_deg)² I`` and ``m_past,0 = ỹ_0``
 (the first observation); updates use ``ỹ_1 … ỹ_T``. The offset filters start from ``b0 = ỹ_0 − h(q̂_0)`` with
@@ -20,6 +24,7 @@ variance ``filter.offset_prior_std²``; ``b`` is a random walk of variance ``fil
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Sequence
@@ -28,7 +33,14 @@ import torch
 from torch import Tensor
 
 from .config import Config
-from .metrics import attitude_error_vector, attitude_errors_deg, chi2_band, lightcurve_rmse, nees, rmse_over_window
+from .metrics import (
+    attitude_error_vector,
+    attitude_errors_deg,
+    chi2_band,
+    lightcurve_rmse,
+    nees,
+    rmse_over_window,
+)
 from .observation.along_pass import AlongPass, bind_geometry
 from .observation.base import ObservationModel
 from .observation.parametric import Parametric, SurfaceStateRenderer
@@ -41,7 +53,8 @@ from .ukf import FilterHistory, UsqueParams, initial_covariance, run_usque
 from .ukf_offset import initial_offset, offset_covariance
 
 __all__ = ["ESTIMATORS", "DEFAULT_ESTIMATORS", "EstimatorResult", "ScenarioResult", "propagate_only",
-           "run_offset_filter", "run_surface_filter", "run_estimators", "score_estimator", "first_observation"]
+           "prior_covariance", "run_filter", "run_offset_filter", "run_surface_filter", "run_estimators",
+           "score_estimator", "first_observation"]
 
 ESTIMATORS = ("gpukf", "ukf", "matched_ukf", "joint_ukf", "surface_ukf", "no_update")
 #: what the tables and the estimate command run unless told otherwise
@@ -61,6 +74,11 @@ class EstimatorResult:
         nees_mean: mean NEES over the window per seed ``(S,)`` (GRP error against ``P``); NaN for ``no_update``.
         seconds: wall time of the whole batched run (s).
         history: the filter history (``None`` for ``no_update``).
+        omega_rmse_deg_s: RMSE of the body-rate error norm over the window ``(S,)`` (deg/s).
+        omega_error_final_deg_s: the body-rate error norm at the last sample ``(S,)`` (deg/s).
+        nees_full_mean: mean NEES over the window of ``[δp, ω]`` (ω estimated) or ``δp`` ``(S,)``; NaN for
+            ``no_update``.
+        nees_full_dof: the dimension of that NEES (6 or 3).
     """
 
     q_est: Tensor
@@ -71,6 +89,10 @@ class EstimatorResult:
     nees_mean: Tensor
     seconds: float
     history: FilterHistory | None = None
+    omega_rmse_deg_s: Tensor | None = None
+    omega_error_final_deg_s: Tensor | None = None
+    nees_full_mean: Tensor | None = None
+    nees_full_dof: int = 3
 
 
 @dataclass
@@ -93,7 +115,9 @@ class ScenarioResult:
         """Plain-python summary: per estimator median and IQR of the RMSE per axis over the seeds
         (:func:`~lightcurve_gp.reporting.quantiles`, NaN ignored), light-curve RMSE, NEES and timing."""
         out = {"rho_true": self.scenario.rho_true, "seeds": len(self.scenario.seeds), "window_s": list(self.window),
-               "nees_band_95": list(self.nees_band()), "estimators": {}}
+               "nees_band_95": list(self.nees_band()), "estimators": {},
+               "omega_estimated": any(r.history is not None and r.history.omega is not None
+                                      for r in self.results.values())}
         S = len(self.scenario.seeds)
         for name, r in self.results.items():
             per_axis = [quantiles(r.rmse_deg[:, i]) for i in range(3)]
@@ -105,6 +129,10 @@ class ScenarioResult:
                 "lc_rmse_noisy_median": quantiles(r.lc_rmse_noisy).median,
                 "lc_rmse_clean_median": quantiles(r.lc_rmse_clean).median,
                 "nees_mean": _nanmean(r.nees_mean),
+                "nees_full_mean": _nanmean(r.nees_full_mean),
+                "nees_full_band_95": list(chi2_band(r.nees_full_dof, S)),
+                "omega_rmse_deg_s_median": quantiles(r.omega_rmse_deg_s).median,
+                "omega_error_final_deg_s_median": quantiles(r.omega_error_final_deg_s).median,
                 "seconds": r.seconds,
                 "seconds_per_step": r.seconds / self.steps,
                 "seconds_per_filter_step": r.seconds / (self.steps * S),
@@ -128,20 +156,30 @@ def propagate_only(q_est0: Tensor, increments: Tensor) -> Tensor:
 
 def score_estimator(sc: Scenario, q_est: Tensor, window, history: FilterHistory | None,
                     seconds: float) -> EstimatorResult:
-    """Errors, windowed RMSE, light-curve RMSE and NEES of estimates ``q_est (S, T+1, 4)`` on scenario ``sc``."""
+    """Errors, windowed RMSE, light-curve RMSE, NEES and body-rate errors of estimates ``q_est (S, T+1, 4)`` on
+    scenario ``sc`` (the rates of ``history.omega`` when ω was estimated, else ``sc.omega_assumed``)."""
     S = len(sc.seeds)
     q_true = sc.q_true.expand(S, -1, -1)
     errors = attitude_errors_deg(q_true, q_est)
     rmse = rmse_over_window(errors.transpose(-1, -2), sc.times, window)  # (S, 3)
+    omega_est = sc.omega_assumed if history is None or history.omega is None else history.omega
+    omega_err = torch.rad2deg(sc.omega_true - omega_est).expand(S, -1, -1)  # (S, T+1, 3)
+    omega_norm = torch.linalg.vector_norm(omega_err, dim=-1)
+    omega_rmse = rmse_over_window(omega_norm, sc.times, window)
     nan = torch.full((S,), float("nan"), dtype=q_est.dtype)
     if history is None:
-        return EstimatorResult(q_est, errors, rmse, nan, nan, nan, seconds)
+        return EstimatorResult(q_est, errors, rmse, nan, nan, nan, seconds, None, omega_rmse, omega_norm[:, -1], nan)
     lc_noisy = lightcurve_rmse(history.y_pred, sc.observations, sc.times, window)
     lc_clean = lightcurve_rmse(history.y_pred, sc.m_clean.expand(S, -1), sc.times, window)
     err_vec = attitude_error_vector(q_true, q_est, kind="grp")
     in_window = (sc.times >= window[0]) & (sc.times <= window[1])
     nees_w = nees(err_vec[:, in_window], history.P[:, in_window]).mean(-1)
-    return EstimatorResult(q_est, errors, rmse, lc_noisy, lc_clean, nees_w, seconds, history)
+    nees_full, dof = nees_w, 3
+    if history.omega is not None:
+        full_err = torch.cat([err_vec, torch.deg2rad(omega_err)], dim=-1)
+        nees_full, dof = nees(full_err[:, in_window], history.P_full[:, in_window, :6, :6]).mean(-1), 6
+    return EstimatorResult(q_est, errors, rmse, lc_noisy, lc_clean, nees_w, seconds, history, omega_rmse,
+                           omega_norm[:, -1], nees_full, dof)
 
 
 def run_offset_filter(cfg: Config, model: ObservationModel, observations: Tensor, q_est0: Tensor,
@@ -153,6 +191,36 @@ def run_offset_filter(cfg: Config, model: ObservationModel, observations: Tensor
     P0 = offset_covariance(cfg.filter.p0_deg, cfg.filter.offset_prior_std, dtype=q_est0.dtype, device=q_est0.device)
     return run_usque(model=model, q_est0=q_est0, P0=P0, observations=observations, m_past0=m_past0,
                      increments=increments, params=UsqueParams.from_config(cfg), offset0=b0)
+
+
+def prior_covariance(cfg: Config, *, offset: bool, dtype=None, device=None) -> Tensor:
+    """The filters' ``P0 (n, n)``: ``(p0_deg)² I₃`` on the attitude, ``(p0_omega_deg_s)² I₃`` on ω (rad²/s²) with
+    ``filter.estimate_omega``, ``offset_prior_std²`` on ``b`` when ``offset``."""
+    P_att = offset_covariance(cfg.filter.p0_deg, cfg.filter.offset_prior_std, dtype=dtype, device=device) if offset \
+        else initial_covariance(cfg.filter.p0_deg, dtype=dtype, device=device)
+    if not cfg.filter.estimate_omega:
+        return P_att
+    n = P_att.shape[0] + 3
+    P0 = torch.zeros(n, n, dtype=P_att.dtype, device=P_att.device)
+    P0[:3, :3] = P_att[:3, :3]
+    P0[3:6, 3:6] = math.radians(cfg.filter.p0_omega_deg_s) ** 2 * torch.eye(3, dtype=P_att.dtype, device=device)
+    P0[6:, 6:] = P_att[3:, 3:]
+    return P0
+
+
+def run_filter(cfg: Config, model: ObservationModel, sc: Scenario, q_est0: Tensor, *, offset: bool,
+               start_model: ObservationModel | None = None) -> FilterHistory:
+    """One batched USQUE run on ``sc`` with the tuning of ``cfg``: ω in the state with ``filter.estimate_omega``
+    (from ``sc.omega_est0``), else the increments of ``sc.omega_assumed``; the offset ``b`` in the state when
+    ``offset`` (``b0 = ỹ_0 − h(q̂_0)``, ``h`` = ``start_model``, default ``model``, as :func:`run_offset_filter`)."""
+    obs = sc.observations
+    m_past0 = first_observation(obs)
+    P0 = prior_covariance(cfg, offset=offset, dtype=q_est0.dtype, device=q_est0.device)
+    b0 = initial_offset(start_model or model, q_est0, obs[:, 0], m_past0) if offset else None
+    motion = {"omega0": sc.omega_est0.expand(q_est0.shape[0], 3)} if cfg.filter.estimate_omega \
+        else {"increments": sc.increments_assumed}
+    return run_usque(model=model, q_est0=q_est0, P0=P0, observations=obs, m_past0=m_past0,
+                     params=UsqueParams.from_config(cfg), offset0=b0, **motion)
 
 
 def run_surface_filter(cfg: Config, scene: Scene, *, observations: Tensor, q_est0: Tensor, increments: Tensor,
@@ -231,32 +299,30 @@ def run_estimators(cfg: Config, gp_model: ObservationModel | None = None, *, see
     sc = simulate_scenario(cfg, seeds=seeds, rho_true=rho_true, scene=scene)
     window = tuple(cfg.evaluation.rmse_window_s)
     S = len(sc.seeds)
-    params = UsqueParams.from_config(cfg)
-    P0 = initial_covariance(cfg.filter.p0_deg, dtype=dtype, device=device)
     q_est0 = sc.q_est0.expand(S, 4)
     models = {"gpukf": gp_model, "ukf": Parametric(scene, cfg.filter.rho_assumed),
               "matched_ukf": Parametric(scene, sc.rho_true), "joint_ukf": Parametric(scene, cfg.model.rho_reference),
               "surface_ukf": SurfaceStateRenderer(scene)}
+    if "surface_ukf" in estimators and cfg.filter.estimate_omega:
+        raise ValueError("surface_ukf: the surface-state filter takes ω as known; run it with filter.estimate_omega "
+                         "false")
     with_offset = {"joint_ukf", "gpukf"} if cfg.filter.estimate_offset else {"joint_ukf"}
     out = ScenarioResult(sc, window)
     for name in estimators:
         start = time.perf_counter()
         if name == "no_update":
-            q_est, history = propagate_only(sc.q_est0, sc.increments).expand(S, -1, -1), None
+            q_est, history = propagate_only(sc.q_est0, sc.increments_assumed).expand(S, -1, -1), None
         else:
             model = models[name].to(device=device, dtype=dtype) if name != "gpukf" else models[name].to(device)
             start_model, model = _pass_models(model, sc, scene)
-            if name in with_offset:
-                history = run_offset_filter(cfg, model, sc.observations, q_est0, sc.increments,
-                                            start_model=start_model)
-            elif name == "surface_ukf":
+            if name == "surface_ukf":
                 history = run_surface_filter(cfg, scene.sample(0) if scene.per_sample else scene,
-                                             observations=sc.observations, q_est0=q_est0, increments=sc.increments,
-                                             P0_attitude=P0, model=model)
+                                             observations=sc.observations, q_est0=q_est0,
+                                             increments=sc.increments_assumed, model=model,
+                                             P0_attitude=initial_covariance(cfg.filter.p0_deg, dtype=dtype,
+                                                                            device=device))
             else:
-                history = run_usque(model=model, q_est0=q_est0, P0=P0, observations=sc.observations,
-                                    m_past0=first_observation(sc.observations), increments=sc.increments,
-                                    params=params)
+                history = run_filter(cfg, model, sc, q_est0, offset=name in with_offset, start_model=start_model)
             q_est = history.q_est
         out.results[name] = score_estimator(sc, q_est, window, history, time.perf_counter() - start)
     return out

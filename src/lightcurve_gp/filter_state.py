@@ -1,9 +1,10 @@
 """The state and the record of a batched USQUE run: the state's block layout, the posterior carried from step to
 step, what each step records, and the history a run returns (:mod:`lightcurve_gp.ukf`).
 
-State layout ``[δp (3, GRP attitude error), ω (3), b (1, magnitude offset), θ (p, observation-model parameters)]``,
-a block present only when it is estimated; ω is known in this toolkit (not estimated), ``b`` is estimated by the
-offset filter, ``θ`` (e.g. the surface's reflectance parameters) by a filter whose model takes them as inputs.
+State layout ``[δp (3, GRP attitude error), ω (3, body rate), b (1, magnitude offset), θ (p, observation-model
+parameters)]``, a block present only when it is estimated: ω by the rate filter (:mod:`lightcurve_gp.ukf_rates`),
+``b`` by the offset filter, ``θ`` (e.g. the surface's reflectance parameters) by a filter whose model takes them as
+inputs.
 """
 
 from __future__ import annotations
@@ -20,38 +21,46 @@ __all__ = ["FilterHistory", "FilterState", "HistoryBuilder", "StateLayout", "Ste
 
 @dataclass(frozen=True)
 class StateLayout:
-    """Blocks of the filter state ``[δp (3), ω (3), b (1), θ (p)]``, each present only when estimated (ω: not yet).
+    """Blocks of the filter state ``[δp (3), ω (3), b (1), θ (p)]``, each present only when estimated.
 
     Attributes:
         offset: whether the magnitude offset ``b`` is in the state.
+        omega: whether the body rate ω (rad/s) is in the state.
         parameters: ``p``, the number of observation-model parameters ``θ`` in the state (0: none).
     """
 
     offset: bool = False
+    omega: bool = False
     parameters: int = 0
 
     @property
     def dim(self) -> int:
-        return 3 + int(self.offset) + self.parameters
+        return 3 + 3 * int(self.omega) + int(self.offset) + self.parameters
+
+    @property
+    def omega_slice(self) -> slice:
+        """Indices of ω in the state (after ``δp``)."""
+        return slice(3, 6)
 
     @property
     def offset_index(self) -> int:
-        """Index of ``b`` in the state (after ``δp``)."""
-        return 3
+        """Index of ``b`` in the state (after ``δp`` and ω)."""
+        return 3 + 3 * int(self.omega)
 
     @property
     def parameter_slice(self) -> slice:
-        """Indices of ``θ`` in the state (after ``δp`` and ``b``)."""
-        start = 3 + int(self.offset)
+        """Indices of ``θ`` in the state (after ``δp``, ω and ``b``)."""
+        start = 3 + 3 * int(self.omega) + int(self.offset)
         return slice(start, start + self.parameters)
 
 
 class FilterState(NamedTuple):
     """The posterior of ``B`` filters at one step: ``q̂ (B, 4)``, ``b̂ (B,)`` (``None`` when not estimated),
-    ``P (B, n, n)`` of the state about ``[0, b̂]``, the running mean ``m_past (B,)`` for the next prediction and,
-    with adaptive measurement noise, the running average ``noise_excess (B,)`` of the innovation excess (mag²;
-    ``R̂ = max(R, noise_excess)``, :func:`lightcurve_gp.ukf.adapted_noise`), else ``None``; and the estimated
-    observation-model parameters ``theta (B, p)``, or ``None``."""
+    ``P (B, n, n)`` of the state about ``[0, ω̂, b̂]``, the running mean ``m_past (B,)`` for the next prediction,
+    with adaptive measurement noise the running average ``noise_excess (B,)`` of the innovation excess (mag²;
+    ``R̂ = max(R, noise_excess)``, :func:`lightcurve_gp.ukf.adapted_noise`), else ``None``; the estimated
+    observation-model parameters ``theta (B, p)``, or ``None``; and the body-rate estimate ``omega (B, 3)`` (rad/s)
+    when ω is in the state, else ``None``."""
 
     q_hat: Tensor
     offset: Tensor | None
@@ -59,6 +68,7 @@ class FilterState(NamedTuple):
     m_past: Tensor
     noise_excess: Tensor | None = None
     theta: Tensor | None = None
+    omega: Tensor | None = None
 
 
 class StepRecord(NamedTuple):
@@ -97,6 +107,8 @@ class FilterHistory:
         offset_var: posterior offset variances ``(B, T+1)`` (mag²), or ``None``.
         theta: posterior estimates of the observation-model parameters ``(B, T+1, p)`` (the model's units), or
             ``None``; their variances are the diagonal of ``P_full`` at :attr:`StateLayout.parameter_slice`.
+        omega: posterior body-rate estimates ``(B, T+1, 3)`` (rad/s; ``k = 0`` the prior mean) when ω is in the
+            state, else ``None``; their covariances are ``P_full[..., 3:6, 3:6]`` (rad²/s²).
     """
 
     q_est: Tensor
@@ -114,6 +126,7 @@ class FilterHistory:
     offset: Tensor | None = None
     offset_var: Tensor | None = None
     theta: Tensor | None = None
+    omega: Tensor | None = None
 
     def nis(self) -> Tensor:
         """Normalised innovation squared ``ν² / Pyy`` ``(B, T+1)`` (NaN where no innovation)."""
@@ -136,9 +149,11 @@ class HistoryBuilder:
         """``observed (B, T+1)``: where the observation was finite; ``final``: the state after the last step."""
         cols = {name: torch.stack([getattr(r, name) for r in self.records], 1) for name in StepRecord._fields}
         P_full = torch.stack([s.P for s in self.states], 1)
-        offset = None
+        offset = omega = None
         if self.layout.offset:
             offset = torch.stack([s.offset for s in self.states], 1)
+        if self.layout.omega:
+            omega = torch.stack([s.omega for s in self.states], 1)
         theta = torch.stack([s.theta for s in self.states], 1) if self.layout.parameters else None
         i = self.layout.offset_index
         return FilterHistory(
@@ -147,4 +162,4 @@ class HistoryBuilder:
             innovation=torch.where(observed, cols["innovation"], math.nan), m_past=cols["m_past"],
             updated=cols["updated"], fallbacks=cols["fallback"].sum(1), rejected=cols["rejected"].sum(1),
             m_past_final=final.m_past, offset=offset, offset_var=P_full[..., i, i] if self.layout.offset else None,
-            theta=theta)
+            theta=theta, omega=omega)

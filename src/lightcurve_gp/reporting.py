@@ -64,7 +64,10 @@ def format_quantiles(q: Quantiles, digits: int = 2) -> str:
 @dataclass
 class SeedRow:
     """One estimator on one noise seed. Metrics are ``None`` where undefined (no light curve for ``no_update``,
-    a failed case) — never NaN, so that the JSON and CSV files hold no non-standard values."""
+    a failed case) — never NaN, so that the JSON and CSV files hold no non-standard values. ``omega_rmse_deg_s``
+    is the RMSE of the body-rate error's norm over the scoring window, ``omega_error_final_deg_s`` that norm at
+    the last sample (deg/s), ``nees_full_mean`` the mean NEES of the whole estimated state ``[δp, ω]`` (the
+    attitude NEES for filters that take ω as known)."""
 
     seed: int
     estimator: str
@@ -77,6 +80,9 @@ class SeedRow:
     seconds_per_step: float | None = None
     status: str = "ok"
     error: str = ""
+    omega_rmse_deg_s: float | None = None
+    omega_error_final_deg_s: float | None = None
+    nees_full_mean: float | None = None
 
     def rmse_deg(self) -> tuple[float, float, float]:
         """RMSE (yaw, pitch, roll) in degrees, NaN where missing."""
@@ -100,7 +106,10 @@ def seed_rows(result: ScenarioResult) -> list[SeedRow]:
             yaw, pitch, roll = (float(v) for v in r.rmse_deg[i])
             rows.append(SeedRow(int(seed), name, _finite(yaw), _finite(pitch), _finite(roll),
                                 _finite(float(r.lc_rmse_noisy[i])), _finite(float(r.lc_rmse_clean[i])),
-                                _finite(float(r.nees_mean[i])), r.seconds / result.steps))
+                                _finite(float(r.nees_mean[i])), r.seconds / result.steps,
+                                omega_rmse_deg_s=_finite(float(r.omega_rmse_deg_s[i])),
+                                omega_error_final_deg_s=_finite(float(r.omega_error_final_deg_s[i])),
+                                nees_full_mean=_finite(float(r.nees_full_mean[i]))))
     return rows
 
 

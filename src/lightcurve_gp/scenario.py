@@ -4,7 +4,8 @@ The truth starts at ``scenario.q0`` with rate ``scenario.omega0_deg_s`` and is p
 for ``duration_s``; samples ``k = 0 … T`` lie at ``t_k = k dt``. Its light curve is rendered with
 ``scenario.rho_true``; observation ``k`` of seed ``s`` adds ``N(0, noise_var)`` noise drawn from a generator seeded
 with ``s`` alone, so a seed's curve does not depend on which other seeds run beside it.
-The filter's initial estimate is ``q_est,0 = q(Euler error) ⊗ q_true,0`` (docs/design.md).
+The filter's initial estimate is ``q_est,0 = q(Euler error) ⊗ q_true,0`` (docs/design.md) and its initial rate
+``ω_est,0 = ω_0 + scenario.initial_omega_error_deg_s``; filters that take ω as known propagate with that rate.
 
 Along a pass (``geometry.kind: orbit``) the truth is still integrated every ``dt_s``, but it is sampled at the
 pass's times (:func:`~lightcurve_gp.geometry.sample_times`: gaps and explicit timestamps lie on that grid) and
@@ -39,7 +40,7 @@ class Scenario:
         times: sample times ``(T+1,)`` (s).
         q_true: true attitudes ``(T+1, 4)``.
         omega_true: true body rates ``(T+1, 3)`` (rad/s), known to the filter.
-        increments: RK4 kinematic increments ``(T, 4)``: ``q_{k+1} = normalise(δ_k ⊗ q_k)``.
+        increments: RK4 kinematic increments ``(T, 4)`` of the truth: ``q_{k+1} = normalise(δ_k ⊗ q_k)``.
         m_clean: noise-free magnitudes ``(T+1,)`` (mag) rendered with ``rho_true``.
         observations: noisy magnitudes ``(S, T+1)`` (mag).
         seeds: the noise seeds, length ``S``.
@@ -48,6 +49,10 @@ class Scenario:
         noise_var: variance of the magnitude noise (mag²).
         geometry: the per-sample geometry of a pass (``None`` for ``geometry.kind: fixed``).
         unobservable: samples with no observation (below the horizon limit, in shadow or with zero flux).
+        omega_est0: the filters' initial body rate ``(3,)`` (rad/s): the truth's plus the configured error.
+        omega_assumed: the rate history ``(T+1, 3)`` (rad/s) that starts at ``omega_est0`` (the truth's when the
+            error is zero): what a filter that takes ω as known believes.
+        increments_assumed: the increments ``(T, 4)`` of that rate history (``increments`` when the error is zero).
     """
 
     times: Tensor
@@ -60,6 +65,9 @@ class Scenario:
     q_est0: Tensor
     rho_true: float
     noise_var: float
+    omega_est0: Tensor
+    omega_assumed: Tensor
+    increments_assumed: Tensor
     geometry: PassGeometry | None = None
     unobservable: int = 0
 
@@ -112,6 +120,11 @@ def simulate_scenario(cfg: Config, seeds: Sequence[int] | None = None, rho_true:
         bad = int((~torch.isfinite(m_clean)).sum())
         raise ValueError(f"the true trajectory has {bad} samples with zero flux (object not lit and visible)")
     error = euler321_to_quat(torch.deg2rad(tensor(sc.initial_error_deg)))
+    omega_est0 = omega0 + torch.deg2rad(tensor(sc.initial_omega_error_deg_s))
+    omega_assumed, increments_assumed = omega_true, increments
+    if any(sc.initial_omega_error_deg_s):
+        omega_assumed = propagate(q0, omega_est0, inertia, sc.dt_s, n_steps)[1]
+        increments_assumed = quaternion_increments(omega_est0, inertia, sc.dt_s, n_steps)
     return Scenario(
         times=torch.arange(n_steps + 1, dtype=dtype, device=device) * sc.dt_s,
         q_true=q_true,
@@ -123,6 +136,9 @@ def simulate_scenario(cfg: Config, seeds: Sequence[int] | None = None, rho_true:
         q_est0=quat_mul(error, q0),
         rho_true=rho,
         noise_var=sc.noise_var,
+        omega_est0=omega_est0,
+        omega_assumed=omega_assumed,
+        increments_assumed=increments_assumed,
     )
 
 
@@ -137,6 +153,8 @@ def _simulate_pass(cfg: Config, seeds: list[int], rho: float, scene: Scene | Non
     if not scene.per_sample or scene.sun.shape[0] != len(geometry):
         raise ValueError(f"scene: a pass of {len(geometry)} samples needs a per-sample scene of as many samples")
     tensor = lambda values: torch.tensor(values, dtype=dtype, device=device)  # noqa: E731
+    if any(sc.initial_omega_error_deg_s):
+        raise ValueError("scenario.initial_omega_error_deg_s: not supported along a pass (geometry.kind: orbit) yet")
     index = torch.round(geometry.times_s / sc.dt_s).long()
     q0 = quat_normalize(tensor(sc.q0))
     omega0 = torch.deg2rad(tensor(sc.omega0_deg_s))
@@ -151,7 +169,8 @@ def _simulate_pass(cfg: Config, seeds: list[int], rho: float, scene: Scene | Non
     return Scenario(times=(geometry.times_s - geometry.times_s[0]).to(device=device, dtype=dtype), q_true=q_true,
                     omega_true=omega_grid[index], increments=increments, m_clean=m_clean,
                     observations=noisy_observations(m_clean, sc.noise_var, seeds), seeds=seeds,
-                    q_est0=quat_mul(error, q0), rho_true=rho, noise_var=sc.noise_var, geometry=geometry,
+                    q_est0=quat_mul(error, q0), rho_true=rho, noise_var=sc.noise_var, omega_est0=omega0,
+                    omega_assumed=omega_grid[index], increments_assumed=increments, geometry=geometry,
                     unobservable=int((~seen).sum()))
 
 

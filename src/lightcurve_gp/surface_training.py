@@ -24,7 +24,7 @@ from tqdm.auto import tqdm
 from .attitudes import random_attitudes
 from .brdf import Surface
 from .config import Config, TrainingSurfacesConfig
-from .data import TrainingSet, _inertia, _window_steps, initial_attitudes
+from .data import TrainingSet, _inertia, _window_steps, initial_attitudes, training_rates
 from .dynamics import propagate
 from .render import Scene
 
@@ -60,7 +60,7 @@ def render_over_surfaces(scene: Scene, q0: Tensor, surfaces: Surface, cfg: Confi
     ``surfaces`` (fields ``(K, A)``); surface-major points, ``rho`` the equivalent reflectance. An attitude with a
     zero-flux sample is dropped for all its surfaces (zero flux is geometry: nothing lit and visible)."""
     n_steps = _window_steps(cfg.data)
-    omega0 = torch.deg2rad(torch.tensor(cfg.data.omega0_deg_s, dtype=q0.dtype))
+    omega0 = training_rates(cfg.data, q0.shape[0], dtype=q0.dtype)
     q_hist, _ = propagate(q0, omega0, _inertia(cfg).to(q0.dtype), cfg.data.dt_s, n_steps)  # (A, n+1, 4)
     k_count = surfaces.rho.shape[0]
     m = torch.stack([scene.magnitude(q_hist, surface=surfaces.index(k))

@@ -8,9 +8,11 @@ State layout ``[δp (3, GRP attitude error), ω (3), b (1, magnitude offset), θ
 present only when it is estimated (:class:`StateLayout`): ``δp`` always, ``b`` with an offset prior
 (``y = h(q, m_past) + b``, the bias-state pattern of Crassidis & Markley's gyro-bias filter, here a measurement bias),
 ``θ`` with a parameter prior (``y = h(q, m_past; θ)``: the model takes each sigma point's ``θ``, e.g. the surface's
-reflectance parameters, :mod:`lightcurve_gp.surface_state`); ω is known (not estimated), so the
+reflectance parameters, :mod:`lightcurve_gp.surface_state`), ω with a rate prior. With ω known the
 prediction model enters only through per-step kinematic increments ``δ_k`` with ``q_{k+1} = normalise(δ_k ⊗ q_k)``
-for every attitude (torque-free ω(t) does not depend on q).
+for every attitude (torque-free ω(t) does not depend on q) and the step is a rotation (:func:`usque_step`); with ω
+in the state every sigma point is propagated with its own rate (:mod:`lightcurve_gp.ukf_rates`). Both share the
+measurement update (:mod:`lightcurve_gp.usque_update`).
 
 Conventions (docs/design.md, paper Sec. 2.3): scalar-last quaternions, paper product ``⊗``, error
 ``q_err = q_true ⊗ q_est⁻¹``, GRP ``p = f q̄ / (a + q4)``. The sign of ``q̂`` is never canonicalised inside the
@@ -26,6 +28,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from .dynamics import rk4_stepper
 from .filter_state import (
     FilterHistory,
     FilterState,
@@ -34,7 +37,8 @@ from .filter_state import (
     StepRecord,
 )
 from .observation.base import ObservationModel, Variance, check_variance
-from .rotations import attitude_matrix, grp_to_quat, quat_left_matrix, quat_right_matrix
+from .rotations import attitude_matrix, quat_left_matrix
+from .ukf_rates import rate_prior
 from .unscented import (
     UnscentedWeights,
     sqrt_psd,
@@ -42,6 +46,7 @@ from .unscented import (
     unscented_weights,
     warn_fallbacks,
 )
+from .usque_update import Prior, RunConstants, adapted_noise, measurement_update, redrawn_sigma_points, sigma_set
 
 __all__ = [
     "FilterHistory",
@@ -54,10 +59,14 @@ __all__ = [
     "usque_step",
     "adapted_noise",
     "ADAPTIVE_NOISE",
+    "Q_PLACEMENTS",
 ]
 
 #: measurement-noise rules of :class:`UsqueParams`: fixed ``R`` or innovation-based covariance matching
 ADAPTIVE_NOISE = ("none", "innovation")
+#: where the process noise enters: ``both`` — added to ``P⁺`` before the sigma points and again to ``P⁻``
+#: (Crassidis & Markley 2003); ``after`` — once, to ``P⁻`` after the propagation (the paper, Sec. 2.5)
+Q_PLACEMENTS = ("both", "after")
 
 
 @dataclass(frozen=True, eq=False)
@@ -80,6 +89,13 @@ class UsqueParams:
         adaptive_noise: ``"none"`` (``R`` fixed) or ``"innovation"``: each filter's ``R̂_k`` by covariance matching
             (:func:`adapted_noise`).
         adaptive_noise_rate: ``λ = dt / τ`` of that rule's exponential average, in ``(0, 1]``.
+        omega_process_noise: variance added to each body-rate component per step (rad²/s², a torque noise), when
+            ω is estimated.
+        inertia: principal moments ``(3,)`` (kg m²) of the rate filter's torque-free dynamics.
+        dt: step of the rate filter's RK4 propagation (s).
+        sigma_redraw: update with sigma points drawn again from ``(x̂⁻, P⁻)`` (the paper) instead of the
+            propagated ones (Crassidis & Markley).
+        q_placement: one of :data:`Q_PLACEMENTS`.
     """
 
     alpha: float = 1e-4
@@ -96,8 +112,17 @@ class UsqueParams:
     parameter_process_noise: float = 0.0
     adaptive_noise: str = "none"
     adaptive_noise_rate: float = 0.01
+    omega_process_noise: float = 0.0
+    inertia: tuple[float, float, float] = (55.0, 40.0, 65.0)
+    dt: float = 1.0
+    sigma_redraw: bool = False
+    q_placement: str = "both"
 
     def __post_init__(self):
+        if self.q_placement not in Q_PLACEMENTS:
+            raise ValueError(f"q_placement must be one of {', '.join(Q_PLACEMENTS)}, got {self.q_placement!r}")
+        if not float(self.omega_process_noise) >= 0.0:
+            raise ValueError(f"omega_process_noise must be >= 0, got {self.omega_process_noise!r}")
         check_variance(self.variance)
         if self.adaptive_noise not in ADAPTIVE_NOISE:
             raise ValueError(f"adaptive_noise must be one of {', '.join(ADAPTIVE_NOISE)}, got {self.adaptive_noise!r}")
@@ -113,7 +138,10 @@ class UsqueParams:
     def from_config(cls, cfg) -> UsqueParams:
         """Parameters of a :class:`~lightcurve_gp.config.Config`: its ``filter`` section (``Q = process_noise · I``),
         ``data.t_span_past``, ``model.variance`` (``"none"`` unless ``filter.add_model_variance``) and the adaptive
-        noise rule with ``λ = min(1, scenario.dt_s / filter.adaptive_noise_time_s)``."""
+        noise rule with ``λ = min(1, scenario.dt_s / filter.adaptive_noise_time_s)``, the rate filter's
+        ``filter.omega_process_noise``, ``filter.inertia_kg_m2`` (default ``shape.inertia_kg_m2``) and
+        ``scenario.dt_s``, and the variant
+        (``filter.sigma_redraw``, ``filter.q_placement``)."""
         f = cfg.filter
         return cls(
             alpha=float(f.alpha), beta=float(f.beta), kappa=float(f.kappa), lam=None if f.lam is None else float(f.lam),
@@ -121,6 +149,9 @@ class UsqueParams:
             variance=cfg.model.variance if f.add_model_variance else "none", t_span_past=float(cfg.data.t_span_past),
             offset_process_noise=float(f.offset_process_noise), adaptive_noise=f.adaptive_noise,
             adaptive_noise_rate=min(1.0, float(cfg.scenario.dt_s) / float(f.adaptive_noise_time_s)),
+            omega_process_noise=float(f.omega_process_noise),
+            inertia=tuple(float(j) for j in (f.inertia_kg_m2 or cfg.shape.inertia_kg_m2)),
+            dt=float(cfg.scenario.dt_s), sigma_redraw=bool(f.sigma_redraw), q_placement=f.q_placement,
         )
 
     def weights(self, n: int = 3, *, dtype: torch.dtype | None = None, device=None) -> UnscentedWeights:
@@ -133,25 +164,9 @@ def initial_covariance(p0_deg: float, *, dtype: torch.dtype | None = None, devic
     return math.radians(p0_deg) ** 2 * torch.eye(3, dtype=dtype or torch.get_default_dtype(), device=device)
 
 
-@dataclass(frozen=True, eq=False)
-class _Run:
-    """Per-run constants of the recursion (weights, noises, layout, model)."""
-
-    model: ObservationModel
-    layout: StateLayout
-    wm: Tensor
-    wc: Tensor
-    scale: float  # n + λ
-    Q: Tensor  # (B, n, n)
-    R: Tensor  # (B,)
-    grp: tuple[float, float]  # (a, f)
-    variance: Variance
-    t_span_past: float
-    adaptive_rate: float | None  # λ of the innovation rule; None: R fixed
-
-
-def _check_run_inputs(q_est0: Tensor, P0: Tensor, offset0: Tensor | None, theta0: Tensor | None, observations: Tensor,
-                      m_past0: Tensor, increments: Tensor, layout: StateLayout) -> tuple[int, int]:
+def _check_run_inputs(q_est0: Tensor, P0: Tensor, offset0: Tensor | None, theta0: Tensor | None,
+                      omega0: Tensor | None, observations: Tensor, m_past0: Tensor, increments: Tensor | None,
+                      layout: StateLayout) -> tuple[int, int]:
     """Shapes and finiteness of a run's inputs; returns ``(B, T)``."""
     if q_est0.ndim != 2 or q_est0.shape[-1] != 4:
         raise ValueError(f"q_est0 must have shape (B, 4), got {tuple(q_est0.shape)}")
@@ -161,22 +176,27 @@ def _check_run_inputs(q_est0: Tensor, P0: Tensor, offset0: Tensor | None, theta0
     T = observations.shape[1] - 1
     if T < 0:
         raise ValueError("observations must hold at least t_0")
+    if (increments is None) == (omega0 is None):
+        raise ValueError("give increments (omega known) or omega0 (omega estimated), not both or neither")
     n = layout.dim
     if P0.shape not in ((n, n), (B, n, n)):
-        blocks = ["dp"] + ["b"] * layout.offset + [f"theta ({layout.parameters})"] * bool(layout.parameters)
-        state = f" for the state [{', '.join(blocks)}]" if len(blocks) > 1 else ""
+        names = ["dp"] + ["omega"] * layout.omega + ["b"] * layout.offset \
+            + [f"theta ({layout.parameters})"] * bool(layout.parameters)
+        state = f" for the state [{', '.join(names)}]" if len(names) > 1 else ""
         raise ValueError(f"P0 must have shape ({n}, {n}) or (B={B}, {n}, {n}){state}, got {tuple(P0.shape)}")
     if offset0 is not None and offset0.shape not in ((B,), ()):
         raise ValueError(f"offset0 must have shape (B={B},) or (), got {tuple(offset0.shape)}")
     p = layout.parameters
     if theta0 is not None and theta0.shape not in ((B, p), (p,)):
         raise ValueError(f"theta0 must have shape (B={B}, {p}) or ({p},), got {tuple(theta0.shape)}")
+    if omega0 is not None and omega0.shape not in ((B, 3), (3,)):
+        raise ValueError(f"omega0 must have shape (B={B}, 3) or (3,), got {tuple(omega0.shape)}")
     if m_past0.shape not in ((B,), ()):
         raise ValueError(f"m_past0 must have shape (B={B},), got {tuple(m_past0.shape)}")
-    if increments.shape not in ((T, 4), (B, T, 4)):
+    if increments is not None and increments.shape not in ((T, 4), (B, T, 4)):
         raise ValueError(f"increments must have shape (T={T}, 4) or (B={B}, T={T}, 4), got {tuple(increments.shape)}")
-    named = [("q_est0", q_est0), ("P0", P0), ("offset0", offset0), ("theta0", theta0), ("m_past0", m_past0),
-             ("increments", increments)]
+    named = [("q_est0", q_est0), ("P0", P0), ("offset0", offset0), ("theta0", theta0), ("omega0", omega0),
+             ("m_past0", m_past0), ("increments", increments)]
     for name, t in named:
         if t is not None and not bool(torch.isfinite(t).all()):
             raise ValueError(f"{name} contains non-finite values")
@@ -184,8 +204,8 @@ def _check_run_inputs(q_est0: Tensor, P0: Tensor, offset0: Tensor | None, theta0
 
 
 def _process_noise(params: UsqueParams, layout: StateLayout, B: int, like: Tensor) -> Tensor:
-    """``Q̄ (B, n, n)``: ``params.Q`` on the attitude block, ``offset_process_noise`` on ``b``,
-    ``parameter_process_noise`` on each ``θ_j``."""
+    """``Q̄ (B, n, n)``: ``params.Q`` on the attitude block, ``omega_process_noise`` on ω,
+    ``offset_process_noise`` on ``b``, ``parameter_process_noise`` on each ``θ_j``."""
     eye = torch.eye(3, dtype=like.dtype, device=like.device)
     Q_att = params.Q.to(like) if isinstance(params.Q, Tensor) else float(params.Q) * eye
     if Q_att.ndim == 0:
@@ -194,6 +214,9 @@ def _process_noise(params: UsqueParams, layout: StateLayout, B: int, like: Tenso
         raise ValueError(f"Q must be a scalar, (3, 3) or (B={B}, 3, 3), got {tuple(Q_att.shape)}")
     Q = torch.zeros(B, layout.dim, layout.dim, dtype=like.dtype, device=like.device)
     Q[:, :3, :3] = symmetrise(Q_att)
+    if layout.omega:
+        w = layout.omega_slice
+        Q[:, w, w] = float(params.omega_process_noise) * eye
     if layout.offset:
         i = layout.offset_index
         Q[:, i, i] = float(params.offset_process_noise)
@@ -215,108 +238,59 @@ def _step_matrices(increments: Tensor, layout: StateLayout, B: int, scale: float
     return L_steps, G_steps
 
 
-def usque_step(run: _Run, state: FilterState, *, L_k: Tensor, G_k: Tensor, y_k: Tensor,
+def usque_step(run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Tensor, y_k: Tensor,
                observed_k: Tensor) -> tuple[FilterState, StepRecord]:
-    """One USQUE step of ``B`` filters (:func:`run_usque` lists the steps 1–9).
+    """One USQUE step of ``B`` filters with ω known (:func:`run_usque` lists the steps 1–9).
 
     Args:
         run: the run's constants; state: the posterior at ``k − 1``.
         L_k: ``L(δ_{k−1}) (B, 4, 4)``; G_k: ``√(n+λ) G(δ_{k−1}) (B, n, n)`` (:func:`_step_matrices`).
         y_k: observation ``ỹ_k (B,)`` with missing values filled by 0; observed_k: where it is finite ``(B,)``.
     """
-    B, n = state.P.shape[:2]
-    a, f = run.grp
     # 1-5. sigma offsets ±√(n+λ) cols √(P⁺ + Q) about x̂⁺ = [0, b̂]; propagating q_i = δq(χ_i) ⊗ q̂ to δ ⊗ q_i and
     # re-expressing it about the propagated centre δ ⊗ q̂ conjugates δq(χ_i) by δ, which keeps its scalar part and
     # rotates its vector part by A(δ), so the GRP becomes A(δ) χ_i (b is unchanged): the propagated offsets are the
-    # columns of S⁻ = √(n+λ) G S, x̂⁻ = x̂⁺ and P⁻ = S⁻ S⁻ᵀ/(n+λ) + Q exactly (Crassidis & Markley 2003)
-    s, failed = sqrt_psd(state.P + run.Q)
+    # columns of S⁻ = √(n+λ) G S, x̂⁻ = x̂⁺ and P⁻ = S⁻ S⁻ᵀ/(n+λ) + Q exactly (Crassidis & Markley 2003); with Q after
+    # the propagation only (the paper) S = √P⁺
+    s, failed = sqrt_psd(state.P + run.Q if run.q_in_sigma else state.P)
     S_m = torch.bmm(G_k, s)  # (B, n, n): column j = propagated sigma offset j
     P_m = torch.baddbmm(run.Q, S_m, S_m.mT, alpha=1.0 / run.scale)
-    offsets = S_m.mT
-    chi = torch.cat([torch.zeros(B, 1, n, dtype=s.dtype, device=s.device), offsets, -offsets], dim=1)  # (B, 2n+1, n)
-    # 6. sigma attitudes q_i⁻ = δq(χ_i⁻) ⊗ q_0⁻, q_0⁻ = δ ⊗ q̂; one model call for all of them (one sigma-point set)
     q_m = torch.bmm(L_k, state.q_hat.unsqueeze(-1)).squeeze(-1)
-    R_qm = quat_right_matrix(q_m)
-    q_sig = torch.bmm(grp_to_quat(chi[..., :3], a, f), R_qm.mT)  # (B, 2n+1, 4)
-    theta = {} if state.theta is None else {"theta": state.theta.unsqueeze(1) + chi[..., run.layout.parameter_slice]}
-    y_sig, var_sig = run.model(q=q_sig, m_past=state.m_past.unsqueeze(1).expand(B, 2 * n + 1), variance=run.variance,
-                               **theta)
-    if state.offset is not None:
-        y_sig = y_sig + (state.offset.unsqueeze(1) + chi[..., run.layout.offset_index])
-    y_hat = y_sig @ run.wm
-    dy = y_sig - y_hat.unsqueeze(1)
-    R_k = run.R if state.noise_excess is None else torch.maximum(run.R, state.noise_excess)
-    P_yy = (dy * dy) @ run.wc + R_k
-    m_var = torch.full((B,), math.nan, dtype=s.dtype, device=s.device)
-    if var_sig is not None:
-        m_var = var_sig @ run.wm
-        P_yy = P_yy + m_var
-    # Pxy = Σ wc (χ_i⁻ − x̂⁻)(Y_i − ŷ): the centre contributes nothing, pair j gives col_j (dy₊ⱼ − dy₋ⱼ)
-    P_xy = torch.bmm(S_m, (dy[:, 1:n + 1] - dy[:, n + 1:]).unsqueeze(-1)).squeeze(-1).mul_(float(run.wc[1]))
-    # 7. update where the observation exists and the prediction is usable
-    good = ((P_xy.sum(-1) + y_hat + P_yy).abs() < math.inf) & (P_yy > 0)  # finite, usable
-    upd = observed_k & good
-    nu = y_k - y_hat
-    K = P_xy / P_yy.unsqueeze(-1)
-    # where() keeps inf/NaN of refused steps out of the state: the prior becomes the posterior
-    dx = torch.where(upd.unsqueeze(-1), K * nu.unsqueeze(-1), torch.zeros((), dtype=s.dtype, device=s.device))
-    P = torch.where(upd.view(B, 1, 1), symmetrise(P_m - P_yy.view(B, 1, 1) * (K.unsqueeze(-1) * K.unsqueeze(-2))),
-                    P_m)
-    # 8. reset q̂ ← δq(δp⁺) ⊗ q_0⁻ (the attitude error returns to zero); b̂ keeps its estimate
-    q_hat = torch.bmm(R_qm, grp_to_quat(dx[:, :3], a, f).unsqueeze(-1)).squeeze(-1)
-    q_hat = q_hat / torch.linalg.vector_norm(q_hat, dim=-1, keepdim=True)
-    offset = None if state.offset is None else state.offset + dx[:, run.layout.offset_index]
-    theta_hat = None if state.theta is None else state.theta + dx[:, run.layout.parameter_slice]
-    # 9. fold the observation into m_past (the record keeps the m_past used for this prediction)
-    tsp = run.t_span_past
-    m_past = torch.where(observed_k, (tsp * state.m_past + y_k) / (tsp + 1.0), state.m_past)
-    noise_excess = state.noise_excess
-    if noise_excess is not None:
-        noise_excess = torch.where(upd, adapted_noise(noise_excess, nu=nu, P_yy=P_yy, R_k=R_k, rate=run.adaptive_rate),
-                                   noise_excess)
-    record = StepRecord(y_hat, P_yy, m_var, nu, state.m_past, upd, failed, observed_k & ~good)
-    return FilterState(q_hat, offset, P, m_past, noise_excess, theta_hat), record
-
-
-def adapted_noise(average: Tensor, *, nu: Tensor, P_yy: Tensor, R_k: Tensor, rate: float) -> Tensor:
-    """One step of the innovation-based measurement-noise estimate (covariance matching, Mehra 1972), all ``(B,)``.
-
-    The innovation ``ν = ỹ − ŷ`` of a consistent filter has ``E ν² = Pyy``; its part not explained by the
-    predicted spread and model variance, ``e = ν² − (Pyy − R_k)``, estimates the measurement noise. An observation
-    model that is wrong along the true trajectory (an unmodelled surface: a glint, a lobe the GP never saw) shows
-    up as an excess ``E e = R + bias²``, whatever the trajectory. The exponential average
-    ``c ← (1 − λ) c + λ e`` (``λ = dt / τ``) is returned; the next step uses ``R̂ = max(R, c)`` — never below the
-    configured noise, and only past innovations (no look-ahead).
-
-    Args:
-        average: the running average ``c`` before this step (mag²).
-        nu: innovations (mag); P_yy: their predicted variance with ``R_k`` (mag²); R_k: the noise used (mag²).
-        rate: ``λ`` in ``(0, 1]``.
-    """
-    excess = nu * nu - (P_yy - R_k)
-    return average + rate * (excess - average)
+    if run.sigma_redraw:
+        chi, failed_again = redrawn_sigma_points(run, None, P_m)
+        failed = failed | failed_again
+    else:
+        chi = sigma_set(None, S_m.mT)
+    return measurement_update(run, state, Prior(q_m, None, None, P_m, chi, failed), y_k=y_k, observed_k=observed_k)
 
 
 def run_usque(*, model: ObservationModel, q_est0: Tensor, P0: Tensor, observations: Tensor, m_past0: Tensor,
-              increments: Tensor, params: UsqueParams | None = None, offset0: Tensor | None = None,
-              theta0: Tensor | None = None) -> FilterHistory:
+              increments: Tensor | None = None, params: UsqueParams | None = None,
+              offset0: Tensor | None = None, theta0: Tensor | None = None,
+              omega0: Tensor | None = None) -> FilterHistory:
     """Run ``B`` independent USQUE filters over ``T`` steps in one set of tensors.
 
     Step ``k = 1 … T`` (Crassidis & Markley 2003, Q added to the sigma-point covariance and again to ``P⁻``):
 
-    1. ``χ_i = x̂⁺ ± cols √((n+λ)(P⁺ + Q))`` with ``x̂⁺ = [0, b̂, θ̂]``; 2. ``q_i = grp_to_quat(χ_i) ⊗ q̂``;
-    3. ``q_i⁻ = normalise(δ_{k−1} ⊗ q_i)``; 4. ``χ_i⁻ = quat_to_grp(q_i⁻ ⊗ (q_0⁻)⁻¹)``, ``b_i`` unchanged;
+    1. ``χ_i = x̂⁺ ± cols √((n+λ)(P⁺ + Q))`` with ``x̂⁺ = [0, ω̂, b̂, θ̂]``; 2. ``q_i = grp_to_quat(χ_i) ⊗ q̂``;
+    3. ``q_i⁻ = normalise(δ_{k−1} ⊗ q_i)`` (ω in the state: ``(q_i⁻, ω_i⁻) = RK4(q_i, ω_i)``);
+    4. ``χ_i⁻ = [quat_to_grp(q_i⁻ ⊗ (q_0⁻)⁻¹), ω_i⁻]``, ``b_i`` and ``θ_i`` unchanged;
     5. ``x̂⁻ = Σ wm χ_i⁻``, ``P⁻ = Σ wc (χ_i⁻ − x̂⁻)(·)ᵀ + Q``;
     6. ``Y_i = model(q_i⁻, m_past[, θ_i]) (+ b_i)``, ``ŷ = Σ wm Y_i``, ``Pyy = Σ wc (Y_i − ŷ)² + R (+ Σ wm var_i)``,
        ``Pxy = Σ wc (χ_i⁻ − x̂⁻)(Y_i − ŷ)``;
     7. ``K = Pxy / Pyy``, ``x̂⁺ = x̂⁻ + K (ỹ_k − ŷ)``, ``P⁺ = P⁻ − K Pyy Kᵀ``;
-    8. reset ``q̂ ← grp_to_quat(x̂⁺[:3]) ⊗ q_0⁻``, ``b̂ ← x̂⁺[3]``, ``θ̂ ← x̂⁺[θ]``;
+    8. reset ``q̂ ← grp_to_quat(x̂⁺[:3]) ⊗ q_0⁻``, ``ω̂ ← x̂⁺[ω]``, ``b̂ ← x̂⁺[b]``, ``θ̂ ← x̂⁺[θ]``;
     9. ``m_past ← (T m_past + ỹ_k) / (T + 1)``.
+
+    The paper's variant (``params.q_placement = "after"``, ``params.sigma_redraw``): step 1 without ``Q`` and, before
+    step 6, ``χ_i⁻ = x̂⁻ ± cols √((n+λ) P⁻)`` drawn again (paper Sec. 2.5, Eqs. (29)–(42)).
 
     With ω known, steps 2–5 are a rotation: ``q_i⁻ ⊗ (q_0⁻)⁻¹ = δ ⊗ δq(χ_i) ⊗ δ⁻¹`` has the GRP ``A(δ) χ_i``
     (conjugation by ``δ`` rotates a quaternion's vector part by ``A(δ)``), so ``χ_i⁻ = A(δ) χ_i`` and
     ``P⁻ = A (P⁺ + Q) Aᵀ + Q``. The step computes them that way: the same filter with a fraction of the work.
+    With ω in the state (``omega0`` given) every sigma point moves with its own rate
+    (:func:`lightcurve_gp.ukf_rates.rate_prior`): the torque-free Euler equations and the kinematics by RK4
+    (``params.inertia``, ``params.dt``), all ``B (2n+1)`` sigma points in one call.
 
     With ``params.adaptive_noise = "innovation"`` the ``R`` of step 6 is each filter's ``R̂_k = max(R, c_k)``,
     ``c`` the running average of the innovation excess of the steps before (:func:`adapted_noise`).
@@ -330,40 +304,33 @@ def run_usque(*, model: ObservationModel, q_est0: Tensor, P0: Tensor, observatio
             filter's sigma points are one set along the last batch dimension (see
             :mod:`lightcurve_gp.observation.base`). With ``offset0`` it models the reference light curve.
         q_est0: initial estimates ``(B, 4)`` (their sign is kept; the run stays sign-continuous).
-        P0: initial covariances ``(n, n)`` or ``(B, n, n)`` of the state (rad², mag² for ``b``).
+        P0: initial covariances ``(n, n)`` or ``(B, n, n)`` of the state (rad², rad²/s² for ω, mag² for ``b``).
         observations: ``ỹ_0 … ỹ_T`` ``(B, T+1)`` in mag (NaN = missing); ``ỹ_0`` is not used by the filter.
         m_past0: running mean at ``t_0`` ``(B,)``, chosen by the caller.
-        increments: ``δ_0 … δ_{T−1}`` ``(T, 4)`` shared by all filters or ``(B, T, 4)``.
+        increments: ω known: ``δ_0 … δ_{T−1}`` ``(T, 4)`` shared by all filters or ``(B, T, 4)``; ``None`` with
+            ``omega0``.
         params: :class:`UsqueParams` (default: the paper's filter).
         offset0: initial offset estimates ``(B,)`` or ``()`` (mag) to estimate ``y = h(q, m_past) + b``
             (:func:`lightcurve_gp.ukf_offset.initial_offset`); ``None``: no offset in the state.
         theta0: initial estimates ``(B, p)`` or ``(p,)`` of ``p`` model parameters carried as states; the model is
             then called with ``theta (B, 2n+1, p)`` too (each sigma point's parameters, e.g.
             :class:`lightcurve_gp.surface_state.SurfaceStateRenderer`); ``None``: no parameters in the state.
+        omega0: initial body-rate estimates ``(B, 3)`` or ``(3,)`` (rad/s) to estimate ω; ``None``: ω known.
 
     Returns:
         :class:`FilterHistory`. Emits :class:`~lightcurve_gp.unscented.SqrtFallbackWarning` once when any filter
         needed the square-root fallback (counts in ``fallbacks``).
     """
     params = params or UsqueParams()
-    layout = StateLayout(offset=offset0 is not None, parameters=0 if theta0 is None else int(theta0.shape[-1]))
-    B, T = _check_run_inputs(q_est0, P0, offset0, theta0, observations, m_past0, increments, layout)
+    layout = StateLayout(offset=offset0 is not None, omega=omega0 is not None,
+                         parameters=0 if theta0 is None else int(theta0.shape[-1]))
+    B, T = _check_run_inputs(q_est0, P0, offset0, theta0, omega0, observations, m_past0, increments, layout)
     dtype, device = q_est0.dtype, q_est0.device
     with torch.no_grad():
-        lam, wm, wc = params.weights(layout.dim, dtype=dtype, device=device)
-        R = torch.as_tensor(params.R, dtype=dtype, device=device)
-        if R.shape not in ((), (B,), (B, T + 1)):
-            raise ValueError(f"R must be a scalar, (B={B},) or (B={B}, T+1={T + 1}), got {tuple(R.shape)}")
-        R_steps = R.unbind(1) if R.ndim == 2 else None  # per-sample noise: step k uses column k
-        run = _Run(model=model, layout=layout, wm=wm, wc=wc, scale=layout.dim + lam,
-                   Q=_process_noise(params, layout, B, q_est0), R=R[:, 0] if R.ndim == 2 else R.expand(B),
-                   grp=(float(params.grp_a), float(params.grp_f)), variance=params.variance,
-                   t_span_past=float(params.t_span_past),
-                   adaptive_rate=float(params.adaptive_noise_rate) if params.adaptive_noise == "innovation" else None)
+        run, R_steps = _run_constants(params, layout, model, B, T, q_est0)
         obs = observations.to(dtype=dtype, device=device)
         observed = torch.isfinite(obs)
         y_steps, observed_steps = torch.where(observed, obs, torch.zeros_like(obs)).unbind(1), observed.unbind(1)
-        L_steps, G_steps = _step_matrices(increments.to(dtype=dtype, device=device), layout, B, run.scale)
         q_hat = q_est0.to(dtype=dtype).clone()
         state = FilterState(
             q_hat=q_hat / torch.linalg.vector_norm(q_hat, dim=-1, keepdim=True),
@@ -371,18 +338,46 @@ def run_usque(*, model: ObservationModel, q_est0: Tensor, P0: Tensor, observatio
             P=symmetrise(P0.to(dtype=dtype, device=device).expand(B, layout.dim, layout.dim)).clone(),
             m_past=m_past0.to(dtype=dtype, device=device).expand(B).clone(),
             noise_excess=None if run.adaptive_rate is None else run.R.clone(),
-            theta=None if theta0 is None else theta0.to(dtype=dtype, device=device).expand(B, -1).clone())
+            theta=None if theta0 is None else theta0.to(dtype=dtype, device=device).expand(B, -1).clone(),
+            omega=None if omega0 is None else omega0.to(dtype=dtype, device=device).expand(B, 3).clone())
         history = HistoryBuilder(layout)
         nan_b = torch.full((B,), math.nan, dtype=dtype, device=device)
         no = torch.zeros(B, dtype=torch.bool, device=device)
         history.add(state, StepRecord(nan_b, nan_b, nan_b, nan_b, state.m_past, no, no, no))
+        if omega0 is None:
+            L_steps, G_steps = _step_matrices(increments.to(dtype=dtype, device=device), layout, B, run.scale)
         for k in range(1, T + 1):
             run_k = run if R_steps is None else dataclasses.replace(run, R=R_steps[k])
-            state, record = usque_step(run_k, state, L_k=L_steps[k - 1], G_k=G_steps[k - 1], y_k=y_steps[k],
-                                       observed_k=observed_steps[k])
+            if omega0 is None:
+                state, record = usque_step(run_k, state, L_k=L_steps[k - 1], G_k=G_steps[k - 1], y_k=y_steps[k],
+                                           observed_k=observed_steps[k])
+            else:
+                state, record = measurement_update(run_k, state, rate_prior(run_k, state), y_k=y_steps[k],
+                                                   observed_k=observed_steps[k])
             history.add(state, record)
         out = history.build(observed, state)
     n_fb = int((out.fallbacks > 0).sum())
     if n_fb:
         warn_fallbacks(n_fb, B, "run_usque")
     return out
+
+
+def _run_constants(params: UsqueParams, layout: StateLayout, model: ObservationModel, B: int, T: int,
+                   like: Tensor) -> tuple[RunConstants, tuple[Tensor, ...] | None]:
+    """The run's weights, noises and variant (with ω in the state its RK4 stepper), and with a per-sample ``R``
+    ``(B, T+1)`` its columns (step ``k`` uses column ``k``; the constants hold column 0), else ``None``."""
+    dtype, device = like.dtype, like.device
+    lam, wm, wc = params.weights(layout.dim, dtype=dtype, device=device)
+    R = torch.as_tensor(params.R, dtype=dtype, device=device)
+    if R.shape not in ((), (B,), (B, T + 1)):
+        raise ValueError(f"R must be a scalar, (B={B},) or (B={B}, T+1={T + 1}), got {tuple(R.shape)}")
+    R_steps = R.unbind(1) if R.ndim == 2 else None
+    stepper = None
+    if layout.omega:
+        stepper = rk4_stepper(torch.tensor(params.inertia, dtype=dtype, device=device), params.dt, like=like)
+    return RunConstants(
+        model=model, layout=layout, wm=wm, wc=wc, scale=layout.dim + lam, Q=_process_noise(params, layout, B, like),
+        R=R[:, 0] if R.ndim == 2 else R.expand(B), grp=(float(params.grp_a), float(params.grp_f)),
+        variance=params.variance, t_span_past=float(params.t_span_past),
+        adaptive_rate=float(params.adaptive_noise_rate) if params.adaptive_noise == "innovation" else None,
+        sigma_redraw=bool(params.sigma_redraw), q_in_sigma=params.q_placement == "both", stepper=stepper), R_steps

@@ -19,6 +19,7 @@ __all__ = [
     "UnscentedWeights",
     "matrix_sqrt",
     "sqrt_psd",
+    "sqrt_psd_with_zero_rows",
     "symmetrise",
     "unscented_weights",
     "warn_fallbacks",
@@ -108,6 +109,16 @@ def sqrt_psd(a: Tensor) -> tuple[Tensor, Tensor]:
     if bool(failed.any()):
         s, failed = matrix_sqrt(a)
     return s, failed
+
+
+def sqrt_psd_with_zero_rows(a: Tensor) -> tuple[Tensor, Tensor]:
+    """Lower square roots ``S (..., n, n)`` with ``S Sᵀ = a`` of symmetric PSD matrices, where components of exactly
+    zero variance (a zero diagonal entry, hence a zero row and column) are left out of the factorisation: their
+    column of ``S`` is zero and the other columns are the Cholesky factor of the rest (a state block known
+    exactly). Other failures fall back as :func:`sqrt_psd` does; returns ``(S, failed (...))``."""
+    zero = torch.diagonal(a, dim1=-2, dim2=-1) == 0
+    s, failed = sqrt_psd(a + torch.diag_embed(zero.to(a.dtype)))
+    return s * (~zero).unsqueeze(-2).to(a.dtype), failed
 
 
 def warn_fallbacks(count: int, total: int, where: str) -> None:

@@ -15,6 +15,7 @@ import torch
 from ..config import ConfigError, config_from_dict, config_to_dict
 from ..estimation import DEFAULT_ESTIMATORS, ScenarioResult, run_estimators
 from ..io import write_json_atomic
+from ..metrics import attitude_error_vector
 from ..reporting import CaseRecord, seed_rows
 from .executors import Executor, SerialExecutor, make_executor
 from .grid import Case, make_cases
@@ -26,12 +27,24 @@ __all__ = ["SweepResult", "run_case", "run_sweep"]
 
 
 def _traces(result: ScenarioResult) -> dict[str, Any]:
-    """Time series of the first seed (for the paper-style figures): errors (deg) and predicted light curves."""
+    """Time series of the first seed (for the paper-style figures): errors (deg) and predicted light curves; for
+    each filter its GRP attitude error and ±1σ (deg, ≈ rotation vector) and its body-rate error and ±1σ (deg/s)."""
     sc = result.scenario
+    filters = {n: r for n, r in result.results.items() if r.history is not None}
+    err = {n: torch.rad2deg(attitude_error_vector(sc.q_true, r.q_est[0], kind="grp")) for n, r in filters.items()}
+    rate = {n: torch.rad2deg(sc.omega_true - (sc.omega_assumed if r.history.omega is None else r.history.omega[0]))
+            for n, r in filters.items()}
+    std = {n: torch.rad2deg(r.history.P_full[0].diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt())
+           for n, r in filters.items()}
     return {"seed": int(sc.seeds[0]), "times": sc.times.tolist(), "observed": sc.observations[0].tolist(),
             "clean": sc.m_clean.tolist(),
             "errors_deg": {n: r.errors_deg[0].tolist() for n, r in result.results.items()},
-            "y_pred": {n: r.history.y_pred[0].tolist() for n, r in result.results.items() if r.history is not None}}
+            "y_pred": {n: r.history.y_pred[0].tolist() for n, r in filters.items()},
+            "attitude_error_deg": {n: e.tolist() for n, e in err.items()},
+            "attitude_sigma_deg": {n: sd[:, :3].tolist() for n, sd in std.items()},
+            "omega_error_deg_s": {n: e.tolist() for n, e in rate.items()},
+            "omega_sigma_deg_s": {n: std[n][:, 3:6].tolist() for n, r in filters.items()
+                                  if r.history.omega is not None}}
 
 
 def run_case(spec: dict[str, Any]) -> CaseRecord:
