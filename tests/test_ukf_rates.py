@@ -102,7 +102,7 @@ def test_every_sigma_point_moves_as_dynamics_propagate_moves_it():
     omega_hat = OMEGA0 * (1 + 0.3 * torch.rand(B, 1, generator=g, dtype=DT))
     P = block_diag_P0(initial_covariance(5.0, dtype=DT), math.radians(0.5) ** 2)
     params = UsqueParams(Q=0.0, variance="none", dt=2.0)
-    run = _run_constants(params, StateLayout(omega=True), ToyModel(), B, q_hat)
+    run, _ = _run_constants(params, StateLayout(omega=True), ToyModel(), B, 1, q_hat)
     state = FilterState(q_hat, None, P.expand(B, 6, 6), torch.zeros(B, dtype=DT), omega=omega_hat)
     prior = rate_prior(run, state)
     # the sigma points before propagation, as the prior draws them
