@@ -29,6 +29,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
+from experiments._cli import sweep_arguments
 from experiments.reproduction_tables import cost_table, estimator_table, models_table, robustness_tables, variance_table
 from lightcurve_gp.cli import UserError, apply_threads
 from lightcurve_gp.config import ConfigError, apply_overrides, config_from_dict, load_raw_config
@@ -36,8 +37,7 @@ from lightcurve_gp.estimation import DEFAULT_ESTIMATORS
 from lightcurve_gp.io import write_json_atomic, write_text_atomic
 from lightcurve_gp.plots import euler_errors, light_curves, rmse_boxplot
 from lightcurve_gp.reporting import CaseRecord
-from lightcurve_gp.sweep import EXECUTORS, Executor, SweepResult, make_executor, run_sweep
-from lightcurve_gp.sweep.executors import CLUSTER_EXTRA
+from lightcurve_gp.sweep import Executor, SweepResult, make_executor, run_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 BASE_CONFIG = ROOT / "configs" / "boxwing.yaml"
@@ -145,17 +145,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, default=Path("runs"), help="root of models, cases and raw tables")
     parser.add_argument("--results", type=Path, default=None,
                         help="figures and tables (default experiments/results; with --quick OUT/<name>/results)")
-    parser.add_argument("--executor", choices=EXECUTORS, default="local",
-                        help="local (this machine) or dask (a LocalCluster of --workers processes, or --scheduler; "
-                             f"needs {CLUSTER_EXTRA}) (default local)")
-    parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                        help="address of a running dask scheduler (with --executor dask)")
-    parser.add_argument("--workers", type=int, default=1,
-                        help="worker processes of the local pool or the LocalCluster (default 1)")
-    parser.add_argument("--threads", type=int, default=1, help="torch threads of the command and of each case process "
-                        "(default 1)")
-    parser.add_argument("--no-progress", action="store_true", help="hide progress bars")
-    return parser
+    return sweep_arguments(parser)
 
 
 def run_sweeps(raw: dict, seeds: Sequence[int], var_seeds: Sequence[int], args) -> dict[str, SweepResult]:

@@ -31,13 +31,14 @@ import time
 from pathlib import Path
 from typing import Sequence
 
+from experiments._cli import sweep_arguments
 from experiments.spin_figures import error_traces_figure
 from lightcurve_gp.cli import apply_threads
 from lightcurve_gp.config import apply_overrides, load_raw_config
 from lightcurve_gp.io import write_json_atomic, write_text_atomic
 from lightcurve_gp.plots import rmse_boxplot
 from lightcurve_gp.reporting import CaseRecord, format_quantiles, markdown_table, quantiles
-from lightcurve_gp.sweep import EXECUTORS, make_executor, run_sweep
+from lightcurve_gp.sweep import make_executor, run_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 ESTIMATORS_UNKNOWN = ("gpukf", "matched_ukf", "no_update")
@@ -63,11 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--durations", type=_floats, default=[600.0, 1800.0], help="seconds; window: the last 200 s")
     p.add_argument("--out", type=Path, default=ROOT / "runs", help="root of models and cases")
     p.add_argument("--results", type=Path, default=ROOT / "experiments/results/spin")
-    p.add_argument("--executor", choices=EXECUTORS, default="local")
-    p.add_argument("--scheduler", default=None)
-    p.add_argument("--workers", type=int, default=1)
-    p.add_argument("--threads", type=int, default=1)
-    p.add_argument("--no-progress", action="store_true")
+    sweep_arguments(p)
     p.add_argument("--no-inertia", action="store_true", help="skip the inertia-error cases")
     p.add_argument("--no-gp", action="store_true", help="leave the robust GPUKF out (the renderer-based filters only)")
     return p

@@ -23,12 +23,13 @@ from typing import Sequence
 
 import numpy as np
 
+from experiments._cli import sweep_arguments
 from experiments.spin_unknown import HEADER, ROOT, case_overrides, table_row
 from lightcurve_gp.cli import apply_threads
 from lightcurve_gp.config import apply_overrides, load_raw_config
 from lightcurve_gp.io import write_json_atomic, write_text_atomic
 from lightcurve_gp.reporting import CaseRecord, markdown_table
-from lightcurve_gp.sweep import EXECUTORS, make_executor, run_sweep
+from lightcurve_gp.sweep import make_executor, run_sweep
 
 PAIR = ((False, "both"), (True, "after"))  # (sigma_redraw, q_placement): the default, the paper
 AXES = [("filter.sigma_redraw", [False, True]), ("filter.q_placement", ["both", "after"])]
@@ -43,11 +44,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sigma", type=float, default=0.03, help="prior rate std and initial rate error, deg/s")
     p.add_argument("--out", type=Path, default=ROOT / "runs")
     p.add_argument("--results", type=Path, default=ROOT / "experiments/results/spin")
-    p.add_argument("--executor", choices=EXECUTORS, default="local")
-    p.add_argument("--scheduler", default=None)
-    p.add_argument("--workers", type=int, default=1)
-    p.add_argument("--threads", type=int, default=1)
-    p.add_argument("--no-progress", action="store_true")
+    sweep_arguments(p)
     return p
 
 
