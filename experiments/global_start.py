@@ -59,10 +59,10 @@ def window_scores(q_true: torch.Tensor, q_est: torch.Tensor, times: torch.Tensor
 def run_seed(cfg_path: str, seed: int, model, args) -> dict:
     """One seed's row (module docstring)."""
     q0, rho = seed_truth(seed)
-    cfg = load_config(cfg_path, [f"scenario.q0={q0}"])
+    cfg = load_config(cfg_path, [f"scenario.q0={q0}", f"device={args.device}"])
     sc = simulate_scenario(cfg, seeds=[seed], rho_true=rho)
     bank = run_bank(cfg, model, observations=sc.observations[0], increments=sc.increments,
-                    q0=bank_attitudes(args.bank_size), keep=args.keep)
+                    q0=bank_attitudes(args.bank_size, device=sc.observations.device), keep=args.keep)
     window = cfg.evaluation.rmse_window_s
     scores = window_scores(sc.q_true, bank.kept.q_est, sc.times, window)
     within = (scores["median_abs"] < 10).all(-1)
@@ -78,7 +78,7 @@ def run_seed(cfg_path: str, seed: int, model, args) -> dict:
             "top1_nees_mean": float(nees(err[inside], bank.kept.P[0][inside]).mean()),
             "top1_nis_mean": nis_summary(bank.kept)["mean"], "top1_weight": float(bank.weights[bank.order[0]]),
             "rank_of_nearest_member": rank_of_nearest, "bank_seconds": bank.seconds,
-            "kept_seconds": bank.kept_seconds, "load_average_1min": os.getloadavg()[0]}
+            "kept_seconds": bank.kept_seconds, "load_average_1min": os.getloadavg()[0], "device": args.device}
 
 
 def case_path(args, cfg, seed: int) -> Path:
@@ -97,10 +97,11 @@ def report(rows: list[dict], args, command: str, wall: float) -> str:
     cells = [[n, args.bank_size, f"{100 * share('top1_within_10deg'):.0f} %",
               f"{100 * share('top1_rmse_below_10deg'):.0f} %", f"{100 * share('top5_within_10deg'):.0f} %",
               f"{nees_top.median:.2f} [{nees_top.q25:.2f}, {nees_top.q75:.2f}]",
-              f"{secs.median:.0f} [{secs.q25:.0f}, {secs.q75:.0f}]", f"{min(loads):.1f}-{max(loads):.1f}"]]
-    table = markdown_table(("seeds", "bank", "top-1 within 10° (median |err|)", "top-1 RMSE < 10°",
+              f"{secs.median:.0f} [{secs.q25:.0f}, {secs.q75:.0f}]", f"{min(loads):.1f}-{max(loads):.1f}",
+              ", ".join(sorted({r.get("device", "cpu") for r in rows}))]]
+    table = markdown_table(("seeds", "bank", "top-1 within 10° (median \\|err\\|)", "top-1 RMSE < 10°",
                             "truth in top 5", "top-1 NEES median [IQR]", "bank s per seed, median [IQR]",
-                            "load average"), cells)
+                            "load average", "device"), cells)
     return (f"# Global start: bank of {args.bank_size} filters, paper scenario, rho unknown\n\n"
             f"Command: `{command}`; wall time {wall:.0f} s for the seeds run by this command.\n\n{table}\n"
             f"NEES of one run's window mean: 3 for a consistent filter.\n")
@@ -113,6 +114,8 @@ def main(argv=None) -> int:
     p.add_argument("--bank-size", type=int, default=1024)
     p.add_argument("--keep", type=int, default=5)
     p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--device", default="cpu", help="torch device of the filters (cpu, cuda); the bank's seconds are "
+                   "that device's")
     p.add_argument("--out", default=str(ROOT / "experiments/results/global_start"), type=Path)
     p.add_argument("--runs", default=str(ROOT / "runs"), type=Path)
     args = p.parse_args(argv)
@@ -122,7 +125,7 @@ def main(argv=None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     torch.set_num_threads(args.threads)
-    model = trained_model(cfg, args.runs)
+    model = trained_model(cfg, args.runs).to(args.device)
     command = "python -m experiments.global_start " + " ".join(sys.argv[1:] if argv is None else argv)
     start, rows = time.perf_counter(), []
     for seed in tqdm(args.seeds, desc="seeds", unit="seed"):
