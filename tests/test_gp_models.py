@@ -130,7 +130,10 @@ def test_cuda_matches_cpu(which, exact, sparse, test_pts):
         model.to("cuda")
         mean_c, var_c = model.predict(q.cuda(), m.cuda())
         torch.testing.assert_close(mean_c.cpu(), mean, rtol=1e-9, atol=1e-9)
-        torch.testing.assert_close(var_c.cpu(), var, rtol=1e-7, atol=1e-9)
+        # the sparse variance's quadratic form is float32 on both devices, each within its bound of the float64 form
+        float32 = getattr(model, "p_factor", None) is not None
+        var_atol = 2 * FLOAT32_VARIANCE_TOL * float(model.theta1) if float32 else 1e-9
+        torch.testing.assert_close(var_c.cpu(), var, rtol=1e-7, atol=var_atol)
     finally:
         model.to("cpu")
 
