@@ -259,6 +259,9 @@ class FilterConfig:
     beta: float = _spec()
     kappa: float = _spec()
     lam: float | None = _spec(doc="lambda given directly; null derives alpha^2 (n + kappa) - n")
+    lam_rule: str = _spec("given", choices=("given", "julier"),
+                          doc="given: lam as written; julier: lambda = 3 - n for a state of dimension n (the paper's "
+                              "0 at n = 3; -1 with the offset, -4 with the surface states)")
     grp_a: float = _spec(lo=0.0, hi=1.0)
     grp_f: float = _spec(lo=0.0, lo_open=True)
     process_noise: float = _spec(lo=0.0)

@@ -67,6 +67,8 @@ ADAPTIVE_NOISE = ("none", "innovation")
 #: where the process noise enters: ``both`` — added to ``P⁺`` before the sigma points and again to ``P⁻``
 #: (Crassidis & Markley 2003); ``after`` — once, to ``P⁻`` after the propagation (the paper, Sec. 2.5)
 Q_PLACEMENTS = ("both", "after")
+#: rules for the unscented λ (:class:`UsqueParams`)
+LAM_RULES = ("given", "julier")
 
 
 @dataclass(frozen=True, eq=False)
@@ -76,6 +78,9 @@ class UsqueParams:
     Attributes:
         alpha, beta, kappa: unscented tuning parameters.
         lam: λ given directly; ``None`` derives ``α² (n + κ) − n``.
+        lam_rule: ``"given"`` (``lam`` as above) or ``"julier"``: ``λ = 3 − n`` for every state dimension ``n``
+            (Julier and Uhlmann's ``κ = 3 − n``, which matches the fourth moment of a Gaussian along each sigma
+            axis; at ``n = 3`` it is the paper's ``λ = 0``, so the attitude-only filter is unchanged).
         grp_a, grp_f: GRP parameters ``a`` and ``f``.
         Q: process noise on the GRP error per step (rad²): scalar (× I), ``(3, 3)`` or ``(B, 3, 3)``.
         R: measurement noise variance (mag²): scalar, ``(B,)`` or per sample ``(B, T+1)`` (e.g. ``mag_err²`` of a
@@ -102,6 +107,7 @@ class UsqueParams:
     beta: float = 2.0
     kappa: float = 0.0
     lam: float | None = 0.0
+    lam_rule: str = "given"
     grp_a: float = 1.0
     grp_f: float = 4.0
     Q: float | Tensor = 1e-4
@@ -119,6 +125,8 @@ class UsqueParams:
     q_placement: str = "both"
 
     def __post_init__(self):
+        if self.lam_rule not in LAM_RULES:
+            raise ValueError(f"lam_rule must be one of {', '.join(LAM_RULES)}, got {self.lam_rule!r}")
         if self.q_placement not in Q_PLACEMENTS:
             raise ValueError(f"q_placement must be one of {', '.join(Q_PLACEMENTS)}, got {self.q_placement!r}")
         if not float(self.omega_process_noise) >= 0.0:
@@ -145,6 +153,7 @@ class UsqueParams:
         f = cfg.filter
         return cls(
             alpha=float(f.alpha), beta=float(f.beta), kappa=float(f.kappa), lam=None if f.lam is None else float(f.lam),
+            lam_rule=f.lam_rule,
             grp_a=float(f.grp_a), grp_f=float(f.grp_f), Q=float(f.process_noise), R=float(f.measurement_noise),
             variance=cfg.model.variance if f.add_model_variance else "none", t_span_past=float(cfg.data.t_span_past),
             offset_process_noise=float(f.offset_process_noise), adaptive_noise=f.adaptive_noise,
@@ -156,7 +165,8 @@ class UsqueParams:
 
     def weights(self, n: int = 3, *, dtype: torch.dtype | None = None, device=None) -> UnscentedWeights:
         """Sigma-point weights for an ``n``-dimensional state (3: the GRP error alone)."""
-        return unscented_weights(n, self.alpha, self.beta, self.kappa, self.lam, dtype=dtype, device=device)
+        lam = 3.0 - n if self.lam_rule == "julier" else self.lam
+        return unscented_weights(n, self.alpha, self.beta, self.kappa, lam, dtype=dtype, device=device)
 
 
 def initial_covariance(p0_deg: float, *, dtype: torch.dtype | None = None, device=None) -> Tensor:
