@@ -207,6 +207,9 @@ def _cross_check(cfg: Config) -> None:
                           f"{'rho_normalised or surface_normalised' if cfg.filter.estimate_offset else 'magnitude'} "
                           f"(got {cfg.model.target})")
     _check_training_spins(cfg)
+    if cfg.model.sparse.fit_inducing is not None and cfg.model.sparse.optimize_inducing:
+        raise ConfigError("model.sparse.fit_inducing: cannot be combined with model.sparse.optimize_inducing (the "
+                          "fitted inducing inputs would be replaced by num_inducing new ones)")
     single_spin = not isinstance(cfg.data.omega0_deg_s, SpinRangeConfig) and not isinstance(cfg.data.omega0_deg_s[0],
                                                                                            list)
     if cfg.filter.estimate_omega and cfg.model.inputs == "quaternion" and single_spin:
@@ -327,7 +330,8 @@ def config_to_dict(cfg: Any) -> dict:
     """Plain nested ``dict`` of a config or one of its sections (YAML/JSON serialisable) that
     :func:`config_from_dict` reads back: the model section keeps only the settings of its own kind, and options
     that are off (``data.surfaces`` null, ``filter.adaptive_noise`` none, ``filter.estimate_omega`` false, the
-    default USQUE variant, a zero ``scenario.initial_omega_error_deg_s``) are left out."""
+    default USQUE variant, a zero ``scenario.initial_omega_error_deg_s``, the sparse fit's default optimizer, precision,
+    subset and inducing count) are left out."""
     out = dataclasses.asdict(cfg)
     model = out.get("model") if isinstance(cfg, Config) else out if isinstance(cfg, ModelConfig) else None
     for section in MODEL_KIND_SECTIONS if model is not None else ():
@@ -358,7 +362,15 @@ def config_to_dict(cfg: Any) -> dict:
     scen = out.get("scenario") if isinstance(cfg, Config) else out if isinstance(cfg, ScenarioConfig) else None
     if scen is not None and not any(scen.get("initial_omega_error_deg_s", [1.0])):
         del scen["initial_omega_error_deg_s"]
+    sparse = model.get("sparse") if model is not None else None
+    for key, default in _SPARSE_FIT_DEFAULTS.items() if sparse is not None else ():
+        if sparse[key] == default:
+            del sparse[key]
     return out
+
+
+#: options of the sparse fit left out of :func:`config_to_dict` at their defaults (today's fit keeps its keys)
+_SPARSE_FIT_DEFAULTS = {"optimizer": "adam", "fit_dtype": "float64", "fit_subset": None, "fit_inducing": None}
 
 
 def parse_override(text: str) -> tuple[list[str], Any]:

@@ -189,7 +189,16 @@ class SparseModelConfig:
 
     num_inducing: int = _spec(512, lo=1)
     optimize_inducing: bool = _spec(False, doc="move the inducing inputs to maximise the collapsed bound")
-    iterations: int = _spec(200, lo=0, doc="Adam steps on the SGPR bound (inducing inputs and/or hyperparameters)")
+    iterations: int = _spec(200, lo=0, doc="evaluations of the SGPR bound during the fit (inducing inputs and/or "
+                                           "hyperparameters): Adam steps, or the most L-BFGS evaluations")
+    optimizer: str = _spec("adam", choices=("adam", "lbfgs"),
+                           doc="adam: model.fit_lr steps; lbfgs: L-BFGS with a strong-Wolfe line search")
+    fit_dtype: str = _spec("float64", choices=("float64", "float32"),
+                           doc="precision of the fit; the final conditioning is float64 either way")
+    fit_subset: int | None = _spec(None, lo=1, doc="fit on this seeded random subset of the training points, then "
+                                                   "condition on all of them; null: fit on all")
+    fit_inducing: int | None = _spec(None, lo=1, doc="fit with this many k-means inducing inputs, then condition "
+                                                     "with num_inducing; null: num_inducing")
 
 
 #: the sections of ``model`` that hold the settings of one model kind

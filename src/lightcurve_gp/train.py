@@ -5,12 +5,12 @@ paper, or magnitudes normalised to ``model.rho_reference`` for the offset filter
 the held-out metrics are computed on the same targets.
 
 Writes ``<out>/<name>/``: ``model.pt`` (the trained observation model), ``metrics.json`` (held-out RMSE, mean
-negative log predictive density, fraction of residuals within 2σ, timings), ``config.yaml`` (the resolved
-config), ``heldout_scatter.png`` and ``heldout_residuals.png``. The folder appears whole when the run ends
-(written into a temporary sibling, then renamed); an existing one is refused unless ``--force``, which replaces it
-only at the end and only when it holds nothing but these files. ``metrics.json`` records the model key
-(:mod:`lightcurve_gp.model_store`), the model file's SHA-256, the seeds, and under ``run`` the command line, the
-exact config, the package/torch/Python versions and the thread count.
+negative log predictive density, fraction of residuals within 2σ, timings, the fit's evaluations and final
+objective), ``config.yaml`` (the resolved config), ``heldout_scatter.png`` and ``heldout_residuals.png``. The folder
+appears whole when the run ends (written into a temporary sibling, then renamed); an existing one is refused unless
+``--force``, which replaces it only at the end and only when it holds nothing but these files. ``metrics.json``
+records the model key (:mod:`lightcurve_gp.model_store`), the model file's SHA-256, the seeds, and under ``run`` the
+command line, the exact config, the package/torch/Python versions and the thread count.
 """
 
 from __future__ import annotations
@@ -169,6 +169,7 @@ def _train_into(cfg: Config, run_dir: Path, cache_dir: Path, *, progress: bool, 
         result = {
             "name": cfg.name, "model": cfg.model.kind, "target": cfg.model.target, "train_points": len(data),
             "heldout": metrics, "fast_variance_vs_exact": variance_check, "timings_s": timings,
+            "fit_objective": _fit_objective(model),
             "model_file": str(run_dir / "model.pt"), "model_key": model_key(cfg),
             "model_sha256": file_sha256(tmp / "model.pt"), "torch_threads": torch.get_num_threads(),
             "seeds": {"training_attitudes": cfg.data.seed, "heldout": cfg.data.seed + 1},
@@ -176,6 +177,13 @@ def _train_into(cfg: Config, run_dir: Path, cache_dir: Path, *, progress: bool, 
         }
         write_json_atomic(result, tmp / "metrics.json")
     return result
+
+
+def _fit_objective(model: ObservationModel) -> dict | None:
+    """The fit's objective per point (evidence or SGPR bound, nats): its number of evaluations and last value;
+    ``None`` without a fit."""
+    history = getattr(model, "fit_history", None) or []
+    return {"evaluations": len(history) - 1, "final": history[-1]} if history else None
 
 
 _TARGETS = {"magnitude": "target: magnitude", "rho_normalised": "target: magnitude normalised to model.rho_reference",

@@ -3,8 +3,9 @@
 The exact GP maximises its log marginal likelihood (the evidence) on a seeded subset of the training points; the
 inducing-point GP maximises Titsias' collapsed bound — GPyTorch's ``InducingPointKernel`` under
 ``ExactMarginalLogLikelihood`` (its added loss term is the bound's trace term) — over its inducing inputs and/or
-hyperparameters. Both run the one Adam loop :func:`maximise_mll` with a progress bar. GPyTorch is used for fitting
-only; predictions are plain torch on cached tensors (:mod:`.exact_gp`, :mod:`.sparse_gp`).
+hyperparameters. Both run :func:`maximise_mll` (Adam, or L-BFGS for the sparse GP's ``model.sparse.optimizer``)
+with a progress bar. GPyTorch is used for fitting only; predictions are plain torch on cached tensors
+(:mod:`.exact_gp`, :mod:`.sparse_gp`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ __all__ = [
     "hyper_start",
     "maximise_mll",
     "seeded_subset",
+    "sgpr_bound",
 ]
 
 
@@ -105,32 +107,64 @@ def gpytorch_sgpr_model(x: Tensor, r: Tensor, z: Tensor, outputscale: float, len
 
 
 def maximise_mll(model, likelihood, x: Tensor, y: Tensor, params: list, *, iterations: int, lr: float,
-                 progress: bool = False, desc: str = "GP hyperparameters") -> list[float]:
-    """Adam on ``params`` of a GPyTorch ``ExactGP`` model (exact Cholesky, any size) against its
-    ``ExactMarginalLogLikelihood`` — the exact evidence, or the collapsed SGPR bound when the model's kernel is an
-    ``InducingPointKernel``. Returns the objective per point before each step and after the last
-    (``iterations + 1`` values); ``progress`` shows a bar with the current value."""
+                 progress: bool = False, desc: str = "GP hyperparameters", optimizer: str = "adam") -> list[float]:
+    """Maximise the ``ExactMarginalLogLikelihood`` of a GPyTorch ``ExactGP`` model (exact Cholesky, any size) over
+    ``params`` — the exact evidence, or the collapsed SGPR bound when the model's kernel is an
+    ``InducingPointKernel``.
+
+    ``optimizer="adam"``: ``iterations`` Adam steps of learning rate ``lr``. ``optimizer="lbfgs"``: L-BFGS with a
+    strong-Wolfe line search and at most ``iterations`` objective evaluations (``lr`` unused); it stops earlier when
+    the gradient or the change of the objective vanishes. Returns the objective per point at each evaluation and
+    after the last step (``iterations + 1`` values for Adam, at most that for L-BFGS); ``progress`` shows a bar
+    with the current value."""
     import gpytorch
     from tqdm.auto import tqdm
 
+    if optimizer not in ("adam", "lbfgs"):
+        raise ValueError(f"optimizer must be adam or lbfgs, got {optimizer!r}")
     model.train()
     likelihood.train()
     mll = gpytorch.mlls.ExactMarginalLogLikelihood(likelihood, model)
-    opt = torch.optim.Adam(params, lr=lr)
     history: list[float] = []
     with gpytorch.settings.max_cholesky_size(10**9), tqdm(total=iterations, desc=desc, disable=not progress,
                                                           leave=False) as bar:
-        for _ in range(iterations):
-            opt.zero_grad()
-            loss = -mll(model(x), y)
-            history.append(-loss.item())
-            loss.backward()
-            opt.step()
-            bar.set_postfix(objective=f"{history[-1]:.4f}", refresh=False)
-            bar.update()
+        steps = _adam_steps if optimizer == "adam" else _lbfgs_steps
+        steps(lambda: -mll(model(x), y), params, iterations=iterations, lr=lr, history=history, bar=bar)
         with torch.no_grad():
             history.append(float(mll(model(x), y)))
     return history
+
+
+def _adam_steps(loss_fn, params: list, *, iterations: int, lr: float, history: list[float], bar) -> None:
+    """``iterations`` Adam steps on ``loss_fn()`` (the negative objective), recording the objective before each."""
+    opt = torch.optim.Adam(params, lr=lr)
+    for _ in range(iterations):
+        opt.zero_grad()
+        loss = loss_fn()
+        history.append(-loss.item())
+        loss.backward()
+        opt.step()
+        bar.set_postfix(objective=f"{history[-1]:.4f}", refresh=False)
+        bar.update()
+
+
+def _lbfgs_steps(loss_fn, params: list, *, iterations: int, lr: float, history: list[float], bar) -> None:
+    """L-BFGS (strong-Wolfe line search, unit initial step) on ``loss_fn()`` with at most ``iterations``
+    evaluations, recording the objective at each; ``lr`` is not used."""
+    opt = torch.optim.LBFGS(params, lr=1.0, max_iter=iterations, max_eval=iterations, history_size=10,
+                            line_search_fn="strong_wolfe")
+
+    def closure() -> Tensor:
+        opt.zero_grad()
+        loss = loss_fn()
+        history.append(-loss.item())
+        loss.backward()
+        bar.set_postfix(objective=f"{history[-1]:.4f}", refresh=False)
+        bar.update()
+        return loss
+
+    if iterations > 0:
+        opt.step(closure)
 
 
 def _fitted_lengthscale(scale_kernel, dim: int) -> Tensor:
@@ -154,9 +188,10 @@ def fit_hyperparameters(x: Tensor, y_centred: Tensor, outputscale: float, length
 
 def fit_sgpr(x: Tensor, r: Tensor, z: Tensor, outputscale: float, lengthscale: Tensor, noise: float, *,
              optimize_inducing: bool, fit_hyper: bool, ard: bool, iterations: int, lr: float,
-             progress: bool = False) -> tuple[Tensor, float, Tensor, float, list[float]]:
-    """Adam on GPyTorch's collapsed SGPR bound over the inducing inputs ``z (M, d)`` (``optimize_inducing``) and/or
-    ``(θ1, ℓ, σ²)`` (``fit_hyper``); returns ``(Z, θ1, ℓ (d,), σ², bound-per-point history)``."""
+             progress: bool = False, optimizer: str = "adam") -> tuple[Tensor, float, Tensor, float, list[float]]:
+    """Maximise GPyTorch's collapsed SGPR bound (:func:`maximise_mll` with ``optimizer``) over the inducing inputs
+    ``z (M, d)`` (``optimize_inducing``) and/or ``(θ1, ℓ, σ²)`` (``fit_hyper``), in the dtype of ``x``; returns
+    ``(Z, θ1, ℓ (d,), σ², bound-per-point history)`` (``Z`` and ``ℓ`` in that dtype)."""
     model, likelihood = gpytorch_sgpr_model(x, r, z, outputscale, lengthscale, noise, ard)
     params = []
     if optimize_inducing:
@@ -166,6 +201,22 @@ def fit_sgpr(x: Tensor, r: Tensor, z: Tensor, outputscale: float, lengthscale: T
     history: list[float] = []
     if params and iterations > 0:
         history = maximise_mll(model, likelihood, x, r, params, iterations=iterations, lr=lr, progress=progress,
-                               desc="SGPR bound")
+                               desc="SGPR bound", optimizer=optimizer)
     return (model.covar_module.inducing_points.detach().clone(), float(model.base_covar.outputscale.detach()),
             _fitted_lengthscale(model.base_covar, x.shape[-1]), float(likelihood.noise.detach()), history)
+
+
+def sgpr_bound(x: Tensor, r: Tensor, z: Tensor, outputscale: float, lengthscale: Tensor, noise: float, *,
+               ard: bool = False) -> float:
+    """Titsias' collapsed bound per point (nats) of centred outputs ``r (N,)`` at mapped inputs ``x (N, d)`` with
+    inducing inputs ``z (M, d)`` and hyperparameters ``θ1``, ``ℓ (d,)``, ``σ²`` (``ard``: per-dimension ``ℓ``):
+    the objective :func:`fit_sgpr` maximises, evaluated once (GPyTorch, in the dtype of ``x``) to compare fits made
+    on subsets, with fewer inducing inputs or in float32 on one footing."""
+    import gpytorch
+
+    model, likelihood = gpytorch_sgpr_model(x, r, z, outputscale, lengthscale, noise, ard)
+    model.train()
+    likelihood.train()
+    mll = gpytorch.mlls.ExactMarginalLogLikelihood(likelihood, model)
+    with torch.no_grad(), gpytorch.settings.max_cholesky_size(10**9):
+        return float(mll(model(x), r))

@@ -4,7 +4,9 @@ Same kernel, noise and centred outputs as :class:`~.exact_gp.ExactGP`. ``M = mod
 inputs ``Z`` are initialised from the mapped training inputs by k-means (a few seeded Lloyd iterations) or a seeded
 random subset, and optionally optimised (``model.sparse.optimize_inducing``) for ``model.sparse.iterations`` Adam
 steps on the collapsed bound (:func:`.fitting.fit_sgpr`). Kernel hyperparameters stay the paper's unless
-``model.fit_hyperparameters``.
+``model.fit_hyperparameters``. The fit may be made cheaper than the final model (``model.sparse``: ``optimizer``
+L-BFGS, ``fit_dtype`` float32, a ``fit_subset`` of the points, ``fit_inducing`` fewer inducing inputs); the
+conditioning below is float64 on all points with all ``num_inducing`` inducing inputs either way.
 
 Prediction is plain torch on a cache computed once (float64, Cholesky forms; ``L_uu L_uuᵀ = K_uu``,
 ``A = L_uu⁻¹ K_uf / σ``, ``B = I + A Aᵀ = L_B L_Bᵀ``, so that ``Λ = K_uu + σ⁻² K_uf K_fu = L_uu B L_uuᵀ``):
@@ -124,6 +126,29 @@ def _initial_inducing(x: Tensor, num: int, init: str, seed: int, kmeans_iteratio
     raise ValueError(f"init must be kmeans or random, got {init!r}")
 
 
+def _fit(ts: GPTrainingSet, z: Tensor, cfg: Any, *, seed: int, kmeans_iterations: int,
+         progress: bool) -> tuple[Tensor, float, Tensor, float, list[float]]:
+    """:func:`~.fitting.fit_sgpr` as ``cfg.sparse`` asks: on ``fit_subset`` seeded random training points (all when
+    null), with ``fit_inducing`` k-means inducing inputs (``z (M, d)`` when null), in ``fit_dtype``, by ``optimizer``.
+
+    Returns ``(Z, θ1, ℓ (d,), σ², bound-per-point history)`` for the float64 conditioning on all points: ``Z`` is
+    ``z`` unless ``optimize_inducing`` moved it, ``ℓ`` float64.
+    """
+    sp = cfg.sparse
+    x, r = ts.x, ts.r
+    if sp.fit_subset is not None:
+        keep = seeded_subset(x.shape[0], sp.fit_subset, seed, x.device)
+        x, r = x[keep], r[keep]
+    z_fit = z if sp.fit_inducing is None else kmeans(ts.x, sp.fit_inducing, iterations=kmeans_iterations, seed=seed)
+    dtype = getattr(torch, sp.fit_dtype)
+    z_fitted, outputscale, lengthscale, noise, history = fit_sgpr(
+        x.to(dtype), r.to(dtype), z_fit.to(dtype), ts.outputscale, ts.lengthscale.to(dtype), ts.noise,
+        optimize_inducing=sp.optimize_inducing, fit_hyper=cfg.fit_hyperparameters, ard=cfg.ard,
+        iterations=sp.iterations, lr=cfg.fit_lr, progress=progress, optimizer=sp.optimizer)
+    z = z_fitted.to(z) if sp.optimize_inducing else z
+    return z, outputscale, lengthscale.to(torch.float64), noise, history
+
+
 class SparseGP(CachedGP):
     """Inducing-point GP; plain-torch prediction from the cached ``w`` and ``P`` (see the module docstring).
 
@@ -172,10 +197,8 @@ class SparseGP(CachedGP):
         outputscale, lengthscale, noise = ts.outputscale, ts.lengthscale, ts.noise
         history: list[float] = []
         if (sp.optimize_inducing or cfg.fit_hyperparameters) and sp.iterations > 0:
-            z, outputscale, lengthscale, noise, history = fit_sgpr(
-                x, r, z, outputscale, lengthscale, noise, optimize_inducing=sp.optimize_inducing,
-                fit_hyper=cfg.fit_hyperparameters, ard=cfg.ard, iterations=sp.iterations, lr=cfg.fit_lr,
-                progress=progress)
+            z, outputscale, lengthscale, noise, history = _fit(ts, z, cfg, seed=seed,
+                                                               kmeans_iterations=kmeans_iterations, progress=progress)
         w, p = sgpr_cache(x, r, z, outputscale, lengthscale, noise, jitter=jitter)
         model = cls(ts.inputs, z, w, p, ts.y_mean, outputscale, lengthscale, noise, config=config_to_dict(cfg))
         model.fit_history = history

@@ -1,0 +1,147 @@
+"""The cheaper fits of the sparse GP (model.sparse: optimizer, fit_dtype, fit_subset, fit_inducing) and the bound
+they are compared on."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from lightcurve_gp.config import ConfigError, config_from_dict, config_to_dict, load_config
+from lightcurve_gp.model_store import model_key
+from lightcurve_gp.observation.fitting import gpytorch_sgpr_model, maximise_mll, sgpr_bound
+from lightcurve_gp.observation.gp_base import GPTrainingSet
+from lightcurve_gp.observation.sparse_gp import SparseGP
+
+ROBUST = Path(__file__).resolve().parents[1] / "configs" / "boxwing_robust.yaml"
+F64 = torch.float64
+NEW_KEYS = ("optimizer", "fit_dtype", "fit_subset", "fit_inducing")
+
+
+def _data(n: int, seed: int = 0):
+    """Unit quaternions, a constant m_past (unused by attitude_matrix inputs) and a smooth y of A(q) plus noise."""
+    g = torch.Generator().manual_seed(seed)
+    q = torch.randn(n, 4, generator=g, dtype=F64)
+    q = q / q.norm(dim=-1, keepdim=True)
+    y = 13.0 + torch.sin(2 * q[:, 0] * q[:, 3]) + 0.5 * q[:, 1] * q[:, 2] + 0.05 * torch.randn(n, generator=g,
+                                                                                              dtype=F64)
+    return q, torch.full((n,), 13.0, dtype=F64), y
+
+
+def _model_cfg(*overrides: str):
+    base = ["model.sparse.num_inducing=40", "model.sparse.iterations=8"]
+    return load_config(ROBUST, base + list(overrides)).model
+
+
+@pytest.fixture(scope="module")
+def train():
+    return _data(300)
+
+
+@pytest.mark.parametrize("override, message", [
+    ("model.sparse.optimizer=sgd", "model.sparse.optimizer: 'sgd' is not one of adam, lbfgs"),
+    ("model.sparse.fit_dtype=float16", "model.sparse.fit_dtype: 'float16' is not one of float64, float32"),
+    ("model.sparse.fit_subset=0", "model.sparse.fit_subset: 0 must be >= 1"),
+    ("model.sparse.fit_subset=half", "model.sparse.fit_subset: expected an integer, got 'half'"),
+    ("model.sparse.fit_inducing=1.5", "model.sparse.fit_inducing: expected an integer, got 1.5"),
+])
+def test_bad_fit_options_are_config_errors_naming_the_key(override, message):
+    with pytest.raises(ConfigError) as err:
+        load_config(ROBUST, [override])
+    assert str(err.value) == message
+
+
+def test_fewer_fit_inducing_inputs_cannot_be_moved():
+    with pytest.raises(ConfigError) as err:
+        load_config(ROBUST, ["model.sparse.fit_inducing=500", "model.sparse.optimize_inducing=true"])
+    assert str(err.value).startswith("model.sparse.fit_inducing: cannot be combined with "
+                                     "model.sparse.optimize_inducing")
+
+
+def test_default_fit_options_leave_the_model_key_alone():
+    """At their defaults the options are absent from the config dict (stored models keep their keys); any other
+    value is written, read back and changes the key."""
+    cfg = load_config(ROBUST)
+    assert set(NEW_KEYS).isdisjoint(config_to_dict(cfg)["model"]["sparse"])
+    keys = {model_key(cfg)}
+    for override in ("optimizer=lbfgs", "fit_dtype=float32", "fit_subset=3000", "fit_inducing=500"):
+        changed = load_config(ROBUST, [f"model.sparse.{override}"])
+        raw = config_to_dict(changed)
+        assert override.split("=")[0] in raw["model"]["sparse"]
+        assert config_from_dict(raw) == changed
+        keys.add(model_key(changed))
+    assert len(keys) == 5
+
+
+def test_bound_with_the_training_inputs_as_inducing_inputs_is_the_evidence(train):
+    """With Z = X the Nyström approximation is exact and the trace term vanishes: the collapsed bound is the exact
+    log marginal likelihood, computed here independently with a dense Gaussian."""
+    q, m, y = _data(60)
+    ts = GPTrainingSet.prepare(q, m, y, _model_cfg(), None)
+    theta1, ls, noise = 0.7, torch.full((9,), 0.8, dtype=F64), 0.05
+    k = theta1 * torch.exp(-0.5 * torch.cdist(ts.x / ls, ts.x / ls) ** 2) + noise * torch.eye(60, dtype=F64)
+    evidence = torch.distributions.MultivariateNormal(torch.zeros(60, dtype=F64), k).log_prob(ts.r) / 60
+    assert sgpr_bound(ts.x, ts.r, ts.x, theta1, ls, noise) == pytest.approx(float(evidence), abs=1e-6)
+    # fewer inducing inputs: a lower bound
+    assert sgpr_bound(ts.x, ts.r, ts.x[:10], theta1, ls, noise) < float(evidence)
+
+
+def _bound_gradient(model, likelihood, x, r) -> float:
+    """Largest |gradient| of the bound per point over the raw hyperparameters."""
+    import gpytorch
+
+    params = list(model.base_covar.parameters()) + list(likelihood.parameters())
+    mll = gpytorch.mlls.ExactMarginalLogLikelihood(likelihood, model)
+    with gpytorch.settings.max_cholesky_size(10**9):
+        grads = torch.autograd.grad(mll(model(x), r), params)
+    return max(float(g.abs().max()) for g in grads)
+
+
+def test_lbfgs_ends_nearer_a_stationary_point_than_adam_in_as_many_evaluations(train):
+    ts = GPTrainingSet.prepare(*train, _model_cfg(), None)
+    z = ts.x[:30]
+    finals, gradients = {}, {}
+    for optimizer in ("adam", "lbfgs"):
+        model, likelihood = gpytorch_sgpr_model(ts.x, ts.r, z, ts.outputscale, ts.lengthscale, ts.noise, False)
+        params = list(model.base_covar.parameters()) + list(likelihood.parameters())
+        history = maximise_mll(model, likelihood, ts.x, ts.r, params, iterations=40, lr=0.05, optimizer=optimizer)
+        assert len(history) <= 41 and history[-1] > history[0]
+        bound = sgpr_bound(ts.x, ts.r, z, float(model.base_covar.outputscale.detach()),
+                           model.base_covar.base_kernel.lengthscale.detach().reshape(-1),
+                           float(likelihood.noise.detach()))
+        assert bound == pytest.approx(history[-1], abs=1e-10)  # the history's last value is the fitted bound
+        finals[optimizer], gradients[optimizer] = history[-1], _bound_gradient(model, likelihood, ts.x, ts.r)
+    assert finals["lbfgs"] > finals["adam"]
+    assert gradients["lbfgs"] < 1e-3 * gradients["adam"], gradients  # near a stationary point, Adam far from one
+    with pytest.raises(ValueError, match="optimizer must be adam or lbfgs, got 'sgd'"):
+        maximise_mll(model, likelihood, ts.x, ts.r, params, iterations=1, lr=0.1, optimizer="sgd")
+
+
+def test_fit_on_all_points_or_all_inducing_inputs_is_the_default_fit(train):
+    """A subset as large as the data is the data in order, and fit_inducing = num_inducing draws the same k-means
+    inducing inputs: both reproduce the default fit bit for bit."""
+    default = SparseGP.from_data(*train, _model_cfg())
+    for override in ("model.sparse.fit_subset=300", "model.sparse.fit_inducing=40"):
+        other = SparseGP.from_data(*train, _model_cfg(override))
+        assert other.fit_history == default.fit_history
+        for name in ("z", "w", "p", "lengthscale", "outputscale", "noise"):
+            assert torch.equal(getattr(other, name), getattr(default, name)), (override, name)
+
+
+def test_cheaper_fits_condition_in_float64_on_all_points(train):
+    """A float32 fit lands within float32 rounding of the float64 one; a subset, fewer inducing inputs or L-BFGS
+    change the hyperparameters, the model still has all num_inducing inducing inputs and float64 caches, and the
+    fit raised the bound on all points above that of the start (the paper's values)."""
+    default = SparseGP.from_data(*train, _model_cfg())
+    f32 = SparseGP.from_data(*train, _model_cfg("model.sparse.fit_dtype=float32"))
+    assert f32.theta1 == pytest.approx(default.theta1, rel=1e-4)
+    assert float(f32.noise) == pytest.approx(float(default.noise), rel=1e-4)
+    assert torch.allclose(f32.lengthscale, default.lengthscale, rtol=1e-4)
+    ts = GPTrainingSet.prepare(*train, _model_cfg(), None)
+    start = sgpr_bound(ts.x, ts.r, default.z, ts.outputscale, ts.lengthscale, ts.noise)
+    for override in ("model.sparse.fit_subset=150", "model.sparse.fit_inducing=20", "model.sparse.optimizer=lbfgs"):
+        other = SparseGP.from_data(*train, _model_cfg(override))
+        assert torch.equal(other.z, default.z) and other.w.dtype == F64 and other.p.dtype == F64
+        assert not torch.equal(other.lengthscale, default.lengthscale), override
+        assert sgpr_bound(ts.x, ts.r, other.z, other.theta1, other.lengthscale, float(other.noise)) > start, override
