@@ -26,7 +26,7 @@ from pathlib import Path
 
 import torch
 
-from experiments._cli import robust_arguments
+from experiments._cli import ROOT, robust_arguments
 from lightcurve_gp.config import load_config
 from lightcurve_gp.data import load_or_generate, model_targets
 from lightcurve_gp.estimation import run_estimators
@@ -52,6 +52,9 @@ VARIANTS = {
     # today's fitted (theta1, theta2 = 2 l^2, sigma) as the config's values, not fitted again
     "fixed_at_today": ["model.fit_hyperparameters=false", "model.theta1=0.6288411986593109",
                        "model.theta2=0.6866688713277718", "model.noise_std=0.3357213235541524"],
+    # the same, rounded to two digits as a config would state them
+    "fixed_rounded": ["model.fit_hyperparameters=false", "model.theta1=0.63", "model.theta2=0.69",
+                      "model.noise_std=0.34"],
 }
 #: the issue's criteria against today's model: share below 10 deg, median per axis within this ratio of today's
 MIN_FRACTION = 0.93
@@ -73,6 +76,11 @@ def _train(cfg, runs: Path, retrain: bool) -> tuple:
     if trained:
         record.update(train_wall_s=wall, load_1min_before=load_before, load_1min_after=os.getloadavg()[0])
     return model, record
+
+
+def hyperparameters(model) -> dict:
+    """The model's ``θ1``, ``θ2 = 2ℓ²`` (first input) and ``σ`` (mag)."""
+    return {"theta1": model.theta1, "theta2": float(model.theta2[0]), "noise_std": model.noise_std}
 
 
 def _bound(cfg, model, runs: Path) -> float:
@@ -106,7 +114,8 @@ def verdict(entry: dict, today: dict | None) -> dict:
 
 def table(results: dict) -> str:
     """Markdown table of every measured variant."""
-    header = ["variant", "overrides", "fit s", "threads", "load before/after", "evaluations", "bound/point",
+    header = ["variant", "overrides", "fit s", "threads", "load before/after", "evaluations", "theta1, theta2, sigma",
+              "bound/point",
               "< 10 deg", "mean NEES (band)", "median yaw/pitch/roll (deg)", "ratio to today"]
     rows = []
     for name, e in results.items():
@@ -115,7 +124,8 @@ def table(results: dict) -> str:
                 else "not recorded")
         ratio = ", ".join(f"{x:.3f}" for x in v.get("median_ratio_to_today", [])) or "-"
         rows.append([name, " ".join(e["overrides"]) or "(robust config)", f"{e['fit_s']:.0f}",
-                     str(e["torch_threads"]), load, str(obj.get("evaluations", "-")), f"{e['bound']:.4f}",
+                     str(e["torch_threads"]), load, str(obj.get("evaluations", "-")),
+                     ", ".join(f"{v:.3f}" for v in e["hyperparameters"].values()), f"{e['bound']:.4f}",
                      f"{100 * f['fraction_below_10deg']:.1f} %",
                      f"{f['nees_mean']:.2f} ({f['nees_band_95'][0]:.2f}-{f['nees_band_95'][1]:.2f})",
                      "/".join(f"{x:.2f}" for x in f["rmse_deg_median"]), ratio])
@@ -173,16 +183,23 @@ def main(argv=None) -> int:
     for name in names:
         cfg = load_config(args.config, VARIANTS[name])
         model, record = _train(cfg, args.runs, args.retrain)
-        entry = {"overrides": VARIANTS[name], **record, "bound": _bound(cfg, model, args.runs),
+        entry = {"overrides": VARIANTS[name], **record, "hyperparameters": hyperparameters(model),
+                 "bound": _bound(cfg, model, args.runs),
                  "filter": _filter(cfg, model, seeds, args.rho)}
         entry["verdict"] = verdict(entry, results.get("today") if name != "today" else None)
         results[name] = entry
         print(f"{name}: {json.dumps(entry)}", flush=True)
-        write_json_atomic({"seeds": [seeds.start, seeds.stop], "rho_true": args.rho, "config": args.config,
+        write_json_atomic({"seeds": [seeds.start, seeds.stop], "rho_true": args.rho, "config": _relative(args.config),
                            "variants": results}, out)
         write_text_atomic(f"# Robust GP fit variants ({args.seeds} seeds from {seeds.start}, rho_true "
                           f"{args.rho:g})\n\n" + table(results), args.out / "training_variants.md")
     return 0
+
+
+def _relative(path: str) -> str:
+    """``path`` relative to the repository when inside it."""
+    resolved = Path(path).resolve()
+    return str(resolved.relative_to(ROOT)) if resolved.is_relative_to(ROOT) else path
 
 
 def _time_only(args, names: list[str]) -> int:
