@@ -112,7 +112,7 @@ def test_log_likelihood_is_the_gaussian_density_of_the_innovations(tmp_path, mod
         assert float(ll[b]) == pytest.approx(expected, rel=1e-12)
 
 
-def test_geometry_the_renderer_cannot_use_is_refused(tmp_path, model_file, capsys):
+def test_geometry_a_fixed_geometry_model_cannot_use_is_refused(tmp_path, model_file, capsys):
     obs = simulated(tmp_path)
     lc = read_light_curve(obs)
     n = lc.t.size
@@ -122,9 +122,10 @@ def test_geometry_the_renderer_cannot_use_is_refused(tmp_path, model_file, capsy
     code, folder = estimated(tmp_path, model_file, geo, "--initial-attitude=0,0,0,1")
     assert code == 2 and not folder.parent.exists()
     assert capsys.readouterr().err == (
-        f"error: {geo}: the file gives per-sample geometry columns (sun_*, obs_*, range_km), which estimate "
-        f"--light-curve does not use yet: it runs with the config's fixed Sun and observer (geometry section); remove "
-        f"them from the file to run with the config's geometry\n")
+        f"error: {geo}: the file gives per-sample geometry columns (sun_*, obs_*, range_km), but the model (inputs: "
+        f"attitude_matrix) was trained under one fixed geometry and would ignore it; use a model with model.inputs: "
+        f"body_geometry (e.g. configs/geo_pass.yaml) or remove the geometry from the file to run with the config's "
+        f"fixed Sun and observer\n")
 
 
 def test_a_bad_file_is_one_line_exit_2_and_nothing_written(tmp_path, model_file, capsys):

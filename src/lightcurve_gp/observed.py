@@ -6,10 +6,14 @@ file gives ``mag_err`` (else ``filter.measurement_noise``). It starts from a giv
 global-start bank (:mod:`lightcurve_gp.global_start`). The user has no truth, so the run is judged by its innovations:
 the NIS ``ν²/Pyy`` of a consistent filter is χ²(1), its mean over ``n`` samples lies in :func:`metrics.chi2_band`.
 
-Geometry. The filter on a file takes the config's fixed Sun and observer (``geometry``); a file with per-sample
-geometry columns or a TLE is refused (:func:`check_geometry_usable`) rather than run with a geometry it does not have.
-Per-sample geometry enters here: the observation model would take the body-frame Sun and observer directions per
-step (``A(q) s_k``, ``A(q) v_k``) and the range ``r_k`` (Eq. (8): ``+5 log10(r_k / r_ref)``).
+Geometry (:func:`file_geometry`). A file with per-sample geometry columns (``sun_*``, ``obs_*``, ``range_km``) or
+with a TLE and a site gives a :class:`~lightcurve_gp.geometry.PassGeometry` of its samples (the TLE through
+:func:`lightcurve_gp.geometry.orbit_pass`, every sample kept: the file's magnitudes were observed), and every filter
+step predicts with its own sample's geometry (:class:`~lightcurve_gp.observation.along_pass.AlongPass`): the
+body-frame Sun and observer directions ``A(q) s_k``, ``A(q) v_k`` and the range ``r_k`` of a ``body_geometry`` GP.
+Such a file needs a model that takes geometry; a GP trained under one fixed geometry is refused
+(:func:`check_model_takes_geometry`) rather than run with a geometry it would ignore. A file without geometry runs
+with the config's fixed Sun and observer.
 """
 
 from __future__ import annotations
@@ -22,6 +26,9 @@ import torch
 from astropy.table import Table
 from torch import Tensor
 
+from .config import ConfigError
+from .config_schema import GeometryConfig, SiteConfig
+from .geometry import PassGeometry, orbit_pass
 from .global_start import BankResult, bank_attitudes, run_bank, run_filter
 from .lightcurve_file import LightCurve, iso_times
 from .metrics import chi2_band
@@ -30,12 +37,12 @@ from .timeline import spin_increments
 from .ukf import FilterHistory
 from .ukf_offset import offset_to_rho
 
-__all__ = ["ObservedRun", "GeometryNotSupported", "check_geometry_usable", "file_inputs", "estimate_light_curve",
-           "history_table", "nis_summary", "bank_table"]
+__all__ = ["ObservedRun", "FileGeometryError", "file_geometry", "check_model_takes_geometry", "file_inputs",
+           "estimate_light_curve", "history_table", "nis_summary", "bank_table"]
 
 
-class GeometryNotSupported(ValueError):
-    """The file carries geometry that ``estimate --light-curve`` does not use yet."""
+class FileGeometryError(ValueError):
+    """The file's geometry cannot be used: a TLE without a site, or a model that takes no geometry."""
 
 
 @dataclass
@@ -49,15 +56,40 @@ class ObservedRun:
     seconds: float
 
 
-def check_geometry_usable(lc: LightCurve) -> None:
-    """Refuse a file whose geometry ``estimate --light-curve`` does not use yet (module docstring)."""
-    what = "per-sample geometry columns (sun_*, obs_*, range_km)" if lc.geometry is not None else \
-        "a TLE (tle_line1, tle_line2)" if lc.has_tle else None
-    if what is not None:
-        raise GeometryNotSupported(
-            f"{lc.source}: the file gives {what}, which estimate --light-curve does not use yet: it runs with the "
-            f"config's fixed Sun and observer (geometry section); remove them from the file to run with the config's "
-            f"geometry")
+def file_geometry(lc: LightCurve) -> PassGeometry | None:
+    """The per-sample geometry of a file (module docstring): from its geometry columns, from its TLE and site, or
+    ``None`` when it gives neither."""
+    if lc.geometry is not None:
+        g = lc.geometry
+        try:
+            return PassGeometry.from_columns(times_s=lc.t, sun=g["sun"], observer=g["obs"],
+                                             range_m=g["range_km"] * 1e3, start_utc=lc.start.isot, shadow_model="none")
+        except ValueError as exc:
+            raise FileGeometryError(f"{lc.source}: geometry columns: {exc}") from None
+    if not lc.has_tle:
+        return None
+    if lc.site is None:
+        raise FileGeometryError(f"{lc.source}: metadata site_lat_deg: missing (a file with a TLE needs the observing "
+                                f"site: site_lat_deg, site_lon_deg, site_alt_m)")
+    lat, lon, alt_m = lc.site
+    geo = GeometryConfig(kind="orbit", tle=[lc.meta["tle_line1"], lc.meta["tle_line2"]],
+                         site=SiteConfig(lat_deg=lat, lon_deg=lon, alt_km=alt_m / 1e3), start_utc=lc.start.isot,
+                         min_elevation_deg=-90.0)
+    try:
+        return orbit_pass(geo, np.asarray(lc.t, dtype=np.float64))
+    except ConfigError as exc:
+        raise FileGeometryError(f"{lc.source}: metadata tle_line1/tle_line2 and site: {exc}") from None
+
+
+def check_model_takes_geometry(model, lc: LightCurve) -> None:
+    """Refuse a file with geometry for a model that takes none (module docstring)."""
+    inputs = getattr(model, "config", {}).get("inputs")
+    if (lc.geometry is not None or lc.has_tle) and inputs != "body_geometry":
+        what = "per-sample geometry columns (sun_*, obs_*, range_km)" if lc.geometry is not None else "a TLE and site"
+        raise FileGeometryError(
+            f"{lc.source}: the file gives {what}, but the model (inputs: {inputs}) was trained under one fixed "
+            f"geometry and would ignore it; use a model with model.inputs: body_geometry (e.g. configs/geo_pass.yaml) "
+            f"or remove the geometry from the file to run with the config's fixed Sun and observer")
 
 
 def file_inputs(cfg, lc: LightCurve) -> tuple[Tensor, Tensor, Tensor | None]:
@@ -73,21 +105,26 @@ def file_inputs(cfg, lc: LightCurve) -> tuple[Tensor, Tensor, Tensor | None]:
 
 
 def estimate_light_curve(cfg, model, lc: LightCurve, *, initial_attitude: Tensor | None = None,
-                         bank_size: int = 1024, keep: int = 5) -> ObservedRun:
+                         bank_size: int = 1024, keep: int = 5, prune_after_s: float | None = None,
+                         prune_keep: int = 64) -> ObservedRun:
     """The GPUKF of ``cfg`` on ``lc``: from ``initial_attitude (4,)`` when given, else from the best member of a
-    bank of ``bank_size`` filters (the best ``keep`` are rerun with the config's settings)."""
+    bank of ``bank_size`` filters (the best ``keep`` are rerun with the config's settings; with ``prune_after_s``
+    only the best ``prune_keep`` run past the samples of the first ``prune_after_s`` seconds)."""
     import time
 
-    check_geometry_usable(lc)
+    check_model_takes_geometry(model, lc)
+    geometry = file_geometry(lc)
     y, increments, R = file_inputs(cfg, lc)
     start = time.perf_counter()
     if initial_attitude is not None:
         q0 = quat_normalize(initial_attitude.to(y)).reshape(1, 4)
         history = run_filter(cfg, model, q_est0=q0, observations=y.unsqueeze(0), increments=increments,
-                             R=None if R is None else R.unsqueeze(0))
+                             R=None if R is None else R.unsqueeze(0), geometry=geometry)
         return ObservedRun(lc, history, q0[0], None, time.perf_counter() - start)
+    prune = None if prune_after_s is None else max(1, int(np.searchsorted(lc.t, lc.t[0] + prune_after_s, "right")) - 1)
     bank = run_bank(cfg, model, observations=y, increments=increments, R=R,
-                    q0=bank_attitudes(bank_size, dtype=y.dtype, device=y.device), keep=keep)
+                    q0=bank_attitudes(bank_size, dtype=y.dtype, device=y.device), keep=keep, geometry=geometry,
+                    prune_after=prune, prune_keep=min(prune_keep, bank_size))
     best = _select(bank.kept, 0)
     return ObservedRun(lc, best, bank.q0[bank.order[0]], bank, time.perf_counter() - start)
 
@@ -136,10 +173,14 @@ def nis_summary(history: FilterHistory) -> dict:
 
 
 def bank_table(bank: BankResult) -> Table:
-    """Every bank member, best first: rank, index, initial quaternion, log-likelihood (nats), posterior weight."""
+    """Every bank member, best first: rank, index, initial quaternion, log-likelihood (nats), posterior weight and,
+    when the bank was pruned, whether it ran the whole light curve (a pruned member's log-likelihood covers the first
+    stretch only, its weight is 0)."""
     order = bank.order.cpu()
     q0 = bank.q0.cpu()[order].numpy()
-    return Table({"rank": np.arange(1, order.numel() + 1), "member": order.numpy(),
-                  **{f"q0_{i + 1}": q0[:, i] for i in range(4)},
-                  "log_likelihood": bank.log_likelihood.cpu()[order].numpy(),
-                  "weight": bank.weights.cpu()[order].numpy()})
+    cols = {"rank": np.arange(1, order.numel() + 1), "member": order.numpy(),
+            **{f"q0_{i + 1}": q0[:, i] for i in range(4)},
+            "log_likelihood": bank.log_likelihood.cpu()[order].numpy(), "weight": bank.weights.cpu()[order].numpy()}
+    if bank.survivors is not None:
+        cols["whole_curve"] = np.isin(order.numpy(), bank.survivors.cpu().numpy())
+    return Table(cols)
