@@ -107,3 +107,12 @@ def test_pruning_ranks_the_survivors_first_and_weights_only_them(toy_light_curve
     assert bank.bank_history.q_est.shape == (32, 11, 4)
     with pytest.raises(ValueError, match="prune_keep"):
         run_bank(cfg, model, observations=y, increments=increments, q0=q0, keep=3, prune_after=10, prune_keep=2)
+
+
+def test_pruning_refuses_adaptive_noise_before_running(toy_light_curve):
+    _, model, y, increments, q0 = toy_light_curve
+    cfg = load_config(ROBUST, ["filter.adaptive_noise=innovation"])
+    calls = model.calls
+    with pytest.raises(ValueError, match="^pruning: adaptive measurement noise"):
+        run_bank(cfg, model, observations=y, increments=increments, q0=q0, keep=3, prune_after=10, prune_keep=8)
+    assert model.calls == calls

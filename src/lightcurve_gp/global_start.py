@@ -135,15 +135,14 @@ def continue_filters(cfg, model: ObservationModel, history: FilterHistory, membe
     running mean) on the next ``observations (K, T'+1)`` (column 0: the last sample ``history`` used, not used
     again), increments ``(T', 4)`` and ``R`` (as :func:`run_filter`; per-sample ``(K, T'+1)`` aligned with
     ``observations``; ``geometry``: of these ``T'+1`` samples, along a pass): the same filter as one uninterrupted
-    run, to rounding. Adaptive measurement noise carries a
-    running state of its own and is refused."""
+    run, to rounding. Adaptive measurement noise carries a running state of its own and is refused."""
     params = _params(cfg, R, variance)
     if params.adaptive_noise != "none":
         raise ValueError("continue_filters: adaptive measurement noise (filter.adaptive_noise) is not carried over")
     pick = lambda t: None if t is None else t[members, -1]  # noqa: E731
     return run_usque(model=_pass_models(model, geometry)[1], q_est0=history.q_est[members, -1],
-                     P0=history.P_full[members, -1],
-                     observations=observations, m_past0=history.m_past_final[members], increments=increments,
+                     P0=history.P_full[members, -1], observations=observations,
+                     m_past0=history.m_past_final[members], increments=increments,
                      params=params, offset0=pick(history.offset), theta0=pick(history.theta),
                      omega0=pick(history.omega))
 
@@ -170,6 +169,9 @@ def run_bank(cfg, model: ObservationModel, *, observations: Tensor, increments: 
     if pruned and (prune_after < 1 or not keep <= prune_keep <= n):
         raise ValueError(f"pruning needs prune_after >= 1 and keep <= prune_keep <= {n}, got prune_after "
                          f"{prune_after} and prune_keep {prune_keep} (keep {keep})")
+    if pruned and cfg.filter.adaptive_noise != "none":
+        raise ValueError("pruning: adaptive measurement noise (filter.adaptive_noise) is not carried over; run the "
+                         "bank unpruned")
     start = time.perf_counter()
     if pruned:
         bank, ll, order, weights, survivors = _pruned_bank(cfg, model, observations, increments, q0, R, bank_variance,
