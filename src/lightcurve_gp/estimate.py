@@ -50,7 +50,8 @@ PAPER_STEP_SECONDS = {"gpukf": "0.83-0.88", "ukf": "0.003-0.007"}
 
 def format_table(summary: dict) -> str:
     """Fixed-width table: estimator, median [IQR] RMSE per axis (deg), light-curve RMSE (mag), time per step."""
-    head = (f"{'estimator':<12} {'yaw':>20} {'pitch':>20} {'roll':>20} {'<10deg':>7} {'LC rmse':>8} "
+    width = max([12, *(len(name) for name in summary["estimators"])])
+    head = (f"{'estimator':<{width}} {'yaw':>20} {'pitch':>20} {'roll':>20} {'<10deg':>7} {'LC rmse':>8} "
             f"{'NEES':>6} {'ms/step':>8} {'us/filter-step':>14}")
     lines = [f"rho_true = {summary['rho_true']:g}, {summary['seeds']} seeds, RMSE over "
              f"{summary['window_s'][0]:g}-{summary['window_s'][1]:g} s: median [q25, q75] in deg", head,
@@ -58,7 +59,7 @@ def format_table(summary: dict) -> str:
     for name, e in summary["estimators"].items():
         cells = [f"{m:6.2f} [{a:5.2f},{b:5.2f}]" for m, a, b in
                  zip(e["rmse_deg_median"], e["rmse_deg_q25"], e["rmse_deg_q75"])]
-        lines.append(f"{name:<12} {cells[0]:>20} {cells[1]:>20} {cells[2]:>20} "
+        lines.append(f"{name:<{width}} {cells[0]:>20} {cells[1]:>20} {cells[2]:>20} "
                      f"{100 * e['fraction_all_axes_below_10deg']:6.0f}% {e['lc_rmse_noisy_median']:8.3f} "
                      f"{e['nees_mean']:6.2f} {1e3 * e['seconds_per_step']:8.3f} "
                      f"{1e6 * e['seconds_per_filter_step']:14.1f}")

@@ -11,6 +11,8 @@ Estimators (names used in tables, figures and JSON):
   estimates ρ (it needs every other surface parameter);
 * ``surface_ukf`` — the renderer with the surface as states (log ρ, logit F0, log n_u, log n_v beside the attitude,
   :mod:`lightcurve_gp.surface_state`): surface unknown, shape known (ω taken as known);
+* ``surface_ukf_select`` — the same filter run with the paper's ``λ = 0`` and with Julier's ``λ = 3 − n``, each
+  seed's run of higher innovation likelihood kept (:func:`run_surface_filter_selected`);
 * ``no_update`` — the initial estimate merely propagated with the initial rate (a filter that learned nothing).
 
 With ``filter.estimate_omega`` every filter carries the body rate in its state (``[δp, ω, b?]``,
@@ -24,6 +26,7 @@ variance ``filter.offset_prior_std²``; ``b`` is a random walk of variance ``fil
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -33,6 +36,7 @@ import torch
 from torch import Tensor
 
 from .config import Config
+from .likelihood_selection import select_by_likelihood
 from .metrics import (
     attitude_error_vector,
     attitude_errors_deg,
@@ -56,7 +60,9 @@ __all__ = ["ESTIMATORS", "DEFAULT_ESTIMATORS", "EstimatorResult", "ScenarioResul
            "prior_covariance", "run_filter", "run_offset_filter", "run_surface_filter", "run_estimators",
            "score_estimator", "first_observation"]
 
-ESTIMATORS = ("gpukf", "ukf", "matched_ukf", "joint_ukf", "surface_ukf", "no_update")
+ESTIMATORS = ("gpukf", "ukf", "matched_ukf", "joint_ukf", "surface_ukf", "surface_ukf_select", "no_update")
+#: the λ rules the selecting surface-state filter runs with (``filter.lam_rule``)
+SELECTED_LAM_RULES = ("given", "julier")
 #: what the tables and the estimate command run unless told otherwise
 DEFAULT_ESTIMATORS = ("gpukf", "ukf", "matched_ukf", "no_update")
 
@@ -246,6 +252,20 @@ def run_surface_filter(cfg: Config, scene: Scene, *, observations: Tensor, q_est
                      params=UsqueParams.from_config(cfg), theta0=theta0)
 
 
+def run_surface_filter_selected(cfg: Config, scene: Scene, *, observations: Tensor, q_est0: Tensor,
+                                increments: Tensor, P0_attitude: Tensor,
+                                model: ObservationModel | None = None) -> tuple[FilterHistory, Tensor]:
+    """:func:`run_surface_filter` with ``cfg``'s filter under each rule of :data:`SELECTED_LAM_RULES` (the paper's
+    ``λ`` as the config gives it, and ``λ = 3 − n``) on the same observations; per seed the run of higher
+    innovation log-likelihood (:func:`lightcurve_gp.likelihood_selection.select_by_likelihood`) and which rule
+    that was ``(B,)`` (an index into :data:`SELECTED_LAM_RULES`). Arguments as :func:`run_surface_filter`'s."""
+    runs = [run_surface_filter(dataclasses.replace(cfg, filter=dataclasses.replace(cfg.filter, lam_rule=rule)), scene,
+                               observations=observations, q_est0=q_est0, increments=increments,
+                               P0_attitude=P0_attitude, model=model)
+            for rule in SELECTED_LAM_RULES]
+    return select_by_likelihood(runs)
+
+
 def first_observation(observations: Tensor) -> Tensor:
     """Each row's first finite observation ``(S,)`` (0 for a row without one): the filters' ``m_past,0``. With the
     fixed geometry this is ``ỹ_0``; along a pass the first samples may be unobservable (NaN)."""
@@ -266,6 +286,17 @@ def _pass_models(model: ObservationModel, sc: Scenario, scene: Scene) -> tuple[O
         return model, model
     bound = bind_geometry(model, sun=scene.sun, observer=scene.observer, range_m=scene.r_obs)
     return bound, bound
+
+
+def _surface_history(name: str, cfg: Config, scene: Scene, sc: Scenario, q_est0: Tensor,
+                     model: ObservationModel) -> FilterHistory:
+    """The run of ``surface_ukf`` or ``surface_ukf_select`` on the scenario (``P0`` from ``filter.p0_deg``)."""
+    run = dict(observations=sc.observations, q_est0=q_est0, increments=sc.increments_assumed, model=model,
+               P0_attitude=initial_covariance(cfg.filter.p0_deg, dtype=q_est0.dtype, device=q_est0.device))
+    first = scene.sample(0) if scene.per_sample else scene
+    if name == "surface_ukf":
+        return run_surface_filter(cfg, first, **run)
+    return run_surface_filter_selected(cfg, first, **run)[0]
 
 
 def run_estimators(cfg: Config, gp_model: ObservationModel | None = None, *, seeds: Sequence[int] | None = None,
@@ -302,10 +333,11 @@ def run_estimators(cfg: Config, gp_model: ObservationModel | None = None, *, see
     q_est0 = sc.q_est0.expand(S, 4)
     models = {"gpukf": gp_model, "ukf": Parametric(scene, cfg.filter.rho_assumed),
               "matched_ukf": Parametric(scene, sc.rho_true), "joint_ukf": Parametric(scene, cfg.model.rho_reference),
-              "surface_ukf": SurfaceStateRenderer(scene)}
-    if "surface_ukf" in estimators and cfg.filter.estimate_omega:
-        raise ValueError("surface_ukf: the surface-state filter takes ω as known; run it with filter.estimate_omega "
-                         "false")
+              "surface_ukf": SurfaceStateRenderer(scene), "surface_ukf_select": SurfaceStateRenderer(scene)}
+    surface = [e for e in estimators if e in ("surface_ukf", "surface_ukf_select")]
+    if surface and cfg.filter.estimate_omega:
+        raise ValueError(f"{surface[0]}: the surface-state filter takes ω as known; run it with "
+                         "filter.estimate_omega false")
     with_offset = {"joint_ukf", "gpukf"} if cfg.filter.estimate_offset else {"joint_ukf"}
     out = ScenarioResult(sc, window)
     for name in estimators:
@@ -315,12 +347,8 @@ def run_estimators(cfg: Config, gp_model: ObservationModel | None = None, *, see
         else:
             model = models[name].to(device=device, dtype=dtype) if name != "gpukf" else models[name].to(device)
             start_model, model = _pass_models(model, sc, scene)
-            if name == "surface_ukf":
-                history = run_surface_filter(cfg, scene.sample(0) if scene.per_sample else scene,
-                                             observations=sc.observations, q_est0=q_est0,
-                                             increments=sc.increments_assumed, model=model,
-                                             P0_attitude=initial_covariance(cfg.filter.p0_deg, dtype=dtype,
-                                                                            device=device))
+            if name in ("surface_ukf", "surface_ukf_select"):
+                history = _surface_history(name, cfg, scene, sc, q_est0, model)
             else:
                 history = run_filter(cfg, model, sc, q_est0, offset=name in with_offset, start_model=start_model)
             q_est = history.q_est

@@ -12,6 +12,9 @@ Every filter uses the tuning of the config's ``filter`` section and starts from 
 * ``surface_ukf`` — the renderer with the surface as states (:mod:`~.surface_state`: log ρ, logit F0, log n_u,
   log n_v beside the attitude, the MAP's prior): surface unknown, shape known, the ideal emulator of a GP whose
   inputs include the surface;
+* ``surface_ukf_select`` — the surface-state filter run with the paper's ``λ = 0`` and with Julier's
+  ``λ = 3 − n``, each seed's run of higher innovation likelihood kept
+  (:func:`~.estimation.run_surface_filter_selected`);
 * ``map_surface`` — the batch MAP reference with attitude, ρ, F0, n_u, n_v unknown (:mod:`~.map_surface`);
 * ``map_offset`` — the batch MAP with attitude and offset on the reference surface (the joint UKF's model);
 * ``no_update`` — the initial estimate propagated with the known ω (its covariance stays ``P0``).
@@ -32,7 +35,7 @@ import torch
 from torch import Tensor
 
 from .config import Config
-from .estimation import run_surface_filter
+from .estimation import run_surface_filter, run_surface_filter_selected
 from .map_surface import batch_map, cumulative_increments
 from .metrics import attitude_error_vector, attitude_errors_deg, chi2_band, nees
 from .observation.parametric import Parametric
@@ -45,10 +48,10 @@ from .ukf_offset import initial_offset
 
 __all__ = ["SUITE_ESTIMATORS", "FILTERS", "Scored", "nees_band", "score", "run_suite"]
 
-SUITE_ESTIMATORS = ("robust_gpukf", "matched_ukf", "joint_ukf", "surface_ukf", "map_surface", "map_offset",
-                    "no_update")
-#: estimators that need the trained GP
-FILTERS = ("robust_gpukf", "matched_ukf", "joint_ukf", "surface_ukf")
+SUITE_ESTIMATORS = ("robust_gpukf", "matched_ukf", "joint_ukf", "surface_ukf", "surface_ukf_select", "map_surface",
+                    "map_offset", "no_update")
+#: the filters among them
+FILTERS = ("robust_gpukf", "matched_ukf", "joint_ukf", "surface_ukf", "surface_ukf_select")
 
 
 def nees_band(independent_samples: int = 1, confidence: float = 0.95) -> tuple[float, float]:
@@ -121,6 +124,10 @@ def _run_filter(name: str, cfg: Config, truths: TruthBatch, scene: Scene,
     if name == "surface_ukf":
         h = run_surface_filter(cfg, scene, observations=obs, q_est0=q_est0, increments=truths.increments,
                                P0_attitude=truths.P0)
+        return h.q_est, h.P, None
+    if name == "surface_ukf_select":
+        h, _ = run_surface_filter_selected(cfg, scene, observations=obs, q_est0=q_est0, increments=truths.increments,
+                                           P0_attitude=truths.P0)
         return h.q_est, h.P, None
     model = gp_model if name == "robust_gpukf" else Parametric(scene, cfg.model.rho_reference)
     P0 = _offset_covariance(truths.draw.sigma0, cfg.filter.offset_prior_std)
