@@ -62,3 +62,32 @@ def scenario(B=3, T=120, seed=0, noise=0.0):
 
 def err_deg(q_true, q_est):
     return torch.rad2deg(torch.linalg.vector_norm(quat_to_rotvec(quat_mul(q_true, quat_conj(q_est))), dim=-1))
+
+
+def tiny_training(name: str) -> list[str]:
+    """Config overrides of a tiny sparse-GP training run named ``name``: 256 random attitudes, 64 inducing points,
+    no hyperparameter fit, a 60 s scenario scored over 30–60 s (the CLI tests' model, seconds to train)."""
+    return ["data.num_random=256", "model.sparse.num_inducing=64", "model.sparse.iterations=0",
+            "data.heldout_size=40", "scenario.duration_s=60", "evaluation.rmse_window_s=[30, 60]", f"name={name}"]
+
+
+def as_sets(overrides: list[str]) -> list[str]:
+    """``["--set", o, …]`` for the command lines."""
+    return [a for o in overrides for a in ("--set", o)]
+
+
+def train_tiny(config: str, out, name: str):
+    """Train the tiny model of ``config`` into ``out`` with ``python -m lightcurve_gp.train``; its model file."""
+    from lightcurve_gp import train
+
+    assert train.main([config, "--out", str(out), "--no-progress", *as_sets(tiny_training(name))]) == 0
+    return out / name / "model.pt"
+
+
+def simulate_file(config: str, tmp_path, sets: list[str], *extra: str):
+    """``python -m lightcurve_gp.simulate`` of ``config`` (noise seed 2) into ``tmp_path/obs.ecsv``; the file."""
+    from lightcurve_gp import simulate
+
+    obs = tmp_path / "obs.ecsv"
+    assert simulate.main([config, "--out", str(obs), "--seed", "2", "--no-progress", *sets, *extra]) == 0
+    return obs

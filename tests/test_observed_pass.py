@@ -10,7 +10,7 @@ import pytest
 import torch
 from astropy.table import Table
 
-from lightcurve_gp import estimate, simulate, train
+from lightcurve_gp import estimate, simulate
 from lightcurve_gp.config import load_config
 from lightcurve_gp.estimation import run_estimators
 from lightcurve_gp.geometry import pass_geometry
@@ -18,26 +18,23 @@ from lightcurve_gp.lightcurve_file import read_light_curve, write_light_curve
 from lightcurve_gp.model_store import open_model
 from lightcurve_gp.observed import file_geometry
 
+from helpers import as_sets, simulate_file, tiny_training, train_tiny
+
 ROOT = Path(__file__).resolve().parents[1]
 GEO = str(ROOT / "configs" / "geo_pass.yaml")
-TINY = ["data.num_random=256", "model.sparse.num_inducing=64", "model.sparse.iterations=0", "data.heldout_size=40",
-        "scenario.duration_s=60", "evaluation.rmse_window_s=[30, 60]", "name=tiny_geo"]
-SETS = [a for o in TINY for a in ("--set", o)]
+TINY = tiny_training("tiny_geo")
+SETS = as_sets(TINY)
 
 pytestmark = pytest.mark.slow  # trains a GP of its own
 
 
 @pytest.fixture(scope="module")
 def model_file(tmp_path_factory):
-    out = tmp_path_factory.mktemp("runs")
-    assert train.main([GEO, "--out", str(out), "--no-progress", *SETS]) == 0
-    return out / "tiny_geo" / "model.pt"
+    return train_tiny(GEO, tmp_path_factory.mktemp("runs"), "tiny_geo")
 
 
 def simulated(tmp_path, *extra):
-    obs = tmp_path / "obs.ecsv"
-    assert simulate.main([GEO, "--out", str(obs), "--seed", "2", "--no-progress", *SETS, *extra]) == 0
-    return obs
+    return simulate_file(GEO, tmp_path, SETS, *extra)
 
 
 def estimated(tmp_path, model_file, obs, *extra, config=GEO, sets=SETS):

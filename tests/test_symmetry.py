@@ -16,17 +16,12 @@ from lightcurve_gp.scenario import simulate_scenario
 from lightcurve_gp.shapes import box_wing_mesh, facets_from_config, facets_from_mesh
 from lightcurve_gp.symmetry import cube_rotations, symmetry_quaternions, symmetry_rotations
 
-BOXWING = Path(__file__).resolve().parents[1] / "configs" / "boxwing.yaml"
-
 
 @pytest.fixture(scope="module")
-def cfg():
-    return load_config(BOXWING)
-
-
-@pytest.fixture(scope="module")
-def facets(cfg):
-    return facets_from_config(cfg, rho=0.5)
+def paper_case():
+    """The paper's config (configs/boxwing.yaml) and its box-wing's facets at ρ = 0.5."""
+    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "boxwing.yaml")
+    return cfg, facets_from_config(cfg, rho=0.5)
 
 
 def _as_set(rotations: torch.Tensor) -> set:
@@ -41,7 +36,8 @@ def test_cube_rotations_are_the_24_proper_ones():
     assert torch.equal(r[0], torch.eye(3, dtype=r.dtype))
 
 
-def test_box_wing_group_matches_the_mesh_vertices(cfg, facets):
+def test_box_wing_group_matches_the_mesh_vertices(paper_case):
+    cfg, facets = paper_case
     """Independent computation: the candidates that map the mesh's vertex set onto itself (trimesh's vertices,
     rounded) are the renderer's symmetries, and they are the identity and the three 180° axis turns."""
     s = cfg.shape
@@ -55,7 +51,8 @@ def test_box_wing_group_matches_the_mesh_vertices(cfg, facets):
                               (-1, 0, 0, 0, 1, 0, 0, 0, -1), (-1, 0, 0, 0, -1, 0, 0, 0, 1)}
 
 
-def test_symmetric_attitudes_render_the_same_light_curve(cfg, facets):
+def test_symmetric_attitudes_render_the_same_light_curve(paper_case):
+    cfg, facets = paper_case
     """Along the paper's trajectory: q_R ⊗ q(t) gives the light curve of q(t) for every symmetry and a different
     one (by more than 0.01 mag somewhere) for each of the other 20 axis rotations."""
     q_true = simulate_scenario(cfg, seeds=[0]).q_true
@@ -88,13 +85,15 @@ def test_anisotropic_cube_symmetries_agree_with_the_renderer():
         assert (diff < 1e-12) == (_as_set(rotation[None]) <= kept)
 
 
-def test_symmetry_quaternions_give_the_rotations(facets):
+def test_symmetry_quaternions_give_the_rotations(paper_case):
+    facets = paper_case[1]
     from lightcurve_gp.rotations import attitude_matrix
 
     assert torch.allclose(attitude_matrix(symmetry_quaternions(facets)), symmetry_rotations(facets), atol=1e-15)
 
 
-def test_the_experiments_score_modulo_symmetry_finds_the_symmetric_truth(cfg, facets):
+def test_the_experiments_score_modulo_symmetry_finds_the_symmetric_truth(paper_case):
+    cfg, facets = paper_case
     """An estimate that follows q_R ⊗ q_true is off by 180° strictly and by nothing modulo the symmetry."""
     from experiments.global_start import symmetric_scores, window_scores
 
