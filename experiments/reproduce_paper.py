@@ -224,7 +224,7 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:  # the executor cannot start
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    sections, var_info, fig_names = tables_and_figures(sweeps, cfg, args.out / cfg.name / "models", results,
+    sections, var_info, fig_names = tables_and_figures(sweeps, cfg, args.out / "models", results,
                                                          seeds_n)
     wall = time.perf_counter() - start
     failed = {name: res.failed for name, res in sweeps.items() if res.failed}

@@ -184,7 +184,7 @@ def test_results_table_has_one_row_per_case_seed_estimator_and_summary_agrees(tm
     assert {(r["data.t_span_past"], r["scenario.rho_true"]) for r in rows} == {
         ("10", "0.3"), ("10", "0.7"), ("20", "0.3"), ("20", "0.7")}
     # one trained model per distinct t_span_past, and one stored file per case
-    assert len(list((tmp_path / "tiny" / "models").glob("*/model.pt"))) == 2
+    assert len(list((tmp_path / "models").glob("*/model.pt"))) == 2
     assert len(list((tmp_path / "tiny" / "cases").glob("*.json"))) == 4
     # no_update never looks at an observation: same RMSE for every case and seed
     nu = {(r["rmse_yaw_deg"], r["rmse_pitch_deg"], r["rmse_roll_deg"]) for r in rows if r["estimator"] == "no_update"}

@@ -73,7 +73,7 @@ def test_dask_writes_the_same_store_as_the_local_executor(reference, cluster, tm
         assert len(mine) == len(theirs) == (4 * 4 * 2 if name == "results" else 4 * 4)
         assert sorted(mine, key=json.dumps) == sorted(theirs, key=json.dumps)  # bit-identical numbers as text
     # one model per distinct t_span_past, and the same case files
-    assert len(list((tmp_path / "tiny" / "models").glob("*/model.pt"))) == 2
+    assert len(list((tmp_path / "models").glob("*/model.pt"))) == 2
     assert sorted(p.name for p in (tmp_path / "tiny" / "cases").glob("*.json")) == sorted(
         f"{cid}.json" for cid in reference.ran)
 
@@ -81,7 +81,7 @@ def test_dask_writes_the_same_store_as_the_local_executor(reference, cluster, tm
 @pytest.mark.slow
 def test_a_worker_killed_mid_case_still_leaves_a_complete_store(reference, cluster, tmp_path):
     marker = tmp_path / "died"
-    shutil.copytree(reference.folder.parents[1] / "models", tmp_path / "tiny" / "models")  # cases only
+    shutil.copytree(reference.folder.parents[2] / "models", tmp_path / "models")  # cases only
     result = run_sweep(tiny_raw(), AXES, SEEDS, out=tmp_path, sweep_id="s", progress=False, executor=cluster,
                        case_runner=functools.partial(die_once_then_run, marker=str(marker)))
     assert marker.exists()  # one case did kill its worker
@@ -93,7 +93,8 @@ def test_a_worker_killed_mid_case_still_leaves_a_complete_store(reference, clust
 
 @pytest.mark.slow
 def test_dask_resumes_a_store_of_the_local_executor_running_only_what_is_missing(reference, cluster, tmp_path):
-    shutil.copytree(reference.folder.parents[1], tmp_path / "tiny")  # models and cases of the local run
+    shutil.copytree(reference.folder.parents[1], tmp_path / "tiny")  # the cases of the local run
+    shutil.copytree(reference.folder.parents[2] / "models", tmp_path / "models")  # and its models
     cases = tmp_path / "tiny" / "cases"
     missing = sorted(reference.ran)[:2]
     for cid in missing:

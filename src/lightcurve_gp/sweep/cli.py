@@ -28,7 +28,7 @@ what it does:
   * every grid point is applied to CONFIG (after --set) and validated before anything runs; an unknown key or a bad
     value stops the sweep with an error naming the key
   * one GP per distinct geometry/shape/surface/data/model setting is trained (python -m lightcurve_gp.train's
-    job) into OUT/<name>/models/<hash>/ and reused by every case and later sweep that needs it
+    job) into the model store OUT/models/<hash>/ and reused by every case and later sweep that needs it
   * each case is stored when it finishes, atomically, in OUT/<name>/cases/<case-id>.json (the id hashes the
     case's whole config, seeds and estimators); a rerun skips stored cases and retries failed ones, so an
     interrupted sweep (Ctrl-C) resumes where it stopped

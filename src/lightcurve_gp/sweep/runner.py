@@ -127,14 +127,15 @@ def _pending(cases: Sequence[Case], root: Path, rerun_failed: bool) -> tuple[dic
 
 
 def _run_pending(pending: Sequence[Case], root: Path, executor: Executor, records: dict[str, CaseRecord], *,
-                 seeds: list[int], estimators: Sequence[str], threads: int | None, cache_dir: Path, total: int,
-                 progress: bool, case_runner) -> None:
-    """Train the models the pending cases need, then run the cases on ``executor``, storing each record
-    atomically into the case store and into ``records`` the moment it arrives (in completion order)."""
-    model_errors = ensure_models(pending, root, cache_dir, executor, progress, threads)
+                 models_root: Path, seeds: list[int], estimators: Sequence[str], threads: int | None, cache_dir: Path,
+                 total: int, progress: bool, case_runner) -> None:
+    """Train the models the pending cases need into ``models_root/models`` (the model store shared with the
+    experiments), then run the cases on ``executor``, storing each record atomically into the case store of
+    ``root`` and into ``records`` the moment it arrives (in completion order)."""
+    model_errors = ensure_models(pending, models_root, cache_dir, executor, progress, threads)
     specs = {c.case_id: {"config": config_to_dict(c.config), "values": c.values, "case_id": c.case_id,
                          "seeds": seeds, "estimators": list(estimators), "threads": threads,
-                         "model_path": str(model_path(root, c.model_hash)) if c.model_hash else None,
+                         "model_path": str(model_path(models_root, c.model_hash)) if c.model_hash else None,
                          "model_error": model_errors.get(c.model_hash) if c.model_hash else None}
              for c in pending}
     for outcome in executor.run(case_runner, specs, desc="cases", total=total, initial=total - len(specs),
@@ -156,7 +157,8 @@ def run_sweep(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Seque
         raw: the base config as a plain mapping (YAML as read, base overrides applied).
         axes: grid axes ``[(key.path, [values...]), ...]``.
         seeds: noise seeds, all batched in each filter run.
-        out: output root; files go to ``out/<config name>/``.
+        out: output root; cases and tables go to ``out/<config name>/``, trained models to the model store
+            ``out/models/`` (shared with the experiments, keyed by :func:`~lightcurve_gp.model_store.model_key`).
         sweep_id: folder name of this sweep's tables (default: a hash of the definition).
         estimators: subset of :data:`~lightcurve_gp.estimation.ESTIMATORS`.
         workers: worker processes of the local pool (1: this process) or of the dask LocalCluster.
@@ -193,7 +195,7 @@ def run_sweep(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Seque
     records, pending = _pending(cases, root, rerun_failed)
     interrupted = False
     try:
-        _run_pending(pending, root, ex, records, seeds=seeds, estimators=estimators,
+        _run_pending(pending, root, ex, records, models_root=out, seeds=seeds, estimators=estimators,
                      threads=None if isinstance(ex, SerialExecutor) else threads,
                      cache_dir=Path(cache_dir) if cache_dir else out / "cache", total=len(cases), progress=progress,
                      case_runner=case_runner)
