@@ -45,7 +45,7 @@ from .metrics import (
     nees,
     rmse_over_window,
 )
-from .observation.along_pass import AlongPass, bind_geometry
+from .observation.along_pass import bind_geometry, pass_models
 from .observation.base import ObservationModel
 from .observation.parametric import Parametric, SurfaceStateRenderer
 from .render import Scene
@@ -279,9 +279,7 @@ def _pass_models(model: ObservationModel, sc: Scenario, scene: Scene) -> tuple[O
     """``(model at sample 0, model of steps 1 … T)``: along a pass bound sample by sample (:class:`AlongPass`);
     under the fixed geometry a geometry-aware model bound to it once."""
     if sc.geometry is not None:
-        g = sc.geometry
-        return (bind_geometry(model, sun=g.sun[0], observer=g.observer[0], range_m=float(g.range_m[0])),
-                AlongPass(model, g, first=1))
+        return pass_models(model, sc.geometry)
     if getattr(model, "config", {}).get("inputs") != "body_geometry":  # the renderers hold the fixed geometry
         return model, model
     bound = bind_geometry(model, sun=scene.sun, observer=scene.observer, range_m=scene.r_obs)

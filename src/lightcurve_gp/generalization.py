@@ -46,12 +46,10 @@ from .truths import TruthBatch
 from .ukf import UsqueParams, run_usque
 from .ukf_offset import initial_offset
 
-__all__ = ["SUITE_ESTIMATORS", "FILTERS", "Scored", "nees_band", "score", "run_suite"]
+__all__ = ["SUITE_ESTIMATORS", "Scored", "nees_band", "score", "run_suite"]
 
 SUITE_ESTIMATORS = ("robust_gpukf", "matched_ukf", "joint_ukf", "surface_ukf", "surface_ukf_select", "map_surface",
                     "map_offset", "no_update")
-#: the filters among them
-FILTERS = ("robust_gpukf", "matched_ukf", "joint_ukf", "surface_ukf", "surface_ukf_select")
 
 
 def nees_band(independent_samples: int = 1, confidence: float = 0.95) -> tuple[float, float]:

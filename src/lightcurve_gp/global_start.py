@@ -38,7 +38,7 @@ import torch
 from torch import Tensor
 
 from .attitudes import sobol_attitudes
-from .observation.along_pass import AlongPass, bind_geometry
+from .observation.along_pass import pass_models
 from .observation.base import ObservationModel, Variance
 from .ukf import FilterHistory, UsqueParams, initial_covariance, run_usque
 from .ukf_offset import initial_offset, offset_covariance
@@ -110,12 +110,9 @@ def run_filter(cfg, model: ObservationModel, *, q_est0: Tensor, observations: Te
 
 
 def _pass_models(model: ObservationModel, geometry) -> tuple[ObservationModel, ObservationModel]:
-    """``(model at sample 0, model of steps 1 … T)``; ``model`` itself twice without a geometry."""
-    if geometry is None:
-        return model, model
-    g = geometry
-    return (bind_geometry(model, sun=g.sun[0], observer=g.observer[0], range_m=float(g.range_m[0])),
-            AlongPass(model, g, first=1))
+    """``(model at sample 0, model of steps 1 … T)`` (:func:`~.observation.along_pass.pass_models`); ``model``
+    itself twice without a geometry."""
+    return (model, model) if geometry is None else pass_models(model, geometry)
 
 
 def _params(cfg, R: Tensor | float | None, variance: Variance | None) -> UsqueParams:

@@ -21,7 +21,7 @@ from .base import ObservationModel, ObservationModule, Prediction, Variance
 from .body_geometry import GeometryBound, bound_geometry, predict_bound
 from .parametric import _RendererModel
 
-__all__ = ["bind_geometry", "AlongPass"]
+__all__ = ["bind_geometry", "AlongPass", "pass_models"]
 
 
 def bind_geometry(model: ObservationModel, *, sun: Tensor, observer: Tensor, range_m: float) -> ObservationModel:
@@ -72,3 +72,12 @@ class AlongPass(ObservationModule):
         k = self._advance()
         c, alpha, range_term = (t[k] for t in self._frames)
         return predict_bound(self.model, q, c=c, alpha=alpha, range_term=range_term, variance=variance)
+
+
+def pass_models(model: ObservationModel, geometry) -> tuple[ObservationModel, ObservationModel]:
+    """``(model at sample 0, model of steps 1 … T)`` along a pass ``geometry`` (a
+    :class:`~lightcurve_gp.geometry.PassGeometry`): sample 0 bound once (the filter's initial offset), the steps
+    through :class:`AlongPass`."""
+    g = geometry
+    return (bind_geometry(model, sun=g.sun[0], observer=g.observer[0], range_m=float(g.range_m[0])),
+            AlongPass(model, g, first=1))
