@@ -54,7 +54,7 @@ def test_the_true_noise_wins_and_the_criterion_is_the_gaussian_log_density():
 def test_surface_filter_under_two_rules_keeps_one_of_them_per_seed():
     short = ["scenario.duration_s=30", "evaluation.rmse_window_s=[10, 30]"]
     cfg = load_config("configs/boxwing_robust.yaml", short)
-    julier = load_config("configs/boxwing_robust_julier.yaml", short)
+    julier = load_config("configs/boxwing_robust.yaml", short + ["filter.lam_rule=julier"])
     scene = Scene.from_config(cfg)
     sc = simulate_scenario(cfg, seeds=[0, 1, 2])
     q_est0 = sc.q_est0.expand(3, 4)

@@ -275,6 +275,9 @@ class FilterConfig:
     grp_f: float = _spec(lo=0.0, lo_open=True)
     process_noise: float = _spec(lo=0.0)
     measurement_noise: float = _spec(lo=0.0)
+    surface_measurement_noise: float | None = _spec(
+        None, lo=0.0, lo_open=True,
+        doc="R of the surface-state filters surface_ukf and surface_ukf_select (mag^2); null: measurement_noise")
     p0_deg: float = _spec(lo=0.0, lo_open=True)
     add_model_variance: bool = _spec(True)
     rho_assumed: float = _spec(lo=0.0, lo_open=True, hi=1.0)

@@ -57,8 +57,8 @@ from .ukf import FilterHistory, UsqueParams, initial_covariance, run_usque
 from .ukf_offset import initial_offset, offset_covariance
 
 __all__ = ["ESTIMATORS", "DEFAULT_ESTIMATORS", "EstimatorResult", "ScenarioResult", "propagate_only",
-           "prior_covariance", "run_filter", "run_offset_filter", "run_surface_filter", "run_estimators",
-           "score_estimator", "first_observation"]
+           "prior_covariance", "run_filter", "run_offset_filter", "run_surface_filter", "surface_filter_params",
+           "run_estimators", "score_estimator", "first_observation"]
 
 ESTIMATORS = ("gpukf", "ukf", "matched_ukf", "joint_ukf", "surface_ukf", "surface_ukf_select", "no_update")
 #: the λ rules the selecting surface-state filter runs with (``filter.lam_rule``)
@@ -249,7 +249,16 @@ def run_surface_filter(cfg: Config, scene: Scene, *, observations: Tensor, q_est
     P0[:, 3:, 3:] = torch.diag(std.pow(2)).to(P0)
     return run_usque(model=model or SurfaceStateRenderer(scene), q_est0=q_est0, P0=P0, observations=observations,
                      m_past0=first_observation(observations), increments=increments,
-                     params=UsqueParams.from_config(cfg), theta0=theta0)
+                     params=surface_filter_params(cfg), theta0=theta0)
+
+
+def surface_filter_params(cfg: Config) -> UsqueParams:
+    """The USQUE settings of the surface-state filters: ``cfg``'s, with ``R`` from
+    ``filter.surface_measurement_noise`` when it is set (experiments/README.md says how the robust config's value
+    was chosen)."""
+    params = UsqueParams.from_config(cfg)
+    R = cfg.filter.surface_measurement_noise
+    return params if R is None else dataclasses.replace(params, R=float(R))
 
 
 def run_surface_filter_selected(cfg: Config, scene: Scene, *, observations: Tensor, q_est0: Tensor,
