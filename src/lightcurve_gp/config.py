@@ -330,7 +330,7 @@ def config_to_dict(cfg: Any) -> dict:
     """Plain nested ``dict`` of a config or one of its sections (YAML/JSON serialisable) that
     :func:`config_from_dict` reads back: the model section keeps only the settings of its own kind, and options
     that are off (``data.surfaces`` null, ``filter.adaptive_noise`` none, ``filter.estimate_omega`` false, a null
-    ``filter.surface_measurement_noise``, the default USQUE variant, a zero
+    ``filter.surface_measurement_noise``, ``filter.model_error`` none, the default USQUE variant, a zero
     ``scenario.initial_omega_error_deg_s``, the sparse fit's default optimizer, precision, subset and inducing
     count) are left out."""
     out = dataclasses.asdict(cfg)
@@ -358,6 +358,8 @@ def config_to_dict(cfg: Any) -> dict:
         del filt["inertia_kg_m2"]
     if filt is not None and filt.get("surface_measurement_noise", 0) is None:
         del filt["surface_measurement_noise"]
+    if filt is not None and filt.get("model_error") == "none":
+        del filt["model_error"]
     if filt is not None and not filt.get("estimate_omega", True):
         del filt["estimate_omega"], filt["p0_omega_deg_s"], filt["omega_process_noise"]
     if filt is not None and not filt.get("sigma_redraw", True) and filt.get("q_placement") == "both":

@@ -280,6 +280,9 @@ class FilterConfig:
         doc="R of the surface-state filters surface_ukf and surface_ukf_select (mag^2); null: measurement_noise")
     p0_deg: float = _spec(lo=0.0, lo_open=True)
     add_model_variance: bool = _spec(True)
+    model_error: str = _spec("none", choices=("none", "heldout"),
+                             doc="GP filters: none = R as given; heldout = R plus the GP's held-out excess variance "
+                                 "(the mean squared error its predictive variance misses, stored with the model)")
     rho_assumed: float = _spec(lo=0.0, lo_open=True, hi=1.0)
     estimate_offset: bool = _spec(False, doc="carry a magnitude offset b in the state: y = h(q) + b")
     offset_prior_std: float = _spec(1.0, lo=0.0, lo_open=True, doc="prior std of b around y_0 - h(q_0) (mag)")

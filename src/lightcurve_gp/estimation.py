@@ -215,10 +215,11 @@ def prior_covariance(cfg: Config, *, offset: bool, dtype=None, device=None) -> T
 
 
 def run_filter(cfg: Config, model: ObservationModel, sc: Scenario, q_est0: Tensor, *, offset: bool,
-               start_model: ObservationModel | None = None) -> FilterHistory:
-    """One batched USQUE run on ``sc`` with the tuning of ``cfg``: ω in the state with ``filter.estimate_omega``
-    (from ``sc.omega_est0``), else the increments of ``sc.omega_assumed``; the offset ``b`` in the state when
-    ``offset`` (``b0 = ỹ_0 − h(q̂_0)``, ``h`` = ``start_model``, default ``model``, as :func:`run_offset_filter`)."""
+               start_model: ObservationModel | None = None, params: UsqueParams | None = None) -> FilterHistory:
+    """One batched USQUE run on ``sc`` with the tuning of ``cfg`` (or ``params``): ω in the state with
+    ``filter.estimate_omega`` (from ``sc.omega_est0``), else the increments of ``sc.omega_assumed``; the offset ``b``
+    in the state when ``offset`` (``b0 = ỹ_0 − h(q̂_0)``, ``h`` = ``start_model``, default ``model``, as
+    :func:`run_offset_filter`)."""
     obs = sc.observations
     m_past0 = first_observation(obs)
     P0 = prior_covariance(cfg, offset=offset, dtype=q_est0.dtype, device=q_est0.device)
@@ -226,7 +227,7 @@ def run_filter(cfg: Config, model: ObservationModel, sc: Scenario, q_est0: Tenso
     motion = {"omega0": sc.omega_est0.expand(q_est0.shape[0], 3)} if cfg.filter.estimate_omega \
         else {"increments": sc.increments_assumed}
     return run_usque(model=model, q_est0=q_est0, P0=P0, observations=obs, m_past0=m_past0,
-                     params=UsqueParams.from_config(cfg), offset0=b0, **motion)
+                     params=params or UsqueParams.from_config(cfg), offset0=b0, **motion)
 
 
 def run_surface_filter(cfg: Config, scene: Scene, *, observations: Tensor, q_est0: Tensor, increments: Tensor,
@@ -353,11 +354,13 @@ def run_estimators(cfg: Config, gp_model: ObservationModel | None = None, *, see
             q_est, history = propagate_only(sc.q_est0, sc.increments_assumed).expand(S, -1, -1), None
         else:
             model = models[name].to(device=device, dtype=dtype) if name != "gpukf" else models[name].to(device)
+            params = UsqueParams.from_config(cfg, model=model)  # before the pass wrapper: the GP's model error
             start_model, model = _pass_models(model, sc, scene)
             if name in ("surface_ukf", "surface_ukf_select"):
                 history = _surface_history(name, cfg, scene, sc, q_est0, model)
             else:
-                history = run_filter(cfg, model, sc, q_est0, offset=name in with_offset, start_model=start_model)
+                history = run_filter(cfg, model, sc, q_est0, offset=name in with_offset, start_model=start_model,
+                                     params=params)
             q_est = history.q_est
         out.results[name] = score_estimator(sc, q_est, window, history, time.perf_counter() - start)
     return out

@@ -129,6 +129,7 @@ def _run_filter(name: str, cfg: Config, truths: TruthBatch, scene: Scene,
         return h.q_est, h.P, None
     model = gp_model if name == "robust_gpukf" else Parametric(scene, cfg.model.rho_reference)
     P0 = _offset_covariance(truths.draw.sigma0, cfg.filter.offset_prior_std)
+    run["params"] = UsqueParams.from_config(cfg, model=model)
     h = run_usque(model=model, P0=P0, offset0=initial_offset(model, q_est0, obs[:, 0], obs[:, 0]), **run)
     return h.q_est, h.P, h.offset[:, -1]
 

@@ -40,7 +40,7 @@ from torch import Tensor
 from .attitudes import sobol_attitudes
 from .observation.along_pass import pass_models
 from .observation.base import ObservationModel, Variance
-from .ukf import FilterHistory, UsqueParams, initial_covariance, run_usque
+from .ukf import FilterHistory, UsqueParams, initial_covariance, model_error_variance, run_usque
 from .ukf_offset import initial_offset, offset_covariance
 
 __all__ = ["BankResult", "bank_attitudes", "innovation_log_likelihood", "run_filter", "continue_filters", "run_bank"]
@@ -95,7 +95,7 @@ def run_filter(cfg, model: ObservationModel, *, q_est0: Tensor, observations: Te
     ``variance`` the model variance the filter asks for, when given; ``geometry`` (``T+1`` samples) runs the model
     along the pass. The same run as :func:`lightcurve_gp.estimation.run_estimators`'s ``gpukf`` for the same
     inputs."""
-    params = _params(cfg, R, variance)
+    params = _params(cfg, model, R, variance)
     m_past0 = observations[:, 0]
     dtype, device = q_est0.dtype, q_est0.device
     start_model, step_model = _pass_models(model, geometry)
@@ -115,11 +115,12 @@ def _pass_models(model: ObservationModel, geometry) -> tuple[ObservationModel, O
     return (model, model) if geometry is None else pass_models(model, geometry)
 
 
-def _params(cfg, R: Tensor | float | None, variance: Variance | None) -> UsqueParams:
-    """The config's USQUE settings with ``R`` and ``variance`` replaced when given."""
-    params = UsqueParams.from_config(cfg)
+def _params(cfg, model: ObservationModel, R: Tensor | float | None, variance: Variance | None) -> UsqueParams:
+    """The config's USQUE settings for ``model`` with ``R`` (plus the model's error under ``filter.model_error``)
+    and ``variance`` replaced when given."""
+    params = UsqueParams.from_config(cfg, model=model)
     if R is not None:
-        params = dataclasses.replace(params, R=R)
+        params = dataclasses.replace(params, R=R + model_error_variance(cfg, model))
     if variance is not None:
         params = dataclasses.replace(params, variance=variance)
     return params
@@ -133,7 +134,7 @@ def continue_filters(cfg, model: ObservationModel, history: FilterHistory, membe
     again), increments ``(T', 4)`` and ``R`` (as :func:`run_filter`; per-sample ``(K, T'+1)`` aligned with
     ``observations``; ``geometry``: of these ``T'+1`` samples, along a pass): the same filter as one uninterrupted
     run, to rounding. Adaptive measurement noise carries a running state of its own and is refused."""
-    params = _params(cfg, R, variance)
+    params = _params(cfg, model, R, variance)
     if params.adaptive_noise != "none":
         raise ValueError("continue_filters: adaptive measurement noise (filter.adaptive_noise) is not carried over")
     pick = lambda t: None if t is None else t[members, -1]  # noqa: E731

@@ -57,7 +57,9 @@ def heldout_metrics(mean: Tensor, var: Tensor | None, y: Tensor, noise_var: floa
 
     Returns:
         ``rmse`` (mag), ``mae`` (mag), ``nlpd`` (mean negative log predictive density, nats), ``within_2sigma``
-        (fraction of residuals inside ±2 predictive std), ``mean_std`` (mag), ``n``.
+        (fraction of residuals inside ±2 predictive std), ``mean_std`` (mag), ``n``, and ``excess_variance``
+        (mag²): the mean squared residual beyond the mean predictive variance, ``max(0, mean(r²) − mean(var_y))`` —
+        the model error its own variance does not cover (``filter.model_error: heldout`` adds it to R).
     """
     var_y = (var if var is not None else torch.zeros_like(mean)) + noise_var
     resid = mean - y
@@ -69,6 +71,7 @@ def heldout_metrics(mean: Tensor, var: Tensor | None, y: Tensor, noise_var: floa
         "nlpd": float(nlpd.mean()),
         "within_2sigma": float((resid.abs() <= 2 * var_y.sqrt()).double().mean()),
         "mean_std": float(var_y.sqrt().mean()),
+        "excess_variance": max(0.0, float(resid.pow(2).mean() - var_y.mean())),
     }
 
 
@@ -161,7 +164,7 @@ def _train_into(cfg: Config, run_dir: Path, cache_dir: Path, *, progress: bool, 
         model, data = _fit(cfg, cache_dir, progress, timings, kept)
         heldout, mean, std_y, metrics, variance_check = _evaluate(model, cfg, progress, timings,
                                                                   variance_check_points)
-        save_model(model, tmp / "model.pt", extra=model_record(cfg))
+        save_model(model, tmp / "model.pt", extra={**model_record(cfg), "heldout": metrics})
         write_text_atomic(yaml.safe_dump(config_to_dict(cfg), sort_keys=False), tmp / "config.yaml")
         prediction_scatter(heldout.y, mean, tmp / "heldout_scatter.png",
                            title=f"{cfg.name}: {cfg.model.kind} GP, held-out RMSE {metrics['rmse']:.3f} mag")

@@ -55,6 +55,7 @@ __all__ = [
     "StepRecord",
     "UsqueParams",
     "initial_covariance",
+    "model_error_variance",
     "run_usque",
     "usque_step",
     "adapted_noise",
@@ -70,6 +71,21 @@ Q_PLACEMENTS = ("both", "after")
 #: rules for the unscented λ (:class:`UsqueParams`)
 LAM_RULES = ("given", "julier")
 
+
+
+def model_error_variance(cfg, model) -> float:
+    """What ``filter.model_error`` adds to a filter's ``R`` for ``model`` (mag²): 0 with ``none`` or for a model
+    without stored training metadata (the renderers, exact given their inputs); with ``heldout`` the excess variance
+    of the trained model's held-out set (:func:`lightcurve_gp.train.heldout_metrics`, stored in its file by
+    ``train``): the squared error its own predictive variance does not cover."""
+    extra = getattr(model, "extra", None)
+    if cfg.filter.model_error == "none" or extra is None:
+        return 0.0
+    heldout = extra.get("heldout") or {}
+    if "excess_variance" not in heldout:
+        raise ValueError("filter.model_error: heldout needs the held-out metrics that train stores in the model "
+                         "file; this model file has none: train it again")
+    return float(heldout["excess_variance"])
 
 @dataclass(frozen=True, eq=False)
 class UsqueParams:
@@ -143,18 +159,20 @@ class UsqueParams:
             raise ValueError(f"t_span_past must be >= 0, got {self.t_span_past}")
 
     @classmethod
-    def from_config(cls, cfg) -> UsqueParams:
+    def from_config(cls, cfg, *, model=None) -> UsqueParams:
         """Parameters of a :class:`~lightcurve_gp.config.Config`: its ``filter`` section (``Q = process_noise · I``),
         ``data.t_span_past``, ``model.variance`` (``"none"`` unless ``filter.add_model_variance``) and the adaptive
         noise rule with ``λ = min(1, scenario.dt_s / filter.adaptive_noise_time_s)``, the rate filter's
         ``filter.omega_process_noise``, ``filter.inertia_kg_m2`` (default ``shape.inertia_kg_m2``) and
         ``scenario.dt_s``, and the variant
-        (``filter.sigma_redraw``, ``filter.q_placement``)."""
+        (``filter.sigma_redraw``, ``filter.q_placement``). With ``filter.model_error: heldout`` ``R`` also holds the
+        trained ``model``'s held-out excess variance (:func:`model_error_variance`)."""
         f = cfg.filter
         return cls(
             alpha=float(f.alpha), beta=float(f.beta), kappa=float(f.kappa), lam=None if f.lam is None else float(f.lam),
             lam_rule=f.lam_rule,
-            grp_a=float(f.grp_a), grp_f=float(f.grp_f), Q=float(f.process_noise), R=float(f.measurement_noise),
+            grp_a=float(f.grp_a), grp_f=float(f.grp_f), Q=float(f.process_noise),
+            R=float(f.measurement_noise) + model_error_variance(cfg, model),
             variance=cfg.model.variance if f.add_model_variance else "none", t_span_past=float(cfg.data.t_span_past),
             offset_process_noise=float(f.offset_process_noise), adaptive_noise=f.adaptive_noise,
             adaptive_noise_rate=min(1.0, float(cfg.scenario.dt_s) / float(f.adaptive_noise_time_s)),
