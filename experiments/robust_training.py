@@ -1,7 +1,8 @@
 """Cheaper fits of the robust config's sparse GP against today's: fit time, final bound and the robust GPUKF.
 
-Each variant is a list of overrides of configs/boxwing_robust.yaml (``model.sparse``: ``optimizer``, ``fit_dtype``,
-``fit_subset``, ``fit_inducing``, ``iterations``, ``num_inducing``; ``model.theta1`` ... for the start). Its model
+Each variant is a list of overrides of configs/boxwing_robust.yaml (``model.sparse``: ``fit_objective``,
+``optimizer``, ``fit_dtype``, ``fit_subset``, ``fit_inducing``, ``iterations``, ``num_inducing``; ``model.theta1``
+... for the start). Its model
 is trained into the model store ``--runs/models`` unless it is there (``--retrain`` trains it again), with
 ``--threads`` torch threads, the 1-minute load average recorded before and after. Then, on one footing for every
 variant: the collapsed SGPR bound per point (float64, all training points, the model's own inducing inputs,
@@ -32,7 +33,7 @@ from lightcurve_gp.data import load_or_generate, model_targets
 from lightcurve_gp.estimation import run_estimators
 from lightcurve_gp.io import write_json_atomic, write_text_atomic
 from lightcurve_gp.model_store import get_or_train, model_key
-from lightcurve_gp.observation.fitting import gpytorch_sgpr_model, seeded_subset, sgpr_bound
+from lightcurve_gp.observation.fitting import gpytorch_exact_model, gpytorch_sgpr_model, seeded_subset, sgpr_bound
 from lightcurve_gp.observation.gp_base import GPTrainingSet
 from lightcurve_gp.observation.sparse_gp import kmeans
 from lightcurve_gp.reporting import markdown_table
@@ -49,6 +50,15 @@ VARIANTS = {
     "adam_inducing500": ["model.sparse.fit_inducing=500"],
     "lbfgs_inducing500": ["model.sparse.optimizer=lbfgs", "model.sparse.iterations=30",
                           "model.sparse.fit_inducing=500"],
+    # the exact GP's evidence on a seeded subset (no Nystrom error term), then the SGPR conditioned on all points
+    "exact2000_lbfgs_f32": ["model.sparse.fit_objective=exact_subset", "model.sparse.fit_subset=2000",
+                            "model.sparse.optimizer=lbfgs", "model.sparse.iterations=30",
+                            "model.sparse.fit_dtype=float32"],
+    "exact3000_lbfgs_f32": ["model.sparse.fit_objective=exact_subset", "model.sparse.fit_subset=3000",
+                            "model.sparse.optimizer=lbfgs", "model.sparse.iterations=30",
+                            "model.sparse.fit_dtype=float32"],
+    "exact2000_adam_f32": ["model.sparse.fit_objective=exact_subset", "model.sparse.fit_subset=2000",
+                           "model.sparse.fit_dtype=float32"],
     # today's fitted (theta1, theta2 = 2 l^2, sigma) as the config's values, not fitted again
     "fixed_at_today": ["model.fit_hyperparameters=false", "model.theta1=0.6288411986593109",
                        "model.theta2=0.6866688713277718", "model.noise_std=0.3357213235541524"],
@@ -133,9 +143,9 @@ def table(results: dict) -> str:
 
 
 def time_evaluations(cfg, runs: Path, evaluations: int) -> dict:
-    """Seconds per evaluation of the bound and its gradient on the variant's fit problem (its subset, inducing
-    inputs and dtype; the paper's start), the median of ``evaluations``, and that times ``model.sparse.iterations``
-    (an extrapolation of the fit, not a measured fit)."""
+    """Seconds per evaluation of the objective and its gradient on the variant's fit problem (its objective, subset,
+    inducing inputs and dtype; the paper's start), the median of ``evaluations``, and that times
+    ``model.sparse.iterations`` (an extrapolation of the fit, not a measured fit)."""
     import gpytorch
 
     data, _, _ = load_or_generate(cfg, runs / "cache", progress=False)
@@ -144,8 +154,14 @@ def time_evaluations(cfg, runs: Path, evaluations: int) -> dict:
     keep = seeded_subset(len(ts.r), sp.fit_subset or len(ts.r), 0, ts.x.device)
     dtype = getattr(torch, sp.fit_dtype)
     x, r = ts.x[keep].to(dtype), ts.r[keep].to(dtype)
-    z = kmeans(ts.x, sp.fit_inducing or sp.num_inducing, seed=0).to(dtype)
-    model, likelihood = gpytorch_sgpr_model(x, r, z, ts.outputscale, ts.lengthscale.to(dtype), ts.noise, cfg.model.ard)
+    start = (ts.outputscale, ts.lengthscale.to(dtype), ts.noise)
+    if sp.fit_objective == "exact_subset":
+        inducing = 0
+        model, likelihood = gpytorch_exact_model(x, r, *start, cfg.model.ard)
+    else:
+        z = kmeans(ts.x, sp.fit_inducing or sp.num_inducing, seed=0).to(dtype)
+        inducing = z.shape[0]
+        model, likelihood = gpytorch_sgpr_model(x, r, z, *start, cfg.model.ard)
     mll = gpytorch.mlls.ExactMarginalLogLikelihood(likelihood, model)
     seconds = []
     with gpytorch.settings.max_cholesky_size(10**9):
@@ -154,7 +170,7 @@ def time_evaluations(cfg, runs: Path, evaluations: int) -> dict:
             (-mll(model(x), r)).backward()
             seconds.append(time.perf_counter() - t0)
     per = statistics.median(seconds)
-    return {"fit_points": len(r), "fit_inducing": z.shape[0], "dtype": sp.fit_dtype,
+    return {"objective": sp.fit_objective, "fit_points": len(r), "fit_inducing": inducing, "dtype": sp.fit_dtype,
             "seconds_per_evaluation": per, "evaluations_timed": evaluations, "iterations": sp.iterations,
             "extrapolated_fit_s": per * sp.iterations, "threads": torch.get_num_threads(),
             "load_1min": os.getloadavg()[0]}

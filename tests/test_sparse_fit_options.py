@@ -1,5 +1,5 @@
-"""The cheaper fits of the sparse GP (model.sparse: optimizer, fit_dtype, fit_subset, fit_inducing) and the bound
-they are compared on."""
+"""The cheaper fits of the sparse GP (model.sparse: optimizer, fit_dtype, fit_subset, fit_inducing, fit_objective)
+and the bound they are compared on."""
 
 from __future__ import annotations
 
@@ -10,13 +10,19 @@ import torch
 
 from lightcurve_gp.config import ConfigError, config_from_dict, config_to_dict, load_config
 from lightcurve_gp.model_store import model_key
-from lightcurve_gp.observation.fitting import gpytorch_sgpr_model, maximise_mll, sgpr_bound
+from lightcurve_gp.observation.fitting import (
+    fit_hyperparameters,
+    gpytorch_sgpr_model,
+    maximise_mll,
+    seeded_subset,
+    sgpr_bound,
+)
 from lightcurve_gp.observation.gp_base import GPTrainingSet
-from lightcurve_gp.observation.sparse_gp import SparseGP
+from lightcurve_gp.observation.sparse_gp import SparseGP, sgpr_cache
 
 ROBUST = Path(__file__).resolve().parents[1] / "configs" / "boxwing_robust.yaml"
 F64 = torch.float64
-NEW_KEYS = ("optimizer", "fit_dtype", "fit_subset", "fit_inducing")
+NEW_KEYS = ("optimizer", "fit_dtype", "fit_subset", "fit_inducing", "fit_objective")
 
 
 def _data(n: int, seed: int = 0):
@@ -45,6 +51,8 @@ def train():
     ("model.sparse.fit_subset=0", "model.sparse.fit_subset: 0 must be >= 1"),
     ("model.sparse.fit_subset=half", "model.sparse.fit_subset: expected an integer, got 'half'"),
     ("model.sparse.fit_inducing=1.5", "model.sparse.fit_inducing: expected an integer, got 1.5"),
+    ("model.sparse.fit_objective=exact", "model.sparse.fit_objective: 'exact' is not one of sparse_bound, "
+                                         "exact_subset"),
 ])
 def test_bad_fit_options_are_config_errors_naming_the_key(override, message):
     with pytest.raises(ConfigError) as err:
@@ -65,13 +73,33 @@ def test_default_fit_options_leave_the_model_key_alone():
     cfg = load_config(ROBUST)
     assert set(NEW_KEYS).isdisjoint(config_to_dict(cfg)["model"]["sparse"])
     keys = {model_key(cfg)}
-    for override in ("optimizer=lbfgs", "fit_dtype=float32", "fit_subset=3000", "fit_inducing=500"):
-        changed = load_config(ROBUST, [f"model.sparse.{override}"])
+    for override in ("optimizer=lbfgs", "fit_dtype=float32", "fit_subset=3000", "fit_inducing=500",
+                     "fit_objective=exact_subset"):
+        extra = ["model.sparse.fit_subset=2000"] if override.startswith("fit_objective") else []
+        changed = load_config(ROBUST, [f"model.sparse.{override}", *extra])
         raw = config_to_dict(changed)
         assert override.split("=")[0] in raw["model"]["sparse"]
         assert config_from_dict(raw) == changed
         keys.add(model_key(changed))
-    assert len(keys) == 5
+    assert len(keys) == 6
+
+
+@pytest.mark.parametrize("overrides, message", [
+    (["model.sparse.fit_objective=exact_subset"],
+     "model.sparse.fit_subset: needed by model.sparse.fit_objective exact_subset (the points the exact evidence is "
+     "fitted on)"),
+    (["model.sparse.fit_objective=exact_subset", "model.sparse.fit_subset=2000", "model.sparse.fit_inducing=500"],
+     "model.sparse.fit_inducing: not used by model.sparse.fit_objective exact_subset (the exact evidence has no "
+     "inducing inputs)"),
+    (["model.sparse.fit_objective=exact_subset", "model.sparse.fit_subset=2000",
+      "model.sparse.optimize_inducing=true"],
+     "model.sparse.optimize_inducing: not used by model.sparse.fit_objective exact_subset (the exact evidence has no "
+     "inducing inputs)"),
+])
+def test_exact_subset_objective_needs_a_subset_and_no_inducing_options(overrides, message):
+    with pytest.raises(ConfigError) as err:
+        load_config(ROBUST, overrides)
+    assert str(err.value) == message
 
 
 def test_bound_with_the_training_inputs_as_inducing_inputs_is_the_evidence(train):
@@ -145,3 +173,22 @@ def test_cheaper_fits_condition_in_float64_on_all_points(train):
         assert torch.equal(other.z, default.z) and other.w.dtype == F64 and other.p.dtype == F64
         assert not torch.equal(other.lengthscale, default.lengthscale), override
         assert sgpr_bound(ts.x, ts.r, other.z, other.theta1, other.lengthscale, float(other.noise)) > start, override
+
+
+@pytest.mark.parametrize("optimizer", ["adam", "lbfgs"])
+def test_exact_subset_fits_the_subset_evidence_and_conditions_on_all_points(train, optimizer):
+    """fit_objective exact_subset: the hyperparameters are those of the exact GP's evidence fit on the same seeded
+    subset (computed here without the sparse GP), and the cache is the SGPR's on all points at those values."""
+    cfg = _model_cfg("model.sparse.fit_objective=exact_subset", "model.sparse.fit_subset=120",
+                     f"model.sparse.optimizer={optimizer}")
+    model = SparseGP.from_data(*train, cfg)
+    ts = GPTrainingSet.prepare(*train, cfg, None)
+    keep = seeded_subset(300, 120, 0, ts.x.device)
+    theta1, ls, noise, history = fit_hyperparameters(ts.x[keep], ts.r[keep], ts.outputscale, ts.lengthscale, ts.noise,
+                                                     ard=False, iterations=8, lr=cfg.fit_lr, optimizer=optimizer)
+    assert model.fit_history == history and history[-1] > history[0]
+    assert model.theta1 == theta1 and float(model.noise) == noise and torch.equal(model.lengthscale, ls)
+    assert model.theta1 != ts.outputscale
+    w, p = sgpr_cache(ts.x, ts.r, model.z, theta1, ls, noise)
+    assert torch.allclose(model.w, w, rtol=0, atol=1e-12) and torch.allclose(model.p, p, rtol=0, atol=1e-12)
+    assert model.num_inducing == 40

@@ -38,6 +38,7 @@ from .config_schema import (
     GeometryConfig,
     ModelConfig,
     ScenarioConfig,
+    SparseModelConfig,
     SpinRangeConfig,
 )
 
@@ -207,9 +208,7 @@ def _cross_check(cfg: Config) -> None:
                           f"{'rho_normalised or surface_normalised' if cfg.filter.estimate_offset else 'magnitude'} "
                           f"(got {cfg.model.target})")
     _check_training_spins(cfg)
-    if cfg.model.sparse.fit_inducing is not None and cfg.model.sparse.optimize_inducing:
-        raise ConfigError("model.sparse.fit_inducing: cannot be combined with model.sparse.optimize_inducing (the "
-                          "fitted inducing inputs would be replaced by num_inducing new ones)")
+    _check_sparse_fit(cfg.model.sparse)
     single_spin = not isinstance(cfg.data.omega0_deg_s, SpinRangeConfig) and not isinstance(cfg.data.omega0_deg_s[0],
                                                                                            list)
     if cfg.filter.estimate_omega and cfg.model.inputs == "quaternion" and single_spin:
@@ -317,6 +316,22 @@ def _check_model_kinds(raw_model: Any) -> None:
                               f"model.kind {kind}")
 
 
+def _check_sparse_fit(sp: SparseModelConfig) -> None:
+    """The options of the sparse fit that do not go together."""
+    if sp.fit_inducing is not None and sp.optimize_inducing:
+        raise ConfigError("model.sparse.fit_inducing: cannot be combined with model.sparse.optimize_inducing (the "
+                          "fitted inducing inputs would be replaced by num_inducing new ones)")
+    if sp.fit_objective != "exact_subset":
+        return
+    if sp.fit_subset is None:
+        raise ConfigError("model.sparse.fit_subset: needed by model.sparse.fit_objective exact_subset (the points the "
+                          "exact evidence is fitted on)")
+    if sp.fit_inducing is not None or sp.optimize_inducing:
+        key = "fit_inducing" if sp.fit_inducing is not None else "optimize_inducing"
+        raise ConfigError(f"model.sparse.{key}: not used by model.sparse.fit_objective exact_subset (the exact "
+                          "evidence has no inducing inputs)")
+
+
 def config_from_dict(raw: dict) -> Config:
     """Validate a plain mapping (as read from YAML) into a :class:`Config`; raises :class:`ConfigError`."""
     if isinstance(raw, dict):
@@ -331,8 +346,8 @@ def config_to_dict(cfg: Any) -> dict:
     :func:`config_from_dict` reads back: the model section keeps only the settings of its own kind, and options
     that are off (``data.surfaces`` null, ``filter.adaptive_noise`` none, ``filter.estimate_omega`` false, a null
     ``filter.surface_measurement_noise``, ``filter.model_error`` none, the default USQUE variant, a zero
-    ``scenario.initial_omega_error_deg_s``, the sparse fit's default optimizer, precision, subset and inducing
-    count) are left out."""
+    ``scenario.initial_omega_error_deg_s``, the sparse fit's default objective, optimizer, precision, subset and
+    inducing count) are left out."""
     out = dataclasses.asdict(cfg)
     model = out.get("model") if isinstance(cfg, Config) else out if isinstance(cfg, ModelConfig) else None
     for section in MODEL_KIND_SECTIONS if model is not None else ():
@@ -375,7 +390,8 @@ def config_to_dict(cfg: Any) -> dict:
 
 
 #: options of the sparse fit left out of :func:`config_to_dict` at their defaults (today's fit keeps its keys)
-_SPARSE_FIT_DEFAULTS = {"optimizer": "adam", "fit_dtype": "float64", "fit_subset": None, "fit_inducing": None}
+_SPARSE_FIT_DEFAULTS = {"optimizer": "adam", "fit_dtype": "float64", "fit_subset": None, "fit_inducing": None,
+                        "fit_objective": "sparse_bound"}
 
 
 def parse_override(text: str) -> tuple[list[str], Any]:

@@ -189,12 +189,15 @@ class SparseModelConfig:
 
     num_inducing: int = _spec(512, lo=1)
     optimize_inducing: bool = _spec(False, doc="move the inducing inputs to maximise the collapsed bound")
-    iterations: int = _spec(200, lo=0, doc="evaluations of the SGPR bound during the fit (inducing inputs and/or "
+    iterations: int = _spec(200, lo=0, doc="evaluations of the fit's objective (inducing inputs and/or "
                                            "hyperparameters): Adam steps, or the most L-BFGS evaluations")
     optimizer: str = _spec("adam", choices=("adam", "lbfgs"),
                            doc="adam: model.fit_lr steps; lbfgs: L-BFGS with a strong-Wolfe line search")
     fit_dtype: str = _spec("float64", choices=("float64", "float32"),
                            doc="precision of the fit; the final conditioning is float64 either way")
+    fit_objective: str = _spec("sparse_bound", choices=("sparse_bound", "exact_subset"),
+                               doc="sparse_bound: the collapsed SGPR bound; exact_subset: the exact GP evidence on "
+                                   "fit_subset points (hyperparameters only), then the SGPR conditioned on all")
     fit_subset: int | None = _spec(None, lo=1, doc="fit on this seeded random subset of the training points, then "
                                                    "condition on all of them; null: fit on all")
     fit_inducing: int | None = _spec(None, lo=1, doc="fit with this many k-means inducing inputs, then condition "
@@ -234,7 +237,7 @@ class ModelConfig:
     standardize_inputs: bool = _spec(False)
     ard: bool = _spec(False)
     fit_hyperparameters: bool = _spec(False, doc="fit (theta1, lengthscale, sigma): exact GP on its evidence over "
-                                                 "exact.fit_subset points, sparse GP on its collapsed bound")
+                                                 "exact.fit_subset points, sparse GP on sparse.fit_objective")
     fit_lr: float = _spec(0.05, lo=0.0, lo_open=True, doc="Adam learning rate of either fit")
     variance: str = _spec("fast", choices=("fast", "exact", "none"),
                           doc="variance the filter asks of the model: fast differs from exact for the exact GP only")

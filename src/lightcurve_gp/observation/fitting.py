@@ -172,16 +172,17 @@ def _fitted_lengthscale(scale_kernel, dim: int) -> Tensor:
 
 
 def fit_hyperparameters(x: Tensor, y_centred: Tensor, outputscale: float, lengthscale: Tensor | float, noise: float,
-                        *, ard: bool, iterations: int, lr: float,
-                        progress: bool = False) -> tuple[float, Tensor, float, list[float]]:
-    """Maximise the exact log marginal likelihood (GPyTorch, Adam, exact Cholesky) from the given start.
+                        *, ard: bool, iterations: int, lr: float, progress: bool = False,
+                        optimizer: str = "adam") -> tuple[float, Tensor, float, list[float]]:
+    """Maximise the exact log marginal likelihood (GPyTorch, exact Cholesky, :func:`maximise_mll` with
+    ``optimizer``) of ``y_centred (N,)`` at ``x (N, d)`` from the given start, in the dtype of ``x``.
 
-    Returns ``(θ1, ℓ (d,), σ², mll per point history)``; the history has ``iterations + 1`` entries (before each
-    step and after the last).
+    Returns ``(θ1, ℓ (d,), σ², mll per point history)``; the history has ``iterations + 1`` entries for Adam
+    (before each step and after the last), at most that for L-BFGS.
     """
     model, likelihood = gpytorch_exact_model(x, y_centred, outputscale, lengthscale, noise, ard)
     history = maximise_mll(model, likelihood, x, y_centred, list(model.parameters()), iterations=iterations, lr=lr,
-                           progress=progress, desc="exact GP hyperparameters")
+                           progress=progress, desc="exact GP hyperparameters", optimizer=optimizer)
     return (float(model.covar_module.outputscale.detach()), _fitted_lengthscale(model.covar_module, x.shape[-1]),
             float(likelihood.noise.detach()), history)
 

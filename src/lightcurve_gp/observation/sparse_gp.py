@@ -5,8 +5,10 @@ inputs ``Z`` are initialised from the mapped training inputs by k-means (a few s
 random subset, and optionally optimised (``model.sparse.optimize_inducing``) for ``model.sparse.iterations`` Adam
 steps on the collapsed bound (:func:`.fitting.fit_sgpr`). Kernel hyperparameters stay the paper's unless
 ``model.fit_hyperparameters``. The fit may be made cheaper than the final model (``model.sparse``: ``optimizer``
-L-BFGS, ``fit_dtype`` float32, a ``fit_subset`` of the points, ``fit_inducing`` fewer inducing inputs); the
-conditioning below is float64 on all points with all ``num_inducing`` inducing inputs either way.
+L-BFGS, ``fit_dtype`` float32, a ``fit_subset`` of the points, ``fit_inducing`` fewer inducing inputs), or made on
+the exact GP's evidence of a ``fit_subset`` instead of the bound (``fit_objective: exact_subset``: no Nyström
+error term, which penalises short lengthscales on the bound); the conditioning below is float64 on all points with
+all ``num_inducing`` inducing inputs either way.
 
 Prediction is plain torch on a cache computed once (float64, Cholesky forms; ``L_uu L_uuᵀ = K_uu``,
 ``A = L_uu⁻¹ K_uf / σ``, ``B = I + A Aᵀ = L_B L_Bᵀ``, so that ``Λ = K_uu + σ⁻² K_uf K_fu = L_uu B L_uuᵀ``):
@@ -32,7 +34,7 @@ from torch import Tensor
 
 from ..config import config_to_dict
 from .base import Prediction, Variance
-from .fitting import fit_sgpr, seeded_subset
+from .fitting import fit_hyperparameters, fit_sgpr, seeded_subset
 from .gp_base import CachedGP, GPTrainingSet, cpu64
 from .inputs import InputMap
 from .kernels import (
@@ -128,19 +130,26 @@ def _initial_inducing(x: Tensor, num: int, init: str, seed: int, kmeans_iteratio
 
 def _fit(ts: GPTrainingSet, z: Tensor, cfg: Any, *, seed: int, kmeans_iterations: int,
          progress: bool) -> tuple[Tensor, float, Tensor, float, list[float]]:
-    """:func:`~.fitting.fit_sgpr` as ``cfg.sparse`` asks: on ``fit_subset`` seeded random training points (all when
-    null), with ``fit_inducing`` k-means inducing inputs (``z (M, d)`` when null), in ``fit_dtype``, by ``optimizer``.
+    """The fit ``cfg.sparse`` asks for, on ``fit_subset`` seeded random training points (all when null), in
+    ``fit_dtype``, by ``optimizer``: ``fit_objective`` ``sparse_bound``, :func:`~.fitting.fit_sgpr` with
+    ``fit_inducing`` k-means inducing inputs (``z (M, d)`` when null); ``exact_subset``,
+    :func:`~.fitting.fit_hyperparameters` on the exact evidence of the subset (no inducing inputs).
 
-    Returns ``(Z, θ1, ℓ (d,), σ², bound-per-point history)`` for the float64 conditioning on all points: ``Z`` is
-    ``z`` unless ``optimize_inducing`` moved it, ``ℓ`` float64.
+    Returns ``(Z, θ1, ℓ (d,), σ², objective-per-point history)`` for the float64 conditioning on all points: ``Z``
+    is ``z`` unless ``optimize_inducing`` moved it, ``ℓ`` float64.
     """
     sp = cfg.sparse
     x, r = ts.x, ts.r
     if sp.fit_subset is not None:
         keep = seeded_subset(x.shape[0], sp.fit_subset, seed, x.device)
         x, r = x[keep], r[keep]
-    z_fit = z if sp.fit_inducing is None else kmeans(ts.x, sp.fit_inducing, iterations=kmeans_iterations, seed=seed)
     dtype = getattr(torch, sp.fit_dtype)
+    if sp.fit_objective == "exact_subset":
+        outputscale, lengthscale, noise, history = fit_hyperparameters(
+            x.to(dtype), r.to(dtype), ts.outputscale, ts.lengthscale.to(dtype), ts.noise, ard=cfg.ard,
+            iterations=sp.iterations, lr=cfg.fit_lr, progress=progress, optimizer=sp.optimizer)
+        return z, outputscale, lengthscale.to(torch.float64), noise, history
+    z_fit = z if sp.fit_inducing is None else kmeans(ts.x, sp.fit_inducing, iterations=kmeans_iterations, seed=seed)
     z_fitted, outputscale, lengthscale, noise, history = fit_sgpr(
         x.to(dtype), r.to(dtype), z_fit.to(dtype), ts.outputscale, ts.lengthscale.to(dtype), ts.noise,
         optimize_inducing=sp.optimize_inducing, fit_hyper=cfg.fit_hyperparameters, ard=cfg.ard,
@@ -189,7 +198,8 @@ class SparseGP(CachedGP):
 
         ``cfg`` is a :class:`~lightcurve_gp.config.ModelConfig` of kind ``sparse``. ``inducing_points`` (mapped
         inputs ``(M, d)``) overrides the ``init`` (``"kmeans"`` or ``"random"``) of ``cfg.sparse.num_inducing``
-        points. ``fit_history`` holds the collapsed bound per point during optimisation; ``progress`` shows a bar.
+        points. ``fit_history`` holds the fit's objective per point (the bound, or the subset's evidence) during
+        optimisation; ``progress`` shows a bar.
         """
         ts = GPTrainingSet.prepare(q, m_past, y, cfg, device)
         x, r, sp = ts.x, ts.r, cfg.sparse
