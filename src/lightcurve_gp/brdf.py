@@ -129,7 +129,7 @@ def _diffuse(ns: Tensor, nv: Tensor, rho, f0) -> Tensor:
 
 def _specular_numerator(nh: Tensor, vh: Tensor, hu: Tensor, hw: Tensor, f0, n_u, n_v) -> Tensor:
     """``√((n_u+1)(n_v+1))/(8π) · F · (n·h)^γ``: ``c_s`` without its denominator ``(v·h) max(n·s, n·v)``."""
-    dtype = torch.result_type(nh, hu)
+    dtype = torch.promote_types(nh.dtype, hu.dtype)
     fresnel = f0 + (1.0 - f0) * _pow5(1.0 - vh)
     hu2, hw2 = hu * hu, hw * hw
     tangential = hu2 + hw2  # = 1 − (n·h)² for a unit h in an orthonormal frame, without cancellation

@@ -379,6 +379,8 @@ def config_to_dict(cfg: Any) -> dict:
         del filt["estimate_omega"], filt["p0_omega_deg_s"], filt["omega_process_noise"]
     if filt is not None and not filt.get("sigma_redraw", True) and filt.get("q_placement") == "both":
         del filt["sigma_redraw"], filt["q_placement"]
+    if filt is not None and not filt.get("compile", True):
+        del filt["compile"]
     scen = out.get("scenario") if isinstance(cfg, Config) else out if isinstance(cfg, ScenarioConfig) else None
     if scen is not None and not any(scen.get("initial_omega_error_deg_s", [1.0])):
         del scen["initial_omega_error_deg_s"]

@@ -275,7 +275,8 @@ class Scene:
             raise ValueError(f"zero_flux: {zero_flux!r} is not 'nan' or 'raise'")
         f = self.flux(q, rho, surface=surface)
         visible = f > 0
-        all_visible = bool(visible.all())
+        # inside a compiled step (lightcurve_gp.usque_compiled) no read-back: the masked form below
+        all_visible = False if torch.compiler.is_compiling() and zero_flux == "nan" else bool(visible.all())
         if not all_visible and zero_flux == "raise":
             raise ValueError(f"{int((~visible).sum())} of {visible.numel()} attitudes have zero flux "
                              "(no facet both lit and visible): no magnitude")

@@ -46,6 +46,7 @@ from .unscented import (
     unscented_weights,
     warn_fallbacks,
 )
+from .usque_compiled import compiled_usque_step
 from .usque_update import Prior, RunConstants, adapted_noise, measurement_update, redrawn_sigma_points, sigma_set
 
 __all__ = [
@@ -117,6 +118,8 @@ class UsqueParams:
         sigma_redraw: update with sigma points drawn again from ``(x̂⁻, P⁻)`` (the paper) instead of the
             propagated ones (Crassidis & Markley).
         q_placement: one of :data:`Q_PLACEMENTS`.
+        compile: with ω known, run each step as one compiled graph (:mod:`lightcurve_gp.usque_compiled`): the
+            same estimates to rounding, a fraction of the per-step dispatch; the first step of each shape compiles.
     """
 
     alpha: float = 1e-4
@@ -139,6 +142,7 @@ class UsqueParams:
     dt: float = 1.0
     sigma_redraw: bool = False
     q_placement: str = "both"
+    compile: bool = False
 
     def __post_init__(self):
         if self.lam_rule not in LAM_RULES:
@@ -164,9 +168,9 @@ class UsqueParams:
         ``data.t_span_past``, ``model.variance`` (``"none"`` unless ``filter.add_model_variance``) and the adaptive
         noise rule with ``λ = min(1, scenario.dt_s / filter.adaptive_noise_time_s)``, the rate filter's
         ``filter.omega_process_noise``, ``filter.inertia_kg_m2`` (default ``shape.inertia_kg_m2``) and
-        ``scenario.dt_s``, and the variant
-        (``filter.sigma_redraw``, ``filter.q_placement``). With ``filter.model_error: heldout`` ``R`` also holds the
-        trained ``model``'s held-out excess variance (:func:`model_error_variance`)."""
+        ``scenario.dt_s``, the variant (``filter.sigma_redraw``, ``filter.q_placement``) and ``filter.compile``. With
+        ``filter.model_error: heldout`` ``R`` also holds the trained ``model``'s held-out excess variance
+        (:func:`model_error_variance`)."""
         f = cfg.filter
         return cls(
             alpha=float(f.alpha), beta=float(f.beta), kappa=float(f.kappa), lam=None if f.lam is None else float(f.lam),
@@ -179,6 +183,7 @@ class UsqueParams:
             omega_process_noise=float(f.omega_process_noise),
             inertia=tuple(float(j) for j in (f.inertia_kg_m2 or cfg.shape.inertia_kg_m2)),
             dt=float(cfg.scenario.dt_s), sigma_redraw=bool(f.sigma_redraw), q_placement=f.q_placement,
+            compile=bool(f.compile),
         )
 
     def weights(self, n: int = 3, *, dtype: torch.dtype | None = None, device=None) -> UnscentedWeights:
@@ -266,15 +271,8 @@ def _step_matrices(increments: Tensor, layout: StateLayout, B: int, scale: float
     return L_steps, G_steps
 
 
-def usque_step(run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Tensor, y_k: Tensor,
-               observed_k: Tensor) -> tuple[FilterState, StepRecord]:
-    """One USQUE step of ``B`` filters with ω known (:func:`run_usque` lists the steps 1–9).
-
-    Args:
-        run: the run's constants; state: the posterior at ``k − 1``.
-        L_k: ``L(δ_{k−1}) (B, 4, 4)``; G_k: ``√(n+λ) G(δ_{k−1}) (B, n, n)`` (:func:`_step_matrices`).
-        y_k: observation ``ỹ_k (B,)`` with missing values filled by 0; observed_k: where it is finite ``(B,)``.
-    """
+def usque_prior(run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Tensor) -> Prior:
+    """Steps 1–5 of :func:`usque_step` with ω known: the prior of ``B`` filters (arguments as there)."""
     # 1-5. sigma offsets ±√(n+λ) cols √(P⁺ + Q) about x̂⁺ = [0, b̂]; propagating q_i = δq(χ_i) ⊗ q̂ to δ ⊗ q_i and
     # re-expressing it about the propagated centre δ ⊗ q̂ conjugates δq(χ_i) by δ, which keeps its scalar part and
     # rotates its vector part by A(δ), so the GRP becomes A(δ) χ_i (b is unchanged): the propagated offsets are the
@@ -289,7 +287,21 @@ def usque_step(run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Tenso
         failed = failed | failed_again
     else:
         chi = sigma_set(None, S_m.mT)
-    return measurement_update(run, state, Prior(q_m, None, None, P_m, chi, failed), y_k=y_k, observed_k=observed_k)
+    return Prior(q_m, None, None, P_m, chi, failed)
+
+
+def usque_step(run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Tensor, y_k: Tensor,
+               observed_k: Tensor) -> tuple[FilterState, StepRecord]:
+    """One USQUE step of ``B`` filters with ω known (:func:`run_usque` lists the steps 1–9): :func:`usque_prior`,
+    then the measurement update.
+
+    Args:
+        run: the run's constants; state: the posterior at ``k − 1``.
+        L_k: ``L(δ_{k−1}) (B, 4, 4)``; G_k: ``√(n+λ) G(δ_{k−1}) (B, n, n)`` (:func:`_step_matrices`).
+        y_k: observation ``ỹ_k (B,)`` with missing values filled by 0; observed_k: where it is finite ``(B,)``.
+    """
+    prior = usque_prior(run, state, L_k=L_k, G_k=G_k)
+    return measurement_update(run, state, prior, y_k=y_k, observed_k=observed_k)
 
 
 def run_usque(*, model: ObservationModel, q_est0: Tensor, P0: Tensor, observations: Tensor, m_past0: Tensor,
@@ -364,7 +376,7 @@ def run_usque(*, model: ObservationModel, q_est0: Tensor, P0: Tensor, observatio
             q_hat=q_hat / torch.linalg.vector_norm(q_hat, dim=-1, keepdim=True),
             offset=None if offset0 is None else offset0.to(dtype=dtype, device=device).expand(B).clone(),
             P=symmetrise(P0.to(dtype=dtype, device=device).expand(B, layout.dim, layout.dim)).clone(),
-            m_past=m_past0.to(dtype=dtype, device=device).expand(B).clone(),
+            m_past=m_past0.to(dtype=dtype, device=device).expand(B).clone(memory_format=torch.contiguous_format),
             noise_excess=None if run.adaptive_rate is None else run.R.clone(),
             theta=None if theta0 is None else theta0.to(dtype=dtype, device=device).expand(B, -1).clone(),
             omega=None if omega0 is None else omega0.to(dtype=dtype, device=device).expand(B, 3).clone())
@@ -374,10 +386,11 @@ def run_usque(*, model: ObservationModel, q_est0: Tensor, P0: Tensor, observatio
         history.add(state, StepRecord(nan_b, nan_b, nan_b, nan_b, state.m_past, no, no, no))
         if omega0 is None:
             L_steps, G_steps = _step_matrices(increments.to(dtype=dtype, device=device), layout, B, run.scale)
+        step = compiled_usque_step if params.compile else usque_step
         for k in range(1, T + 1):
             run_k = run if R_steps is None else dataclasses.replace(run, R=R_steps[k])
             if omega0 is None:
-                state, record = usque_step(run_k, state, L_k=L_steps[k - 1], G_k=G_steps[k - 1], y_k=y_steps[k],
+                state, record = step(run_k, state, L_k=L_steps[k - 1], G_k=G_steps[k - 1], y_k=y_steps[k],
                                            observed_k=observed_steps[k])
             else:
                 state, record = measurement_update(run_k, state, rate_prior(run_k, state), y_k=y_steps[k],

@@ -103,9 +103,14 @@ def matrix_sqrt(a: Tensor) -> tuple[Tensor, Tensor]:
 
 
 def sqrt_psd(a: Tensor) -> tuple[Tensor, Tensor]:
-    """:func:`matrix_sqrt` for matrices already symmetric (the common path costs one Cholesky and one sync)."""
+    """:func:`matrix_sqrt` for matrices already symmetric (the common path costs one Cholesky and one sync).
+
+    Inside a compiled graph (:mod:`lightcurve_gp.usque_compiled`) the factor is returned without the fallback: a
+    failed matrix is only flagged."""
     s, info = torch.linalg.cholesky_ex(a)
     failed = info != 0
+    if torch.compiler.is_compiling():  # no read-back inside a compiled step: it redoes a failed step eagerly
+        return s, failed
     if bool(failed.any()):
         s, failed = matrix_sqrt(a)
     return s, failed

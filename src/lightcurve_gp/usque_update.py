@@ -21,7 +21,8 @@ from .observation.base import ObservationModel, Variance
 from .rotations import grp_to_quat, quat_right_matrix
 from .unscented import sqrt_psd_with_zero_rows, symmetrise
 
-__all__ = ["RunConstants", "Prior", "measurement_update", "redrawn_sigma_points", "adapted_noise", "sigma_set"]
+__all__ = ["RunConstants", "Prior", "SigmaInputs", "measurement_update", "sigma_inputs", "update_with_predictions",
+           "redrawn_sigma_points", "adapted_noise", "sigma_set"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -78,16 +79,43 @@ def measurement_update(run: RunConstants, state: FilterState, prior: Prior, *, y
         run: the run's constants; state: the posterior at ``k − 1``; prior: the prediction at ``k``.
         y_k: observation ``ỹ_k (B,)`` with missing values filled by 0; observed_k: where it is finite ``(B,)``.
     """
+    inputs = sigma_inputs(run, state, prior)
+    y_sig, var_sig = run.model(q=inputs.q, m_past=inputs.m_past, variance=run.variance, **inputs.theta)
+    return update_with_predictions(run, state, prior, inputs.R_qm, y_sig, var_sig, y_k=y_k, observed_k=observed_k)
+
+
+class SigmaInputs(NamedTuple):
+    """What the model is asked at the sigma points (step 6): attitudes ``q (B, 2n+1, 4)``, the running mean
+    ``m_past (B, 2n+1)`` and, with ``θ`` in the state, ``{"theta": (B, 2n+1, p)}`` (else ``{}``); and the right
+    product matrix ``R(q_0⁻) (B, 4, 4)`` the reset uses again."""
+
+    q: Tensor
+    m_past: Tensor
+    theta: dict
+    R_qm: Tensor
+
+
+def sigma_inputs(run: RunConstants, state: FilterState, prior: Prior) -> SigmaInputs:
+    """6. the sigma attitudes ``q_i⁻ = δq(χ_i⁻) ⊗ q_0⁻``, asked of the model in one call (one sigma-point set)."""
+    chi = prior.chi
+    B, S, _ = chi.shape
+    R_qm = quat_right_matrix(prior.q_m)
+    q_sig = torch.bmm(grp_to_quat(chi[..., :3], *run.grp), R_qm.mT)  # (B, 2n+1, 4)
+    theta = {} if state.theta is None else {"theta": state.theta.unsqueeze(1) + chi[..., run.layout.parameter_slice]}
+    return SigmaInputs(q_sig, state.m_past.unsqueeze(1).expand(B, S), theta, R_qm)
+
+
+def update_with_predictions(run: RunConstants, state: FilterState, prior: Prior, R_qm: Tensor, y_sig: Tensor,
+                            var_sig: Tensor | None, *, y_k: Tensor,
+                            observed_k: Tensor) -> tuple[FilterState, StepRecord]:
+    """Steps 6–9 given the model's predictions ``y_sig (B, 2n+1)`` and variances (or ``None``) at
+    :func:`sigma_inputs` (``R_qm``: its :attr:`SigmaInputs.R_qm`): predicted observation, gain, update, reset and
+    the ``m_past`` recursion."""
     q_m, omega_m, x_m, P_m, chi, failed = prior
-    B, S, n = chi.shape
+    B = chi.shape[0]
     a, f = run.grp
     layout = run.layout
     zero = torch.zeros((), dtype=chi.dtype, device=chi.device)
-    # 6. sigma attitudes q_i⁻ = δq(χ_i⁻) ⊗ q_0⁻; one model call for all of them (one sigma-point set)
-    R_qm = quat_right_matrix(q_m)
-    q_sig = torch.bmm(grp_to_quat(chi[..., :3], a, f), R_qm.mT)  # (B, 2n+1, 4)
-    theta = {} if state.theta is None else {"theta": state.theta.unsqueeze(1) + chi[..., layout.parameter_slice]}
-    y_sig, var_sig = run.model(q=q_sig, m_past=state.m_past.unsqueeze(1).expand(B, S), variance=run.variance, **theta)
     if state.offset is not None:
         y_sig = y_sig + (state.offset.unsqueeze(1) + chi[..., layout.offset_index])
     y_hat = y_sig @ run.wm

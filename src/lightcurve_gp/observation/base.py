@@ -81,7 +81,8 @@ def check_inputs(q: Tensor, m_past: Tensor) -> tuple[Tensor, Tensor]:
         raise ValueError(f"q must have shape (..., 4), got {tuple(q.shape)}")
     # hot path: one reduction and one device sync; a non-finite value makes the sum non-finite (a sum of finite
     # values can overflow too, which the exact check below then clears)
-    if not math.isfinite(float(q.sum() + m_past.sum())):
+    # (left out inside a compiled step, which checks its posterior instead: lightcurve_gp.usque_compiled)
+    if not torch.compiler.is_compiling() and not math.isfinite(float(q.sum() + m_past.sum())):
         for name, t in (("q", q), ("m_past", m_past)):
             if not bool(torch.isfinite(t).all()):
                 raise ValueError(f"{name} contains non-finite values")
@@ -105,7 +106,6 @@ class ObservationModule(nn.Module):
     """
 
     uses_m_past: bool = True
-
     def forward(self, *, q: Tensor, m_past: Tensor, variance: Variance = "fast") -> Prediction:
         """Predict the apparent magnitude.
 
@@ -120,6 +120,11 @@ class ObservationModule(nn.Module):
         check_variance(variance)
         q, m_past = check_inputs(q, m_past)
         return self._predict(q, m_past, variance)
+
+    def fuses_in_compiled_step(self, variance: Variance) -> bool:
+        """Whether a compiled filter step (:mod:`lightcurve_gp.usque_compiled`) traces this prediction into its graph
+        (it must read nothing back to Python); ``False``: the step calls it eagerly between two compiled halves."""
+        return True
 
     def predict(self, q: Tensor, m_past: Tensor, *, variance: Variance = "fast") -> Prediction:
         """Positional-argument alias of :meth:`forward` for library users."""

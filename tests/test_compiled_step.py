@@ -1,0 +1,114 @@
+"""The compiled filter step (``filter.compile: true``): the same estimates as the eager step on short runs of the
+paper's filter (the renderer traced into the graph, the exact GP's mean fused, a GP with a variance called eagerly
+between two compiled halves), the eager redo of a step whose square root falls back, and the config key."""
+
+import dataclasses
+
+import pytest
+import torch
+
+from lightcurve_gp.config import ConfigError, config_to_dict, load_config
+from lightcurve_gp.data import generate_training_set
+from lightcurve_gp.observation import ExactGP
+from lightcurve_gp.observation.kernels import blocked_kernel_sum, cross_kernel_cache, exp_neg_sqdist, weighted_blocks
+from lightcurve_gp.observation.parametric import Parametric
+from lightcurve_gp.render import Scene
+from lightcurve_gp.scenario import simulate_scenario
+from lightcurve_gp.ukf import UsqueParams, initial_covariance, run_usque
+from lightcurve_gp.unscented import SqrtFallbackWarning
+from tests.helpers import ToyModel, scenario
+
+
+class _UncountedToy(ToyModel):
+    """:class:`ToyModel` without its call counter (a counter read in a compiled graph recompiles it every call)."""
+
+    def _predict(self, q, m_past, variance):
+        self.calls = 0
+        return super()._predict(q, m_past, variance)
+
+CONFIG = "configs/boxwing.yaml"
+STEPS = 12
+# the fused loops sum in another order than the eager matrix products: the estimates agree to rounding, well inside
+TOL = 1e-10
+
+
+@pytest.fixture(scope="module")
+def paper_case():
+    """The paper's scenario on a 42-axis training grid: config, scene, truth of 2 noise seeds, the exact GP."""
+    cfg = load_config(CONFIG, overrides=["data.icosphere_subdivisions=1"])
+    scene = Scene.from_config(cfg)
+    truth = simulate_scenario(cfg, seeds=range(2), scene=scene)
+    data = generate_training_set(cfg)
+    return cfg, scene, truth, ExactGP.from_data(data.q, data.m_past, data.y, cfg.model)
+
+
+def _both(model, params, truth, *, B=2, P0=None):
+    """The eager and the compiled run of ``B`` filters over :data:`STEPS` steps."""
+    obs = truth.observations[:B, :STEPS + 1]
+    P0 = initial_covariance(10.0, dtype=torch.float64) if P0 is None else P0
+    runs = [run_usque(model=model, q_est0=truth.q_est0.expand(B, 4), P0=P0, observations=obs, m_past0=obs[:, 0],
+                      increments=truth.increments[:STEPS], params=dataclasses.replace(params, compile=c))
+            for c in (False, True)]
+    return runs
+
+
+def _assert_same(eager, compiled):
+    for name in ("q_est", "P", "y_pred", "y_var", "m_past"):
+        a, b = getattr(eager, name), getattr(compiled, name)
+        assert torch.allclose(a, b, rtol=0.0, atol=TOL, equal_nan=True), (name, float((a - b).abs().nanmax()))
+    assert torch.equal(eager.updated, compiled.updated)
+    assert torch.equal(eager.fallbacks, compiled.fallbacks)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("variance", ["none", "fast"])
+def test_compiled_gpukf_gives_the_eager_estimates(paper_case, variance):
+    """Mean only: the GP's mean fused into the graph; fast variance: the GP called eagerly between the halves."""
+    cfg, _, truth, gp = paper_case
+    params = dataclasses.replace(UsqueParams.from_config(cfg), variance=variance)
+    assert gp.fuses_in_compiled_step(variance) == (variance == "none")
+    eager, compiled = _both(gp, params, truth)
+    _assert_same(eager, compiled)
+    assert bool(compiled.updated[:, 1:].all())
+
+
+@pytest.mark.slow
+def test_compiled_ukf_with_the_renderer_gives_the_eager_estimates(paper_case):
+    cfg, scene, truth, _ = paper_case
+    eager, compiled = _both(Parametric(scene, cfg.filter.rho_assumed), UsqueParams.from_config(cfg), truth)
+    _assert_same(eager, compiled)
+
+
+@pytest.mark.slow
+def test_a_step_whose_square_root_falls_back_is_done_again_eagerly():
+    """An indefinite ``P0`` for one of two filters: the compiled step flags it, the eager step redoes it (the
+    eigendecomposition fallback, counted and warned about as without compiling)."""
+    _, y, q_est0, increments = scenario(B=2, T=STEPS)
+    P0 = initial_covariance(10.0, dtype=torch.float64).repeat(2, 1, 1)
+    P0[1, 0, 0] = -P0[1, 0, 0]
+    params = UsqueParams(Q=1e-6, R=1e-4, variance="none")
+    runs = []
+    for compile_ in (False, True):
+        with pytest.warns(SqrtFallbackWarning, match="1 of 2 filters"):
+            runs.append(run_usque(model=_UncountedToy(), q_est0=q_est0, P0=P0, observations=y, m_past0=y[:, 0],
+                                  increments=increments, params=dataclasses.replace(params, compile=compile_)))
+    _assert_same(*runs)
+    assert runs[1].fallbacks.tolist() == [0, 1]
+
+
+def test_blocked_kernel_sum_is_the_kernel_row_times_the_weights():
+    g = torch.Generator().manual_seed(0)
+    refs, w, xs = (torch.randn(1000, 5, generator=g, dtype=torch.float64), torch.randn(1000, generator=g,
+                   dtype=torch.float64), 0.3 * torch.randn(7, 5, generator=g, dtype=torch.float64))
+    blocks, w_blocks = weighted_blocks(refs, w, block=256)
+    assert blocks.shape == (4, 5, 256) and w_blocks.shape == (4, 1, 256)
+    want = exp_neg_sqdist(xs, cross_kernel_cache(refs)) @ w
+    assert torch.allclose(blocked_kernel_sum(xs, blocks, w_blocks), want, rtol=1e-12, atol=1e-12)
+
+
+def test_the_compile_key_is_checked_and_left_out_of_the_keys_when_off():
+    with pytest.raises(ConfigError, match=r"^filter\.compile: expected true or false, got 'sometimes'$"):
+        load_config(CONFIG, overrides=["filter.compile=sometimes"])
+    off, on = load_config(CONFIG), load_config(CONFIG, overrides=["filter.compile=true"])
+    assert "compile" not in config_to_dict(off)["filter"] and config_to_dict(on)["filter"]["compile"] is True
+    assert (UsqueParams.from_config(off).compile, UsqueParams.from_config(on).compile) == (False, True)
