@@ -258,6 +258,12 @@ def _process_noise(params: UsqueParams, layout: StateLayout, B: int, like: Tenso
     return Q
 
 
+def _step_major(m: Tensor) -> tuple[Tensor, ...]:
+    """The steps of ``m (1 | B, T, ...)`` as ``T`` tensors ``(1 | B, ...)`` with strides that do not depend on ``T``
+    (a compiled step is specialised to its inputs' strides, those of size-1 dimensions included)."""
+    return m.transpose(0, 1).clone(memory_format=torch.contiguous_format).unbind(0)
+
+
 def _step_matrices(increments: Tensor, layout: StateLayout, B: int, scale: float) -> tuple[tuple, tuple]:
     """Per-step ``L(δ_k) (B, 4, 4)`` and ``√(n+λ) G(δ_k) (B, n, n)`` with ``G = A(δ)`` on the attitude block and
     the identity elsewhere (stride 0 over ``B`` when the increments are shared). ``normalise(δ ⊗ q) = (δ/|δ|) ⊗ q``:
@@ -266,8 +272,8 @@ def _step_matrices(increments: Tensor, layout: StateLayout, B: int, scale: float
     inc = inc.unsqueeze(0) if inc.ndim == 2 else inc  # (1 | B, T, 4)
     G = torch.eye(layout.dim, dtype=inc.dtype, device=inc.device).repeat(*inc.shape[:-1], 1, 1)
     G[..., :3, :3] = attitude_matrix(inc)
-    L_steps = quat_left_matrix(inc).expand(B, -1, -1, -1).unbind(1)
-    G_steps = (G * math.sqrt(scale)).expand(B, -1, -1, -1).unbind(1)
+    L_steps = [m.expand(B, -1, -1) for m in _step_major(quat_left_matrix(inc))]
+    G_steps = [m.expand(B, -1, -1) for m in _step_major(G * math.sqrt(scale))]
     return L_steps, G_steps
 
 
@@ -370,7 +376,8 @@ def run_usque(*, model: ObservationModel, q_est0: Tensor, P0: Tensor, observatio
         run, R_steps = _run_constants(params, layout, model, B, T, q_est0)
         obs = observations.to(dtype=dtype, device=device)
         observed = torch.isfinite(obs)
-        y_steps, observed_steps = torch.where(observed, obs, torch.zeros_like(obs)).unbind(1), observed.unbind(1)
+        y_steps = _step_major(torch.where(observed, obs, torch.zeros_like(obs)))
+        observed_steps = _step_major(observed)
         q_hat = q_est0.to(dtype=dtype).clone()
         state = FilterState(
             q_hat=q_hat / torch.linalg.vector_norm(q_hat, dim=-1, keepdim=True),
@@ -412,7 +419,7 @@ def _run_constants(params: UsqueParams, layout: StateLayout, model: ObservationM
     R = torch.as_tensor(params.R, dtype=dtype, device=device)
     if R.shape not in ((), (B,), (B, T + 1)):
         raise ValueError(f"R must be a scalar, (B={B},) or (B={B}, T+1={T + 1}), got {tuple(R.shape)}")
-    R_steps = R.unbind(1) if R.ndim == 2 else None
+    R_steps = _step_major(R) if R.ndim == 2 else None
     stepper = None
     if layout.omega:
         stepper = rk4_stepper(torch.tensor(params.inertia, dtype=dtype, device=device), params.dt, like=like)
