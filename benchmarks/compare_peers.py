@@ -2,17 +2,20 @@
 
 Paper scenario (``configs/boxwing.yaml``), one filter (B = 1), float64, ``--threads`` torch threads (default 1):
 
-* GPUKF with the exact GP (N = 19 260, mean only, as in the paper): the library's USQUE; the same filter with
+* GPUKF with the exact GP (N = 19 260, mean only, as in the paper): the library's USQUE, eager and with
+  ``filter.compile: true`` (the step as compiled graphs, :mod:`lightcurve_gp.usque_compiled`); the same filter with
   GPyTorch's default prediction path ``likelihood(model(x)).mean`` as its observation model (its one-off mean
   solve timed apart); a straightforward numpy GPUKF written for this benchmark (``_peers.numpy_gpukf``).
-* Conventional UKF with the renderer: the library's USQUE with the parametric model; filterpy's
+* Conventional UKF with the renderer: the library's USQUE with the parametric model, eager and compiled; filterpy's
   ``UnscentedKalmanFilter`` driving the same renderer (``_peers.filterpy_usque``).
-* Many filters at once: the library's SparseGP (M = 512, mean only) at B = ``--batch`` per filter-step, against
-  the numpy GPUKF's single filter.
+* Many filters at once: the library's SparseGP (M = 512, mean only) at B = ``--batch`` per filter-step, eager and
+  compiled, against the numpy GPUKF's single filter.
 
 Per step: median over ``--repeats`` runs of ``--steps`` steps (noise seeds 0, 1, …); per run: median over
 ``--run-repeats`` whole 600-step runs. The cases are timed round-robin inside each repeat, so a change of the
-machine's load hits every case alike. Every peer's estimates are compared with the library's on the same seed
+machine's load hits every case alike. The ratios ``step / ours`` are to the library's eager step; the notes give
+the peers' ratios to the compiled step, and each compiled case's first run (which compiles; inductor's on-disk
+cache makes a second process's compile shorter). Every peer's estimates are compared with the library's on the same seed
 (largest angle between the two along the run). The paper's 0.83–0.88 s per GPUKF step is quoted, not measured.
 
     python benchmarks/compare_peers.py                      # ~2 min with the models cached, + GPyTorch's solve
@@ -43,6 +46,7 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--repeats", type=int, default=7, help="per-step runs per case (median reported)")
     parser.add_argument("--run-repeats", type=int, default=3, help="whole 600 s runs per case (median reported)")
     parser.add_argument("--batch", type=int, default=10_000, help="B of the many-filters row (0: skip)")
+    parser.add_argument("--skip-compiled", action="store_true", help="leave out the filter.compile: true cases")
     parser.add_argument("--skip-gpytorch", action="store_true", help="skip GPyTorch (its first call solves "
                         "against all N points with CG: minutes)")
     parser.add_argument("--gpytorch-steps", type=int, default=2, help="steps of the one timed run of GPyTorch's "
@@ -66,6 +70,7 @@ class Case:
     per_step: list = dataclasses.field(default_factory=list)
     per_run: list = dataclasses.field(default_factory=list)
     estimates: np.ndarray | None = None  # of noise seed 0: the whole run, or the first per-step run when projected
+    first_s: float | None = None  # the warm-up run (2 steps; with filter.compile it compiles)
 
 
 def library_runner(model, params, sc, P0):
@@ -114,7 +119,9 @@ def time_round_robin(cases: list[Case], *, steps: int, repeats: int, run_repeats
     """Fill each case's ``per_step`` (s) and ``per_run`` (s) lists, cases interleaved in every repeat; keep the
     whole-run estimates of seed 0."""
     for case in cases:
-        case.run(2, 0)  # warm-up (first-call allocations)
+        t0 = time.perf_counter()
+        case.run(2, 0)  # warm-up (first-call allocations; compiling)
+        case.first_s = time.perf_counter() - t0
     for r in range(repeats):
         for case in cases:
             if r < (case.repeats or repeats):
@@ -153,7 +160,10 @@ def time_batch(model, params, sc, P0, B: int, steps: int, repeats: int) -> float
 
 
 def build_tables(cases, gpytorch_solve_s, batch_row, sc, info_start) -> list:
-    ours = {c.family: c for c in cases if c.label.startswith("lightcurve-gp")}
+    ours = {}
+    for c in cases:
+        if c.label.startswith("lightcurve-gp"):
+            ours.setdefault(c.family, c)  # the eager one: the first
     tab = C.Table("One filter (B = 1), paper scenario: per step and per 600 s run (medians)",
                   ["filter", "implementation", "per step", "per 600 s run", "step / ours", "run / ours",
                    "max angle to ours"])
@@ -175,11 +185,18 @@ def build_tables(cases, gpytorch_solve_s, batch_row, sc, info_start) -> list:
     if gpytorch_solve_s is not None:
         tab.note(f"GPyTorch's first call solved for its mean cache in {C.fmt_seconds(gpytorch_solve_s)} (once per "
                  "model, not in the rows)")
-    if batch_row is not None:
-        B, per_step = batch_row
-        numpy_step = statistics.median(next(c for c in cases if c.label.startswith("numpy")).per_step)
-        tab.note(f"many filters: lightcurve-gp SparseGP M = 512 mean only at B = {B}: {C.fmt_seconds(per_step / B)} "
-                 f"per filter-step = numpy GPUKF single filter / {numpy_step / (per_step / B):.3g}")
+    numpy_step = statistics.median(next(c for c in cases if c.label.startswith("numpy")).per_step)
+    for c in cases:
+        if "compile" in c.label:
+            peers = [p for p in cases if p.family == c.family and not p.label.startswith("lightcurve-gp")]
+            step = statistics.median(c.per_step)
+            ratios = ", ".join(f"{p.label.split(' (')[0]} {statistics.median(p.per_step) / step:.3g}x" for p in peers)
+            tab.note(f"{c.label}: first run (2 steps, compiling) {C.fmt_seconds(c.first_s)}; peer step / its step: "
+                     f"{ratios}")
+    for label, (B, per_step) in batch_row or ():
+        tab.note(f"many filters: lightcurve-gp SparseGP M = 512 mean only{label} at B = {B}: "
+                 f"{C.fmt_seconds(per_step / B)} per filter-step = numpy GPUKF single filter / "
+                 f"{numpy_step / (per_step / B):.3g}")
     tab.note(f"load average at start {info_start['loadavg']}, at the end {C.load_average()}; "
              f"os.cpu_count() = {info_start['os_cpu_count']}, torch threads = {info_start['torch_threads']}")
     return [tab]
@@ -211,8 +228,12 @@ def main() -> None:
     setup = UsqueSetup(params)
     rho = cfg.filter.rho_assumed
 
-    cases = [Case("lightcurve-gp (ExactGP, mean)", "GPUKF", library_runner(exact, mean_only, sc, P0)),
-             Case("numpy GPUKF (exact GP, cdist + matvec)", "GPUKF", numpy_runner(setup, exact, sc, P0))]
+    compiled = dataclasses.replace(mean_only, compile=True)
+    cases = [Case("lightcurve-gp (ExactGP, mean)", "GPUKF", library_runner(exact, mean_only, sc, P0))]
+    if not args.skip_compiled:
+        cases.append(Case("lightcurve-gp (ExactGP, mean), filter.compile", "GPUKF",
+                          library_runner(exact, compiled, sc, P0)))
+    cases.append(Case("numpy GPUKF (exact GP, cdist + matvec)", "GPUKF", numpy_runner(setup, exact, sc, P0)))
     gpytorch_solve_s = None
     if not args.skip_gpytorch:
         gdefault = GPyTorchMean(exact, data.y)
@@ -224,14 +245,20 @@ def main() -> None:
                           projected=True))
         cases.append(Case("GPyTorch, the same with skip_posterior_variances", "GPUKF",
                           library_runner(gmean, mean_only, sc, P0)))
-    cases += [Case("lightcurve-gp (renderer)", "UKF", library_runner(Parametric(scene, rho), params, sc, P0)),
-              Case("filterpy UnscentedKalmanFilter + the renderer", "UKF", filterpy_runner(setup, scene, rho, sc, P0))]
+    cases.append(Case("lightcurve-gp (renderer)", "UKF", library_runner(Parametric(scene, rho), params, sc, P0)))
+    if not args.skip_compiled:
+        cases.append(Case("lightcurve-gp (renderer), filter.compile", "UKF",
+                          library_runner(Parametric(scene, rho), dataclasses.replace(params, compile=True), sc, P0)))
+    cases.append(Case("filterpy UnscentedKalmanFilter + the renderer", "UKF",
+                      filterpy_runner(setup, scene, rho, sc, P0)))
     time_round_robin(cases, steps=args.steps, repeats=args.repeats, run_repeats=args.run_repeats,
                      T=sc.increments.shape[0])
     batch_row = None
     if args.batch:
         sparse, _, _ = C.cached_gp(cfg, data, "sparse", num_inducing=512, cache_dir=args.cache_dir)
-        batch_row = (args.batch, time_batch(sparse, mean_only, sc, P0, args.batch, steps=10, repeats=3))
+        variants = [("", mean_only)] + ([] if args.skip_compiled else [(", filter.compile", compiled)])
+        batch_row = [(label, (args.batch, time_batch(sparse, p, sc, P0, args.batch, steps=10, repeats=3)))
+                     for label, p in variants]
     tables = build_tables(cases, gpytorch_solve_s, batch_row, sc, info)
     for t in tables:
         t.print()
