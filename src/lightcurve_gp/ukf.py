@@ -258,10 +258,11 @@ def _process_noise(params: UsqueParams, layout: StateLayout, B: int, like: Tenso
     return Q
 
 
-def _step_major(m: Tensor) -> tuple[Tensor, ...]:
-    """The steps of ``m (1 | B, T, ...)`` as ``T`` tensors ``(1 | B, ...)`` with strides that do not depend on ``T``
-    (a compiled step is specialised to its inputs' strides, those of size-1 dimensions included)."""
-    return m.transpose(0, 1).clone(memory_format=torch.contiguous_format).unbind(0)
+def _step_major(m: Tensor, *, copy: bool = True) -> tuple[Tensor, ...]:
+    """The steps of ``m (1 | B, T, ...)`` as ``T`` tensors ``(1 | B, ...)``, with ``copy`` laid out step-major so that
+    their strides do not depend on ``T`` (a compiled step is specialised to its inputs' strides, those of size-1
+    dimensions included); without, views of ``m``."""
+    return m.transpose(0, 1).clone(memory_format=torch.contiguous_format).unbind(0) if copy else m.unbind(1)
 
 
 def _step_matrices(increments: Tensor, layout: StateLayout, B: int, scale: float) -> tuple[tuple, tuple]:
@@ -272,8 +273,9 @@ def _step_matrices(increments: Tensor, layout: StateLayout, B: int, scale: float
     inc = inc.unsqueeze(0) if inc.ndim == 2 else inc  # (1 | B, T, 4)
     G = torch.eye(layout.dim, dtype=inc.dtype, device=inc.device).repeat(*inc.shape[:-1], 1, 1)
     G[..., :3, :3] = attitude_matrix(inc)
-    L_steps = [m.expand(B, -1, -1) for m in _step_major(quat_left_matrix(inc))]
-    G_steps = [m.expand(B, -1, -1) for m in _step_major(G * math.sqrt(scale))]
+    shared = inc.shape[0] == 1  # per-filter increments are not copied again (B T (4² + n²) values)
+    L_steps = [m.expand(B, -1, -1) for m in _step_major(quat_left_matrix(inc), copy=shared)]
+    G_steps = [m.expand(B, -1, -1) for m in _step_major(G * math.sqrt(scale), copy=shared)]
     return L_steps, G_steps
 
 

@@ -18,7 +18,8 @@ loops sum in another order). The exact GP's mean is the one model-side change: i
 elementwise over blocks of training points (:func:`~lightcurve_gp.observation.kernels.blocked_kernel_sum`), so the
 kernel row, its ``exp`` and the sum with ``α`` are one loop; eagerly it stays one matrix product.
 
-Costs: the first call of each new shape (``B``, the state layout, the model) compiles — seconds to tens of seconds,
+Costs: the first call of each new shape (``B``, the state layout, the model; with per-filter increments
+``(B, T, 4)`` also each run length ``T``) compiles — seconds to tens of seconds,
 once per process, less when inductor's on-disk cache (``TORCHINDUCTOR_CACHE_DIR``) already holds the graph — and
 each further call costs the compiled function's Python wrapper and guard checks, ~50–100 µs on this project's
 CPU. The step's arithmetic is not reduced: the exact GP's mean (7 × 19 260 ``exp`` in the paper's case) stays, and
