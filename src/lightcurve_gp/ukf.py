@@ -118,8 +118,8 @@ class UsqueParams:
         sigma_redraw: update with sigma points drawn again from ``(x̂⁻, P⁻)`` (the paper) instead of the
             propagated ones (Crassidis & Markley).
         q_placement: one of :data:`Q_PLACEMENTS`.
-        compile: with ω known, run each step as one compiled graph (:mod:`lightcurve_gp.usque_compiled`): the
-            same estimates to rounding, a fraction of the per-step dispatch; the first step of each shape compiles.
+        compile: with ω known, run each step as compiled graphs (:mod:`lightcurve_gp.usque_compiled`): the same
+            estimates to rounding, a fraction of the per-step dispatch; the first step of each shape compiles.
     """
 
     alpha: float = 1e-4
@@ -400,7 +400,7 @@ def run_usque(*, model: ObservationModel, q_est0: Tensor, P0: Tensor, observatio
             run_k = run if R_steps is None else dataclasses.replace(run, R=R_steps[k])
             if omega0 is None:
                 state, record = step(run_k, state, L_k=L_steps[k - 1], G_k=G_steps[k - 1], y_k=y_steps[k],
-                                           observed_k=observed_steps[k])
+                                     observed_k=observed_steps[k])
             else:
                 state, record = measurement_update(run_k, state, rate_prior(run_k, state), y_k=y_steps[k],
                                                    observed_k=observed_steps[k])

@@ -73,8 +73,10 @@ def _update_half(run: RunConstants, state: FilterState, prior: Prior, R_qm: Tens
 @functools.cache
 def _compiled(fn):
     # not fullgraph: a model that reads a value back, or a process past torch's limit of recompilations per
-    # function (many shapes or models), runs the rest eagerly instead of failing
-    return torch.compile(fn, dynamic=False)
+    # function (many shapes or models), runs the rest eagerly instead of failing. cpp_wrapper: the graph's calls
+    # (its loops, the library calls that stay) are made from generated C++ rather than Python: the UKF step's CPU
+    # time 238 -> 126 µs (load 4-6), longer compiles
+    return torch.compile(fn, dynamic=False, options={"cpp_wrapper": True})
 
 
 def compiled_usque_step(run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Tensor, y_k: Tensor,

@@ -106,6 +106,7 @@ class ObservationModule(nn.Module):
     """
 
     uses_m_past: bool = True
+
     def forward(self, *, q: Tensor, m_past: Tensor, variance: Variance = "fast") -> Prediction:
         """Predict the apparent magnitude.
 
