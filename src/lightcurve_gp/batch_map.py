@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Sequence
+from functools import partial
+from typing import Callable, Sequence
 
 import torch
 from torch import Tensor
@@ -24,7 +25,8 @@ from .metrics import attitude_errors_deg
 from .observation.base import ObservationModel
 from .rotations import quat_mul, rotvec_to_quat
 
-__all__ = ["MapPrior", "batch_map", "map_attitude", "map_rmse_deg"]
+__all__ = ["MapPrior", "batch_map", "blockwise_magnitudes", "gauss_newton", "map_attitude", "map_rmse_deg",
+           "tile_seeds"]
 
 
 @dataclass(frozen=True)
@@ -42,12 +44,94 @@ class MapPrior:
         return torch.tensor(values, dtype=dtype)
 
 
+def blockwise_magnitudes(model: ObservationModel, *, q: Tensor, m_past: Tensor) -> Tensor:
+    """Magnitudes ``(K·S, t+1)`` of attitudes ``q (K·S, t+1, 4)``, ``K`` blocks of the ``S`` seeds whose ``m_past``
+    ``(S, 1)`` they share, the model evaluated one block at a time (its memory: that of one block)."""
+    S, t1 = m_past.shape[0], q.shape[1]
+    blocks = [model(q=block, m_past=m_past.expand(-1, t1), variance="none")[0] for block in q.split(S)]
+    return torch.cat(blocks)
+
+
+def tile_seeds(q_est0: Tensor, rows: int) -> Tensor:
+    """The initial estimate ``(4,)`` as given, or ``(S, 4)`` repeated to ``rows = K·S`` rows (``K`` blocks)."""
+    return q_est0 if q_est0.dim() == 1 else q_est0.repeat(rows // q_est0.shape[0], 1)
+
+
 def _predict(model: ObservationModel, x: Tensor, q_est0: Tensor, increments: Tensor, m_past: Tensor,
              offset: bool) -> Tensor:
-    """Magnitudes ``(S, T+1)`` of states ``x (S, 3 | 4)`` along the known dynamics."""
-    q = propagate_only(quat_mul(rotvec_to_quat(x[:, :3]), q_est0), increments)
-    m, _ = model(q=q, m_past=m_past.expand(-1, q.shape[1]), variance="none")
+    """Magnitudes ``(K·S, t+1)`` of states ``x (K·S, 3 | 4)`` along the known dynamics (``increments (t, 4)``)."""
+    q = propagate_only(quat_mul(rotvec_to_quat(x[:, :3]), tile_seeds(q_est0, x.shape[0])), increments)
+    m = blockwise_magnitudes(model, q=q, m_past=m_past)
     return m + x[:, 3:] if offset else m
+
+
+def _neg_log_posterior(m: Tensor, x: Tensor, *, y: Tensor, r_var: float, x_prior: Tensor, prior_precision: Tensor
+                       ) -> Tensor:
+    """``½ Σ (ỹ_k − m_k)²/R + ½ (x − x_prior)ᵀ P0⁻¹ (x − x_prior)`` ``(K·S,)`` of states ``x (K·S, n)`` and their
+    magnitudes ``m (K·S, t+1)`` (``K`` blocks of the seeds) against ``y (S, t+1)`` (``ỹ_0`` left out: it sets the
+    offset's prior)."""
+    S = y.shape[0]
+    r = (y.repeat(m.shape[0] // S, 1) - m)[:, 1:]
+    prior_term = ((x - x_prior.repeat(x.shape[0] // S, 1)).pow(2) * prior_precision).sum(-1)
+    return 0.5 * (r.pow(2).sum(-1) / r_var + prior_term)
+
+
+def gauss_newton(predict: Callable[[Tensor, int], Tensor], *, x: Tensor, x_prior: Tensor, prior_precision: Tensor,
+                 observations: Tensor, measurement_noise: float, t: int, steps: Tensor, tolerance: Tensor,
+                 iterations: int, halvings: int = 0) -> tuple[Tensor, Tensor]:
+    """Gauss–Newton on the posterior of states ``x (S, n)`` given ``ỹ_1 … ỹ_t``, every observation re-linearised
+    at every iteration.
+
+    Args:
+        predict: ``predict(x, t)`` → magnitudes ``(K·S, t+1)`` of states ``x (K·S, n)``, ``ỹ_0`` first: ``K``
+            blocks of the ``S`` seeds (all the Jacobian's differences go in one call).
+        x: the starting states ``(S, n)``.
+        x_prior: the prior means ``(S, n)``; ``prior_precision (n,)`` the prior's diagonal information.
+        observations: ``(S, T+1)`` magnitudes (mag), ``T ≥ t``; ``measurement_noise`` their variance (mag²).
+        steps: central-difference step of each state component ``(n,)``.
+        tolerance: stop when every component of the Gauss–Newton step is below it ``(n,)``.
+        iterations: Gauss–Newton iterations at most.
+        halvings: with ``> 0``, a seed whose step raises its negative log posterior halves the step, up to this
+            many times (then it keeps its state for this iteration); 0: the plain Gauss–Newton step.
+
+    Returns:
+        The states ``(S, n)`` and the Gauss–Newton information matrix ``JᵀJ/R + P0⁻¹`` ``(S, n, n)`` at the last
+        linearisation (its inverse: the Laplace approximation of the posterior covariance).
+    """
+    r_var, H, y = measurement_noise, None, observations[:, :t + 1]
+    cost = partial(_neg_log_posterior, y=y, r_var=r_var, x_prior=x_prior, prior_precision=prior_precision)
+    for _ in range(iterations):
+        m, J = _jacobian(predict, x, t, steps)
+        H = J.mT @ J / r_var + torch.diag(prior_precision)
+        g = (J.mT @ (y - m)[:, 1:].unsqueeze(-1)).squeeze(-1) / r_var - (x - x_prior) * prior_precision
+        dx = torch.linalg.solve(H, g)
+        if halvings:
+            dx = _backtrack(predict, cost, x=x, dx=dx, cost_now=cost(m, x), t=t, halvings=halvings)
+        x = x + dx
+        if bool((dx.abs() < tolerance).all()):
+            break
+    return x, H
+
+
+def _jacobian(predict, x: Tensor, t: int, steps: Tensor) -> tuple[Tensor, Tensor]:
+    """``predict(x)`` ``(S, t+1)`` and its central-difference Jacobian without ``ỹ_0`` ``(S, t, n)``, in one call."""
+    S, n = x.shape
+    shifts = torch.cat([torch.diag(steps), -torch.diag(steps)])  # (2n, n)
+    m_all = predict(torch.cat([x, (x[None] + shifts[:, None]).reshape(2 * n * S, n)]), t)
+    plus, minus = m_all[S:].reshape(2, n, S, t + 1)
+    return m_all[:S], ((plus - minus) / (2 * steps[:, None, None])).permute(1, 2, 0)[:, 1:]
+
+
+def _backtrack(predict, cost, *, x: Tensor, dx: Tensor, cost_now: Tensor, t: int, halvings: int) -> Tensor:
+    """Per seed, the longest step ``dx / 2^k`` (``k ≤ halvings``) that does not raise the cost; zero if none."""
+    out, pending = torch.zeros_like(dx), torch.ones(x.shape[0], dtype=torch.bool)
+    for k in range(halvings + 1):
+        trial = dx / 2 ** k
+        ok = pending & (cost(predict(x + trial, t), x + trial) <= cost_now)
+        out[ok], pending = trial[ok], pending & ~ok
+        if not bool(pending.any()):
+            break
+    return out
 
 
 def batch_map(model: ObservationModel, *, q_est0: Tensor, increments: Tensor, observations: Tensor,
@@ -66,29 +150,21 @@ def batch_map(model: ObservationModel, *, q_est0: Tensor, increments: Tensor, ob
         step: central-difference step of the Jacobian (rad, mag).
     """
     S, n, dtype = observations.shape[0], 4 if offset else 3, observations.dtype
-    R = prior.measurement_noise
-    prior_prec = prior.precision(offset, dtype)
     m_past = observations[:, :1]
 
-    def predict(x: Tensor) -> Tensor:
-        return _predict(model, x, q_est0, increments, m_past, offset)
+    def predict(x: Tensor, t: int) -> Tensor:
+        return _predict(model, x, q_est0, increments[:t], m_past, offset)
 
     x0 = torch.zeros(S, n, dtype=dtype)
     if offset:
-        x0[:, 3] = observations[:, 0] - predict(x0)[:, 0]
+        x0[:, 3] = observations[:, 0] - predict(x0, 0)[:, 0]
+    steps = torch.full((n,), step, dtype=dtype)
+    tolerance = torch.tensor([1e-9] * 3 + [math.inf] * offset, dtype=dtype)
     x, out = x0.clone(), {}
     for t in checkpoints:
-        for _ in range(iterations):
-            m = predict(x)
-            J = torch.stack([(predict(x + d) - predict(x - d)) / (2 * step) for d in step * torch.eye(n, dtype=dtype)],
-                            -1)
-            J, r = J[:, 1:t + 1], (observations - m)[:, 1:t + 1]
-            H = J.mT @ J / R + torch.diag(prior_prec)
-            g = (J.mT @ r.unsqueeze(-1)).squeeze(-1) / R - (x - x0) * prior_prec
-            dx = torch.linalg.solve(H, g)
-            x = x + dx
-            if float(dx[:, :3].abs().max()) < 1e-9:
-                break
+        x, _ = gauss_newton(predict, x=x, x_prior=x0, prior_precision=prior.precision(offset, dtype),
+                            observations=observations, measurement_noise=prior.measurement_noise, t=t, steps=steps,
+                            tolerance=tolerance, iterations=iterations)
         out[t] = x.clone()
     return out
 
