@@ -14,6 +14,11 @@ Once, at σ_ω = 0.03 °/s, 600 s and the first ρ_true, the matched-ρ UKF with
 10 % off the truth's on each axis (``INERTIA_ERRORS``, ±10 % in alternating signs: a common scale would not change
 the torque-free ω(t)).
 
+With ``--map``, the batch MAP with ω0 unknown (:mod:`experiments.spin_map`: the initial attitude and rate, and the
+offset for the GP, from all observations so far, the filters' prior) is added at 600 s for every σ_ω and ρ_true —
+what the light curve allows at all — on ``--map-seeds`` of the same noise seeds, read back from
+``OUT/spin_unknown/map/`` when it ran before.
+
 Nothing is tuned here: every filter setting is the robust config's (no ω process noise: the truth is torque-free);
 the noise seeds start at ``--seed-start`` (200: the robust config's process noise was chosen on seeds 100-199).
 Every case runs through the sweep machinery (resumable: a rerun reuses finished cases), on the local pool or dask.
@@ -33,6 +38,7 @@ from typing import Sequence
 
 from experiments._cli import sweep_arguments
 from experiments.spin_figures import error_traces_figure
+from experiments.spin_map import DIAGNOSTICS_HEADER, MAP_LABELS, MAP_MODELS, map_case, map_diagnostics_row, map_row
 from lightcurve_gp.cli import apply_threads
 from lightcurve_gp.config import apply_overrides, load_raw_config
 from lightcurve_gp.io import write_json_atomic, write_text_atomic
@@ -53,6 +59,14 @@ def _floats(text: str) -> list[float]:
     return [float(x) for x in text.split(",") if x.strip()]
 
 
+def _map_models(text: str) -> list[str]:
+    models = [m for m in text.split(",") if m.strip()]
+    unknown = [m for m in models if m not in MAP_MODELS]
+    if not models or unknown:
+        raise argparse.ArgumentTypeError(f"{text!r}: each must be one of {', '.join(MAP_MODELS)}")
+    return models
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m experiments.spin_unknown", description=__doc__.split("\n\n")[0])
     p.add_argument("--config", type=Path, default=ROOT / "configs/boxwing_robust.yaml")
@@ -67,6 +81,12 @@ def build_parser() -> argparse.ArgumentParser:
     sweep_arguments(p)
     p.add_argument("--no-inertia", action="store_true", help="skip the inertia-error cases")
     p.add_argument("--no-gp", action="store_true", help="leave the robust GPUKF out (the renderer-based filters only)")
+    p.add_argument("--map", action="store_true", help="add the batch MAP with ω0 unknown (experiments/spin_map.py) at "
+                   "600 s for every σ_ω and ρ_true")
+    p.add_argument("--map-models", type=_map_models, default=["renderer"],
+                   help=f"comma-separated, of {', '.join(MAP_MODELS)} (default renderer)")
+    p.add_argument("--map-every", type=float, default=50.0, help="MAP checkpoint spacing (s); scored in the window")
+    p.add_argument("--map-seeds", type=int, default=None, help="noise seeds of the MAP (default: --seeds)")
     return p
 
 
@@ -102,6 +122,19 @@ def run_all(raw: dict, args) -> tuple[dict[tuple[float, float | None], dict[floa
     return out, inertia
 
 
+def map_results(raw: dict, args) -> dict[tuple[float, str], dict[float, dict]]:
+    """The batch MAP with ω0 unknown of every MAP model at 600 s: ``{(σ_ω, model): {ρ_true: result}}``."""
+    seeds = range(args.seed_start, args.seed_start + (args.map_seeds or args.seeds))
+    out = {}
+    for sigma in args.sigmas:
+        for model in args.map_models:
+            print(f"== MAP {model}, 600 s, sigma {sigma:g}: {len(seeds)} seeds", file=sys.stderr, flush=True)
+            out[(sigma, model)] = {rho: map_case(apply_overrides(raw, case_overrides(600.0, sigma)), seeds=seeds,
+                                                 rho_true=rho, model=model, every=args.map_every, out=args.out)
+                                   for rho in args.rhos}
+    return out
+
+
 def inertia_error(raw: dict, args, executor, seeds) -> dict[tuple, CaseRecord]:
     """The matched-ρ UKF with ω at σ_ω = 0.03 °/s, 600 s, ρ_true = ``args.rhos[0]``, assuming a wrong inertia."""
     J = raw["shape"]["inertia_kg_m2"]
@@ -132,8 +165,9 @@ def table_row(label: str, record: CaseRecord, name: str) -> list[str]:
             format_quantiles(final, 4), f"{1e3 * e['seconds_per_step']:.1f}"]
 
 
-def tables(records: dict, inertia: dict, args) -> tuple[list[str], dict]:
-    """One Markdown table per (duration, ρ_true), the inertia-error table and the goal check at σ_ω = 0.03 °/s."""
+def tables(records: dict, inertia: dict, maps: dict, args) -> tuple[list[str], dict]:
+    """One Markdown table per (duration, ρ_true) with the MAP rows at 600 s, the inertia-error table, the MAP
+    diagnostics and the goal check at σ_ω = 0.03 °/s."""
     lines, goals = [], {}
     base = records.get((600.0, GOAL["sigma"]), {}).get(args.rhos[0])
     if base is not None and inertia:
@@ -150,10 +184,16 @@ def tables(records: dict, inertia: dict, args) -> tuple[list[str], dict]:
                 if d == duration and sigma is not None:
                     rows += [table_row(f"{n}, σ_ω = {sigma:g}", by_rho[rho], n) for n in ESTIMATORS_UNKNOWN
                              if n in by_rho[rho].estimators]
+                    rows += [map_row(f"{MAP_LABELS[m]}, σ_ω = {sigma:g} ({len(r[rho]['seeds'])} seeds)", r[rho])
+                             for (s, m), r in maps.items() if s == sigma and duration == 600.0]
                     if sigma == GOAL["sigma"] and "gpukf" in by_rho[rho].estimators:
                         goals[f"{duration:g}s_rho{rho:g}"] = goal_check(by_rho[rho], known)
             lines += [f"\n#### {duration:g} s, ρ_true = {rho:g} ({args.seeds} seeds from {args.seed_start}; RMSE "
                       f"over the last 200 s, median [q25, q75])\n", markdown_table(HEADER, rows).rstrip("\n")]
+    for rho in args.rhos if maps else ():
+        rows = [map_diagnostics_row(sigma, r[rho]) for (sigma, _), r in maps.items()]
+        lines += [f"\n#### Batch MAP with ω0 unknown: 600 s, ρ_true = {rho:g}, what it found against what the light "
+                  "curve determines\n", markdown_table(DIAGNOSTICS_HEADER, rows).rstrip("\n")]
     return lines, goals
 
 
@@ -194,19 +234,25 @@ def figures(records: dict, args) -> list[str]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.map and min(args.sigmas) <= 0:
+        parser.error(f"--sigmas: {min(args.sigmas):g} must be > 0 with --map (the MAP's rate prior std)")
     apply_threads(args.threads)
     start = time.perf_counter()
     raw = apply_overrides(load_raw_config(args.config), ["name=spin_unknown"])
     records, inertia = run_all(raw, args)
-    lines, goals = tables(records, inertia, args)
+    maps = map_results(raw, args) if args.map else {}
+    lines, goals = tables(records, inertia, maps, args)
     names = figures(records, args)
     seconds = time.perf_counter() - start
     write_text_atomic("\n".join(lines) + "\n", args.results / "tables.md")
     write_json_atomic({"goals_sigma_0.03": goals, "seconds": seconds, "figures": names, "argv": sys.argv[1:],
                        "summaries": {f"{d:g}s_{'known' if s is None else f'sigma{s:g}'}_rho{rho:g}": r.summary
                                      for (d, s), by_rho in records.items() for rho, r in by_rho.items()},
-                       "inertia_error": {str(err): r.summary for err, r in inertia.items()}},
+                       "inertia_error": {str(err): r.summary for err, r in inertia.items()},
+                       "map": {f"600s_sigma{s:g}_{m}_rho{rho:g}": r for (s, m), by_rho in maps.items()
+                               for rho, r in by_rho.items()}},
                       args.results / "summary.json")
     print("\n".join(lines))
     print(f"\ngoals at sigma_omega = 0.03 deg/s: {goals}\n{seconds:.0f} s", file=sys.stderr)

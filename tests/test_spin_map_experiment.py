@@ -1,0 +1,39 @@
+"""The spin experiment's MAP rows: stored once and read back, one cell per column of the tables."""
+
+import pytest
+
+from experiments import spin_map
+from experiments.spin_unknown import HEADER, ROOT, build_parser, case_overrides
+from lightcurve_gp.config import apply_overrides, load_raw_config
+
+
+@pytest.mark.slow
+def test_map_case_is_stored_and_read_back(tmp_path, monkeypatch):
+    raw = apply_overrides(load_raw_config(ROOT / "configs/boxwing_robust.yaml"), ["name=spin_unknown"])
+    raw = apply_overrides(raw, [*case_overrides(100.0, 0.03), "evaluation.rmse_window_s=[50, 100]"])
+    first = spin_map.map_case(raw, seeds=[200, 201], rho_true=0.3, model="renderer", every=50.0, out=tmp_path)
+    assert first["checkpoints_s"] == [50.0, 100.0] and first["scored_s"] == [50.0, 100.0]
+    assert len(first["rmse_deg"]) == 2 and len(first["truth_cost_below_map"]) == 2
+    stored = list((tmp_path / "spin_unknown" / "map").glob("*.json"))
+    assert len(stored) == 1
+
+    def fail(*args, **kwargs):
+        raise AssertionError("solved again")
+
+    monkeypatch.setattr(spin_map, "_solve", fail)
+    again = spin_map.map_case(raw, seeds=[200, 201], rho_true=0.3, model="renderer", every=50.0, out=tmp_path)
+    assert again == first
+    assert len(spin_map.map_row("MAP", first)) == len(HEADER)
+    assert len(spin_map.map_diagnostics_row(0.03, first)) == len(spin_map.DIAGNOSTICS_HEADER)
+    with pytest.raises(ValueError, match="--map-models: 'gp' is not one of renderer, gp_offset"):
+        spin_map.map_case(raw, seeds=[200], rho_true=0.3, model="gp", every=50.0, out=tmp_path)
+
+
+@pytest.mark.parametrize("argv, message", [(["--map-models", "renderer,gp"], "argument --map-models: 'renderer,gp'"),
+                                           (["--map", "--sigmas", "0"], "--sigmas: 0 must be > 0 with --map")])
+def test_bad_map_arguments_exit_2_naming_the_option(argv, message, capsys):
+    from experiments.spin_unknown import main
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2 and message in capsys.readouterr().err
+    assert build_parser().parse_args(["--map"]).map_models == ["renderer"]
