@@ -7,9 +7,12 @@ with the filters' prior (``filter.p0_deg``, ``filter.p0_omega_deg_s``, ``filter.
 ``every`` seconds from ``every`` to the end (each solve starts from the previous one); the ones inside the scoring
 window are scored: Euler-angle RMSE per axis over them, the body-rate error at each (RMS over them) and at the last.
 Observation models: ``renderer`` (the true ρ, like ``matched_ukf``) and ``gp_offset`` (the robust config's GP with
-the magnitude offset, like ``gpukf``). Beside the errors: the Laplace posterior std of ω at the end (what the light
-curve determines about the rate) and, for the renderer, the share of seeds whose truth has a lower negative log
-posterior than the MAP found (the optimiser stopped in a worse local minimum than the truth).
+the magnitude offset, like ``gpukf``); ``renderer_from_truth`` is the renderer's MAP solved at the scored checkpoints
+only, its first solve started at the true initial state (an oracle: the posterior's mode nearest the truth, to tell
+a mode the optimiser cannot reach from the prior from one the data do not single out). Beside the errors: the
+Laplace posterior std of ω at the end (what the light curve determines about the rate) and, for the renderer, the
+share of seeds whose truth has a lower negative log posterior than the MAP found (the optimiser stopped in a worse
+local minimum than the truth).
 
 Each result is stored in ``OUT/<config name>/map/<key>.json`` (the key hashes the case's config, seeds, model and
 checkpoints), so a rerun reads it back.
@@ -41,8 +44,9 @@ from lightcurve_gp.scenario import Scenario, simulate_scenario
 
 __all__ = ["MAP_MODELS", "MAP_LABELS", "map_case", "map_row", "map_diagnostics_row", "DIAGNOSTICS_HEADER"]
 
-MAP_MODELS = ("renderer", "gp_offset")
-MAP_LABELS = {"renderer": "MAP, renderer with the true ρ", "gp_offset": "MAP, robust GP with the offset"}
+MAP_MODELS = ("renderer", "gp_offset", "renderer_from_truth")
+MAP_LABELS = {"renderer": "MAP, renderer with the true ρ", "gp_offset": "MAP, robust GP with the offset",
+              "renderer_from_truth": "MAP started at the truth (oracle), renderer with the true ρ"}
 DIAGNOSTICS_HEADER = ("σ_ω (°/s)", "MAP model", "seeds", "final ω error (°/s)", "posterior ω std at the end (°/s)",
                       "prior ω std (°/s)", "truth's cost below the MAP's", "s", "load average")
 
@@ -59,14 +63,16 @@ def _truth_state(sc: Scenario) -> torch.Tensor:
     return torch.cat([e, sc.omega_true[0] - sc.omega_est0])
 
 
-def _solve(cfg, sc: Scenario, model, *, offset: bool, checkpoints: list[int], scored: list[int]) -> dict:
+def _solve(cfg, sc: Scenario, model, *, offset: bool, checkpoints: list[int], scored: list[int],
+           from_truth: bool = False) -> dict:
     """Run the MAP on every seed of ``sc`` and score it (per-seed lists)."""
     prior = MapPrior(cfg.filter.p0_deg, cfg.filter.measurement_noise, cfg.filter.offset_prior_std)
     inertia = cfg.filter.inertia_kg_m2 or cfg.shape.inertia_kg_m2
     dynamics = RateDynamics(omega_est0=sc.omega_est0, p0_omega_deg_s=cfg.filter.p0_omega_deg_s, dt=cfg.scenario.dt_s,
                             inertia=torch.tensor(inertia, dtype=sc.observations.dtype))
+    x_start = _truth_state(sc).expand(sc.observations.shape[0], 6) if from_truth else None
     est = map_with_rate(model, q_est0=sc.q_est0, dynamics=dynamics, observations=sc.observations, prior=prior,
-                        checkpoints=checkpoints, offset=offset)
+                        checkpoints=checkpoints, offset=offset, x_start=x_start)
     in_window = {t: est[t] for t in scored}
     att, rate = rate_map_errors(in_window, q_true=sc.q_true, omega_true=sc.omega_true, q_est0=sc.q_est0,
                                 dynamics=dynamics)
@@ -104,6 +110,8 @@ def map_case(raw_case: dict, *, seeds: Sequence[int], rho_true: float, model: st
     cfg = config_from_dict(apply_overrides(raw_case, [f"scenario.rho_true={rho_true:g}"]))
     dt, (lo, hi) = cfg.scenario.dt_s, cfg.evaluation.rmse_window_s
     times = torch.arange(every, cfg.scenario.duration_s + 1e-9, every, dtype=torch.float64).tolist()
+    if model == "renderer_from_truth":
+        times = [t for t in times if t >= lo - 1e-9]
     checkpoints = [int(round(t / dt)) for t in times]
     path = out / cfg.name / "map" / f"{_key(cfg, seeds, model, checkpoints)}.json"
     if path.exists():
@@ -111,9 +119,10 @@ def map_case(raw_case: dict, *, seeds: Sequence[int], rho_true: float, model: st
     start, load = time.perf_counter(), os.getloadavg()[0]
     scene = Scene.from_config(cfg)
     sc = simulate_scenario(cfg, seeds=seeds, rho_true=rho_true, scene=scene)
-    observation = Parametric(scene, rho_true) if model == "renderer" else trained_model(cfg, out)
+    observation = trained_model(cfg, out) if model == "gp_offset" else Parametric(scene, rho_true)
     scored = [k for k, t in zip(checkpoints, times) if lo - 1e-9 <= t <= hi + 1e-9]
-    result = _solve(cfg, sc, observation, offset=model == "gp_offset", checkpoints=checkpoints, scored=scored)
+    result = _solve(cfg, sc, observation, offset=model == "gp_offset", checkpoints=checkpoints, scored=scored,
+                    from_truth=model == "renderer_from_truth")
     result.update({"model": model, "seeds": list(seeds), "rho_true": rho_true, "checkpoints_s": times,
                    "scored_s": [k * dt for k in scored], "seconds": time.perf_counter() - start,
                    "load_average": [load, os.getloadavg()[0]]})
