@@ -73,7 +73,6 @@ Q_PLACEMENTS = ("both", "after")
 LAM_RULES = ("given", "julier")
 
 
-
 def model_error_variance(cfg, model) -> float:
     """What ``filter.model_error`` adds to a filter's ``R`` for ``model`` (mag²): 0 with ``none`` or for a model
     without stored training metadata (the renderers, exact given their inputs); with ``heldout`` the excess variance
@@ -87,6 +86,7 @@ def model_error_variance(cfg, model) -> float:
         raise ValueError("filter.model_error: heldout needs the held-out metrics that train stores in the model "
                          "file; this model file has none: train it again")
     return float(heldout["excess_variance"])
+
 
 @dataclass(frozen=True, eq=False)
 class UsqueParams:
