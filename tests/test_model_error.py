@@ -22,9 +22,10 @@ ROBUST = "configs/boxwing_robust.yaml"
 
 
 class Stored:
-    """A stand-in for a loaded model file: only its ``extra``."""
+    """A stand-in for a loaded trained model: its training ``config`` and its file's ``extra``."""
 
     def __init__(self, extra):
+        self.config = {"kind": "sparse"}
         self.extra = extra
 
 
@@ -59,6 +60,10 @@ def test_a_model_file_without_heldout_metrics_is_refused_with_the_key():
     with pytest.raises(ValueError, match="^filter.model_error: heldout needs the held-out metrics that train stores "
                                          "in the model file; this model file has none: train it again$"):
         UsqueParams.from_config(on, model=Stored({"model_key": "x"}))
+    in_memory = Stored({})
+    del in_memory.extra  # a model built in memory has no file metadata at all
+    with pytest.raises(ValueError, match="^filter.model_error: heldout needs the held-out metrics"):
+        UsqueParams.from_config(on, model=in_memory)
     with pytest.raises(ConfigError, match="^filter.model_error"):
         load_config(ROBUST, ["filter.model_error=always"])
 

@@ -74,14 +74,14 @@ LAM_RULES = ("given", "julier")
 
 
 def model_error_variance(cfg, model) -> float:
-    """What ``filter.model_error`` adds to a filter's ``R`` for ``model`` (mag²): 0 with ``none`` or for a model
-    without stored training metadata (the renderers, exact given their inputs); with ``heldout`` the excess variance
-    of the trained model's held-out set (:func:`lightcurve_gp.train.heldout_metrics`, stored in its file by
-    ``train``): the squared error its own predictive variance does not cover."""
-    extra = getattr(model, "extra", None)
-    if cfg.filter.model_error == "none" or extra is None:
+    """What ``filter.model_error`` adds to a filter's ``R`` for ``model`` (mag²): 0 with ``none`` or for a model that
+    is not trained (the renderers, exact given their inputs, carry no training ``config``); with ``heldout`` the
+    excess variance of the trained model's held-out set (:func:`lightcurve_gp.train.heldout_metrics`, stored in its
+    file by ``train``): the squared error its own predictive variance does not cover. A trained model without those
+    metrics (an older file, or one built in memory) is refused."""
+    if cfg.filter.model_error == "none" or getattr(model, "config", None) is None:
         return 0.0
-    heldout = extra.get("heldout") or {}
+    heldout = (getattr(model, "extra", None) or {}).get("heldout") or {}
     if "excess_variance" not in heldout:
         raise ValueError("filter.model_error: heldout needs the held-out metrics that train stores in the model "
                          "file; this model file has none: train it again")
