@@ -20,6 +20,7 @@ checkpoints), so a rerun reads it back.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -52,6 +53,9 @@ DIAGNOSTICS_HEADER = ("σ_ω (°/s)", "MAP model", "seeds", "final ω error (°/
 
 
 def _key(cfg, seeds: Sequence[int], model: str, checkpoints: Sequence[int]) -> str:
+    """The store key of a MAP case. ``filter.omega_process_noise`` is a filter setting the MAP does not use (it has
+    no process noise); it is keyed as 0 so that tuning it does not recompute the MAP."""
+    cfg = dataclasses.replace(cfg, filter=dataclasses.replace(cfg.filter, omega_process_noise=0.0))
     blob = json.dumps({"config": config_to_dict(cfg), "seeds": list(seeds), "model": model,
                        "checkpoints": list(checkpoints)}, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]

@@ -15,12 +15,13 @@ Once, at σ_ω = 0.03 °/s, 600 s and the first ρ_true, the matched-ρ UKF with
 the torque-free ω(t)).
 
 With ``--map``, the batch MAP with ω0 unknown (:mod:`experiments.spin_map`: the initial attitude and rate, and the
-offset for the GP, from all observations so far, the filters' prior) is added at 600 s for every σ_ω and ρ_true —
-what the light curve allows at all — on ``--map-seeds`` of the same noise seeds, read back from
-``OUT/spin_unknown/map/`` when it ran before.
+offset for the GP, from all observations so far, the filters' prior) is added at each of ``--map-durations``
+(default 600 s) for every σ_ω of that duration and every ρ_true — what the light curve allows at all — on
+``--map-seeds`` of the same noise seeds, read back from ``OUT/spin_unknown/map/`` when it ran before.
 
-Nothing is tuned here: every filter setting is the robust config's (no ω process noise: the truth is torque-free);
-the noise seeds start at ``--seed-start`` (200: the robust config's process noise was chosen on seeds 100-199).
+Nothing is tuned here: every filter setting is the robust config's (its attitude process noise chosen on seeds
+100-199, its rate process noise ``filter.omega_process_noise`` on seeds 100-149 by :mod:`experiments.spin_tuning`);
+the noise seeds start at ``--seed-start`` (200).
 Every case runs through the sweep machinery (resumable: a rerun reuses finished cases), on the local pool or dask.
 Writes ``--results`` (experiments/results/spin): ``tables.md``, ``summary.json``, one box plot per duration and
 ρ_true and the seed-0 error traces with their ±3σ bands of σ_ω = 0.03 °/s, 600 s.
@@ -82,7 +83,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-inertia", action="store_true", help="skip the inertia-error cases")
     p.add_argument("--no-gp", action="store_true", help="leave the robust GPUKF out (the renderer-based filters only)")
     p.add_argument("--map", action="store_true", help="add the batch MAP with ω0 unknown (experiments/spin_map.py) at "
-                   "600 s for every σ_ω and ρ_true")
+                   "every --map-durations for every σ_ω and ρ_true")
+    p.add_argument("--map-durations", type=_floats, default=[600.0],
+                   help="durations of the MAP cases, s (default 600; each must be one of --durations)")
     p.add_argument("--map-models", type=_map_models, default=["renderer"],
                    help=f"comma-separated, of {', '.join(MAP_MODELS)} (default renderer)")
     p.add_argument("--map-every", type=float, default=50.0, help="MAP checkpoint spacing (s); scored in the window")
@@ -122,16 +125,19 @@ def run_all(raw: dict, args) -> tuple[dict[tuple[float, float | None], dict[floa
     return out, inertia
 
 
-def map_results(raw: dict, args) -> dict[tuple[float, str], dict[float, dict]]:
-    """The batch MAP with ω0 unknown of every MAP model at 600 s: ``{(σ_ω, model): {ρ_true: result}}``."""
+def map_results(raw: dict, args) -> dict[tuple[float, float, str], dict[float, dict]]:
+    """The batch MAP with ω0 unknown of every MAP model at every MAP duration: ``{(duration, σ_ω, model): {ρ_true:
+    result}}`` (beyond 600 s the σ_ω of ``--long-sigmas``, as the filters)."""
     seeds = range(args.seed_start, args.seed_start + (args.map_seeds or args.seeds))
     out = {}
-    for sigma in args.sigmas:
-        for model in args.map_models:
-            print(f"== MAP {model}, 600 s, sigma {sigma:g}: {len(seeds)} seeds", file=sys.stderr, flush=True)
-            out[(sigma, model)] = {rho: map_case(apply_overrides(raw, case_overrides(600.0, sigma)), seeds=seeds,
-                                                 rho_true=rho, model=model, every=args.map_every, out=args.out)
-                                   for rho in args.rhos}
+    for duration in args.map_durations:
+        for sigma in args.sigmas if duration <= 600 else args.long_sigmas:
+            for model in args.map_models:
+                print(f"== MAP {model}, {duration:g} s, sigma {sigma:g}: {len(seeds)} seeds", file=sys.stderr,
+                      flush=True)
+                out[(duration, sigma, model)] = {
+                    rho: map_case(apply_overrides(raw, case_overrides(duration, sigma)), seeds=seeds, rho_true=rho,
+                                  model=model, every=args.map_every, out=args.out) for rho in args.rhos}
     return out
 
 
@@ -166,7 +172,7 @@ def table_row(label: str, record: CaseRecord, name: str) -> list[str]:
 
 
 def tables(records: dict, inertia: dict, maps: dict, args) -> tuple[list[str], dict]:
-    """One Markdown table per (duration, ρ_true) with the MAP rows at 600 s, the inertia-error table, the MAP
+    """One Markdown table per (duration, ρ_true) with the MAP rows of its duration, the inertia-error table, the MAP
     diagnostics and the goal check at σ_ω = 0.03 °/s."""
     lines, goals = [], {}
     base = records.get((600.0, GOAL["sigma"]), {}).get(args.rhos[0])
@@ -185,15 +191,16 @@ def tables(records: dict, inertia: dict, maps: dict, args) -> tuple[list[str], d
                     rows += [table_row(f"{n}, σ_ω = {sigma:g}", by_rho[rho], n) for n in ESTIMATORS_UNKNOWN
                              if n in by_rho[rho].estimators]
                     rows += [map_row(f"{MAP_LABELS[m]}, σ_ω = {sigma:g} ({len(r[rho]['seeds'])} seeds)", r[rho])
-                             for (s, m), r in maps.items() if s == sigma and duration == 600.0]
+                             for (d_map, s, m), r in maps.items() if s == sigma and d_map == duration]
                     if sigma == GOAL["sigma"] and "gpukf" in by_rho[rho].estimators:
                         goals[f"{duration:g}s_rho{rho:g}"] = goal_check(by_rho[rho], known)
             lines += [f"\n#### {duration:g} s, ρ_true = {rho:g} ({args.seeds} seeds from {args.seed_start}; RMSE "
                       f"over the last 200 s, median [q25, q75])\n", markdown_table(HEADER, rows).rstrip("\n")]
     for rho in args.rhos if maps else ():
-        rows = [map_diagnostics_row(sigma, r[rho]) for (sigma, _), r in maps.items()]
-        lines += [f"\n#### Batch MAP with ω0 unknown: 600 s, ρ_true = {rho:g}, what it found against what the light "
-                  "curve determines\n", markdown_table(DIAGNOSTICS_HEADER, rows).rstrip("\n")]
+        for duration in args.map_durations:
+            rows = [map_diagnostics_row(sigma, r[rho]) for (d, sigma, _), r in maps.items() if d == duration]
+            lines += [f"\n#### Batch MAP with ω0 unknown: {duration:g} s, ρ_true = {rho:g}, what it found against "
+                      "what the light curve determines\n", markdown_table(DIAGNOSTICS_HEADER, rows).rstrip("\n")]
     return lines, goals
 
 
@@ -238,6 +245,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.map and min(args.sigmas) <= 0:
         parser.error(f"--sigmas: {min(args.sigmas):g} must be > 0 with --map (the MAP's rate prior std)")
+    if args.map and not set(args.map_durations) <= set(args.durations):
+        parser.error(f"--map-durations: {args.map_durations} must be among --durations {args.durations}")
     apply_threads(args.threads)
     start = time.perf_counter()
     raw = apply_overrides(load_raw_config(args.config), ["name=spin_unknown"])
@@ -251,7 +260,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                        "summaries": {f"{d:g}s_{'known' if s is None else f'sigma{s:g}'}_rho{rho:g}": r.summary
                                      for (d, s), by_rho in records.items() for rho, r in by_rho.items()},
                        "inertia_error": {str(err): r.summary for err, r in inertia.items()},
-                       "map": {f"600s_sigma{s:g}_{m}_rho{rho:g}": r for (s, m), by_rho in maps.items()
+                       "map": {f"{d:g}s_sigma{s:g}_{m}_rho{rho:g}": r for (d, s, m), by_rho in maps.items()
                                for rho, r in by_rho.items()}},
                       args.results / "summary.json")
     print("\n".join(lines))

@@ -29,11 +29,36 @@ def test_map_case_is_stored_and_read_back(tmp_path, monkeypatch):
         spin_map.map_case(raw, seeds=[200], rho_true=0.3, model="gp", every=50.0, out=tmp_path)
 
 
+def test_map_key_ignores_the_rate_process_noise_only():
+    """The MAP has no process noise: tuning ``filter.omega_process_noise`` must not recompute it, any key it reads
+    (here the measurement noise of its prior) must."""
+    from lightcurve_gp.config import config_from_dict
+
+    raw = apply_overrides(load_raw_config(ROOT / "configs/boxwing_robust.yaml"), case_overrides(600.0, 0.03))
+
+    def key(*overrides):
+        return spin_map._key(config_from_dict(apply_overrides(raw, list(overrides))), [200], "renderer", [50])
+
+    assert key("filter.omega_process_noise=0") == key("filter.omega_process_noise=3e-10")
+    assert key("filter.omega_process_noise=0") != key("filter.measurement_noise=0.6")
+
+
 @pytest.mark.parametrize("argv, message", [(["--map-models", "renderer,gp"], "argument --map-models: 'renderer,gp'"),
-                                           (["--map", "--sigmas", "0"], "--sigmas: 0 must be > 0 with --map")])
+                                           (["--map", "--sigmas", "0"], "--sigmas: 0 must be > 0 with --map"),
+                                           (["--map", "--durations", "600", "--map-durations", "1800"],
+                                            "--map-durations: [1800.0] must be among --durations [600.0]")])
 def test_bad_map_arguments_exit_2_naming_the_option(argv, message, capsys):
     from experiments.spin_unknown import main
     with pytest.raises(SystemExit) as stop:
         main(argv)
     assert stop.value.code == 2 and message in capsys.readouterr().err
     assert build_parser().parse_args(["--map"]).map_models == ["renderer"]
+
+
+def test_rate_noise_rule_leaves_out_a_duration_no_value_reaches():
+    from experiments.spin_tuning import choose
+
+    scores = {0.0: {600.0: 0.25, 1800.0: 6.5}, 1e-10: {600.0: 0.07, 1800.0: 6.2}, 3e-10: {600.0: 0.32, 1800.0: 4.5}}
+    assert choose(scores) == (1e-10, [600.0], 3e-10)
+    scores[3e-10][1800.0] = 0.9  # now within reach: the worst score over both durations decides
+    assert choose(scores) == (3e-10, [600.0, 1800.0], 3e-10)
