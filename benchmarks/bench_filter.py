@@ -17,7 +17,7 @@ printed. The GP models bound their own kernel blocks (``chunk_values``), so B = 
     python benchmarks/bench_filter.py                  # paper size, 1 thread
     python benchmarks/bench_filter.py --quick          # 1260 training points, 20 steps, B up to 1000
     python benchmarks/bench_filter.py --rates-only     # the SparseGP and renderer rows with and without ω + b,
-                                                       # and a 3600 s run of 100 7-state filters
+                                                       # and 3600 s runs of 100 7-state filters
 """
 
 from __future__ import annotations
@@ -39,6 +39,7 @@ TARGETS = {  # (model, B) -> seconds per filter-step, for every row of that mode
 }
 WHOLE_TARGET = 1.0
 LONG_RUN = (3600, 100, 30.0)  # seconds of scenario, filters, target wall seconds of the 7-state SparseGP run
+LONG_RUN_ROWS = ("SparseGP M=512, ω + b", "SparseGP M=512 mean only, ω + b")
 N_SIGMA = 7
 
 
@@ -210,7 +211,8 @@ def measure_cuda(bench: Bench, models, step_tab) -> None:
 
 
 def measure_long_run(cfg, models, scene, long_tab) -> None:
-    """A 3600 s run of 100 filters with ω + b in the state and the SparseGP (with its variance): one timed run."""
+    """A 3600 s run of 100 filters with ω + b in the state and the SparseGP, with its variance and mean only (the
+    paper's GPUKF): one timed run each."""
     from lightcurve_gp.scenario import simulate_scenario
 
     duration, B, target = LONG_RUN
@@ -219,11 +221,11 @@ def measure_long_run(cfg, models, scene, long_tab) -> None:
     sc = simulate_scenario(long_cfg, seeds=range(B), scene=scene)
     bench = Bench(cfg=long_cfg, scenario=sc, steps=duration, repeats=1, budget=1e9)
     bench.add_device("cpu")
-    label, _, model, params, _ = next(r for r in models if r[0] == "SparseGP M=512, ω + b")
-    _, seconds = C.timed(lambda: bench.run(model, params, B, duration, rates=True))
-    long_tab.add([label, B, duration, f"{seconds:.3g}", f"≤ {target:g} s", "ok" if seconds <= target else "MISS"],
-                 {"model": label, "B": B, "steps": duration, "seconds": seconds, "target": target})
-    print(f"  {label}: {B} filters over {duration} s in {seconds:.3g} s", flush=True)
+    for label, _, model, params, _ in (r for r in models if r[0] in LONG_RUN_ROWS):
+        _, seconds = C.timed(lambda: bench.run(model, params, B, duration, rates=True))
+        long_tab.add([label, B, duration, f"{seconds:.3g}", f"≤ {target:g} s", "ok" if seconds <= target else "MISS"],
+                     {"model": label, "B": B, "steps": duration, "seconds": seconds, "target": target})
+        print(f"  {label}: {B} filters over {duration} s in {seconds:.3g} s", flush=True)
 
 
 def print_paper_comparison(step_tab) -> None:
