@@ -138,7 +138,7 @@ def map_row(label: str, result: dict) -> list[str]:
     """Cells of :data:`experiments.spin_unknown.HEADER` for a MAP result (no NEES, no per-step time)."""
     rmse = np.asarray(result["rmse_deg"])
     below = 100 * float((rmse < 10).all(-1).mean())
-    return [label, *(format_quantiles(quantiles(rmse[:, i])) for i in range(3)), f"{below:.0f} %", "–", "–",
+    return [label, *(format_quantiles(quantiles(rmse[:, i])) for i in range(3)), f"{below:.0f} %", "–", "–", "–",
             format_quantiles(quantiles(result["omega_rmse_deg_s"]), 4),
             format_quantiles(quantiles(result["omega_error_final_deg_s"]), 4), "–"]
 

@@ -32,6 +32,7 @@ Writes ``--results`` (experiments/results/spin): ``tables.md``, ``summary.json``
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -52,7 +53,9 @@ ESTIMATORS_UNKNOWN = ("gpukf", "matched_ukf", "no_update")
 ESTIMATORS_KNOWN = ("gpukf", "matched_ukf")
 INERTIA_ERRORS = ((1.1, 0.9, 1.1), (0.9, 1.1, 0.9))
 GOAL = {"sigma": 0.03, "ratio": 1.5, "fraction": 0.8, "final_omega_deg_s": 0.005}
-HEADER = ("estimator", "yaw", "pitch", "roll", "< 10° all axes", "NEES δp (band)", "NEES full (band)",
+HEADER = ("estimator", "yaw", "pitch", "roll", "< 10° all axes",
+          "mod symmetry: < 10° all axes (nearest truth a mirror), NEES full",
+          "NEES δp (band)", "NEES full (band)",
           "ω RMSE °/s", "final ω error °/s", "ms / step")
 
 
@@ -157,6 +160,17 @@ def _band(entry: dict, key: str, band_key: str) -> str:
     return f"{entry[key]:.2f} ({lo:.2f}–{hi:.2f})"
 
 
+def _mod_symmetry(entry: dict) -> str:
+    """The share below 10° modulo the shape's symmetry, the share whose nearest truth is a mirror and the full
+    state's mean NEES against that truth ("–" for records scored before)."""
+    if "fraction_all_axes_below_10deg_mod_symmetry" not in entry:
+        return "–"
+    nees = entry["nees_full_mean_mod_symmetry"]
+    text = (f"{100 * entry['fraction_all_axes_below_10deg_mod_symmetry']:.0f} % "
+            f"({100 * entry['fraction_nearest_symmetric_not_truth']:.0f} %)")
+    return text if math.isnan(nees) else f"{text}, {nees:.2f}"
+
+
 def table_row(label: str, record: CaseRecord, name: str) -> list[str]:
     """Cells of :data:`HEADER`: median [IQR] RMSE per axis over seeds and the rest of the case summary."""
     e = record.summary["estimators"][name]
@@ -167,8 +181,8 @@ def table_row(label: str, record: CaseRecord, name: str) -> list[str]:
     omega = quantiles(record.metric(name, "omega_rmse_deg_s"))
     final = quantiles(record.metric(name, "omega_error_final_deg_s"))
     return [label, *(format_quantiles(quantiles(rmse[:, i])) for i in range(3)),
-            f"{100 * e['fraction_all_axes_below_10deg']:.0f} %", nees, full, format_quantiles(omega, 4),
-            format_quantiles(final, 4), f"{1e3 * e['seconds_per_step']:.1f}"]
+            f"{100 * e['fraction_all_axes_below_10deg']:.0f} %", _mod_symmetry(e), nees, full,
+            format_quantiles(omega, 4), format_quantiles(final, 4), f"{1e3 * e['seconds_per_step']:.1f}"]
 
 
 def tables(records: dict, inertia: dict, maps: dict, args) -> tuple[list[str], dict]:

@@ -42,6 +42,7 @@ from .metrics import (
     attitude_errors_deg,
     chi2_band,
     lightcurve_rmse,
+    nearest_symmetric_rmse,
     nees,
     rmse_over_window,
 )
@@ -50,9 +51,10 @@ from .observation.base import ObservationModel
 from .observation.parametric import Parametric, SurfaceStateRenderer
 from .render import Scene
 from .reporting import quantiles
-from .rotations import quat_mul, quat_normalize
+from .rotations import attitude_matrix, quat_mul, quat_normalize
 from .scenario import Scenario, simulate_scenario
 from .surface_state import reference_surface, surface_state_prior
+from .symmetry import symmetry_quaternions
 from .ukf import FilterHistory, UsqueParams, initial_covariance, run_usque
 from .ukf_offset import initial_offset, offset_covariance
 
@@ -85,6 +87,12 @@ class EstimatorResult:
         nees_full_mean: mean NEES over the window of ``[δp, ω]`` (ω estimated) or ``δp`` ``(S,)``; NaN for
             ``no_update``.
         nees_full_dof: the dimension of that NEES (6 or 3).
+        rmse_mod_symmetry_deg: the RMSE against the nearest truth ``q_R ⊗ q_true`` the shape's symmetries allow
+            ``(S, 3)`` (deg; :func:`~lightcurve_gp.metrics.nearest_symmetric_rmse`): what a light curve can tell.
+        symmetry_index: that truth's index ``(S,)`` (0: the truth itself).
+        omega_error_final_mod_symmetry_deg_s: the final body-rate error norm against that truth's rate
+            ``A(q_R) ω_true`` ``(S,)`` (deg/s): ``q_R ⊗ q(t)`` turns at ``A(q_R) ω(t)``.
+        nees_full_mean_mod_symmetry: ``nees_full_mean`` against that truth ``(S,)``; ``None`` for ``no_update``.
     """
 
     q_est: Tensor
@@ -99,6 +107,10 @@ class EstimatorResult:
     omega_error_final_deg_s: Tensor | None = None
     nees_full_mean: Tensor | None = None
     nees_full_dof: int = 3
+    rmse_mod_symmetry_deg: Tensor | None = None
+    symmetry_index: Tensor | None = None
+    omega_error_final_mod_symmetry_deg_s: Tensor | None = None
+    nees_full_mean_mod_symmetry: Tensor | None = None
 
 
 @dataclass
@@ -127,6 +139,14 @@ class ScenarioResult:
         S = len(self.scenario.seeds)
         for name, r in self.results.items():
             per_axis = [quantiles(r.rmse_deg[:, i]) for i in range(3)]
+            mod_sym = {} if r.rmse_mod_symmetry_deg is None else {
+                "rmse_deg_median_mod_symmetry": [quantiles(r.rmse_mod_symmetry_deg[:, i]).median for i in range(3)],
+                "fraction_all_axes_below_10deg_mod_symmetry":
+                    float((r.rmse_mod_symmetry_deg < 10).all(-1).double().mean()),
+                "fraction_nearest_symmetric_not_truth": float((r.symmetry_index != 0).double().mean()),
+                "omega_error_final_mod_symmetry_deg_s_median": quantiles(r.omega_error_final_mod_symmetry_deg_s).median,
+                "nees_full_mean_mod_symmetry": _nanmean(r.nees_full_mean_mod_symmetry)
+                if r.nees_full_mean_mod_symmetry is not None else float("nan")}
             out["estimators"][name] = {
                 "rmse_deg_median": [q.median for q in per_axis],
                 "rmse_deg_q25": [q.q25 for q in per_axis],
@@ -144,6 +164,7 @@ class ScenarioResult:
                 "seconds_per_filter_step": r.seconds / (self.steps * S),
                 "sqrt_fallbacks": int(r.history.fallbacks.sum()) if r.history is not None else 0,
                 "rejected_updates": int(r.history.rejected.sum()) if r.history is not None else 0,
+                **mod_sym,
             }
         return out
 
@@ -160,10 +181,11 @@ def propagate_only(q_est0: Tensor, increments: Tensor) -> Tensor:
     return torch.stack(out, dim=-2)
 
 
-def score_estimator(sc: Scenario, q_est: Tensor, window, history: FilterHistory | None,
-                    seconds: float) -> EstimatorResult:
+def score_estimator(sc: Scenario, q_est: Tensor, window, history: FilterHistory | None, seconds: float, *,
+                    q_sym: Tensor | None = None) -> EstimatorResult:
     """Errors, windowed RMSE, light-curve RMSE, NEES and body-rate errors of estimates ``q_est (S, T+1, 4)`` on
-    scenario ``sc`` (the rates of ``history.omega`` when ω was estimated, else ``sc.omega_assumed``)."""
+    scenario ``sc`` (the rates of ``history.omega`` when ω was estimated, else ``sc.omega_assumed``); with the
+    shape's symmetries ``q_sym (K, 4)`` (identity first) also the errors against the nearest symmetric truth."""
     S = len(sc.seeds)
     q_true = sc.q_true.expand(S, -1, -1)
     errors = attitude_errors_deg(q_true, q_est)
@@ -172,20 +194,46 @@ def score_estimator(sc: Scenario, q_est: Tensor, window, history: FilterHistory 
     omega_err = torch.rad2deg(sc.omega_true - omega_est).expand(S, -1, -1)  # (S, T+1, 3)
     omega_norm = torch.linalg.vector_norm(omega_err, dim=-1)
     omega_rmse = rmse_over_window(omega_norm, sc.times, window)
+    in_window = (sc.times >= window[0]) & (sc.times <= window[1])
+    symmetric = {} if q_sym is None else _symmetric_scores(sc, q_est, omega_est, q_sym, window, history, in_window)
     nan = torch.full((S,), float("nan"), dtype=q_est.dtype)
     if history is None:
-        return EstimatorResult(q_est, errors, rmse, nan, nan, nan, seconds, None, omega_rmse, omega_norm[:, -1], nan)
+        return EstimatorResult(q_est, errors, rmse, nan, nan, nan, seconds, None, omega_rmse, omega_norm[:, -1], nan,
+                               **symmetric)
     lc_noisy = lightcurve_rmse(history.y_pred, sc.observations, sc.times, window)
     lc_clean = lightcurve_rmse(history.y_pred, sc.m_clean.expand(S, -1), sc.times, window)
-    err_vec = attitude_error_vector(q_true, q_est, kind="grp")
-    in_window = (sc.times >= window[0]) & (sc.times <= window[1])
-    nees_w = nees(err_vec[:, in_window], history.P[:, in_window]).mean(-1)
-    nees_full, dof = nees_w, 3
-    if history.omega is not None:
-        full_err = torch.cat([err_vec, torch.deg2rad(omega_err)], dim=-1)
-        nees_full, dof = nees(full_err[:, in_window], history.P_full[:, in_window, :6, :6]).mean(-1), 6
+    nees_w, nees_full, dof = _window_nees(q_true, omega_err, q_est, history, in_window)
     return EstimatorResult(q_est, errors, rmse, lc_noisy, lc_clean, nees_w, seconds, history, omega_rmse,
-                           omega_norm[:, -1], nees_full, dof)
+                           omega_norm[:, -1], nees_full, dof, **symmetric)
+
+
+def _window_nees(q_true: Tensor, omega_err_deg_s: Tensor, q_est: Tensor, history: FilterHistory,
+                 in_window: Tensor) -> tuple[Tensor, Tensor, int]:
+    """Mean NEES over the window ``(S,)`` of the attitude (GRP error against ``P``) and of the whole estimated
+    state ``[δp, ω]`` (the attitude's when ω is known) and that state's dimension; ``q_true (S, T+1, 4)``,
+    ``omega_err_deg_s (S, T+1, 3)``."""
+    err_vec = attitude_error_vector(q_true, q_est, kind="grp")
+    nees_w = nees(err_vec[:, in_window], history.P[:, in_window]).mean(-1)
+    if history.omega is None:
+        return nees_w, nees_w, 3
+    full_err = torch.cat([err_vec, torch.deg2rad(omega_err_deg_s)], dim=-1)
+    return nees_w, nees(full_err[:, in_window], history.P_full[:, in_window, :6, :6]).mean(-1), 6
+
+
+def _symmetric_scores(sc: Scenario, q_est: Tensor, omega_est: Tensor, q_sym: Tensor, window,
+                      history: FilterHistory | None, in_window: Tensor) -> dict[str, Tensor]:
+    """The :class:`EstimatorResult` fields against the nearest symmetric truth ``q_R ⊗ q_true`` turning at
+    ``A(q_R) ω_true`` (``omega_est (S or T+1, …, 3)`` rad/s)."""
+    q_sym = q_sym.to(q_est)
+    rmse, best = nearest_symmetric_rmse(sc.q_true, q_est, q_sym, sc.times, window)
+    omega_sym = sc.omega_true.unsqueeze(0) @ attitude_matrix(q_sym[best]).mT  # (S, T+1, 3)
+    omega_err = torch.rad2deg(omega_sym - omega_est)
+    out = {"rmse_mod_symmetry_deg": rmse, "symmetry_index": best,
+           "omega_error_final_mod_symmetry_deg_s": torch.linalg.vector_norm(omega_err[:, -1], dim=-1)}
+    if history is not None:
+        q_true_sym = quat_mul(q_sym[best].unsqueeze(1), sc.q_true.unsqueeze(0))
+        out["nees_full_mean_mod_symmetry"] = _window_nees(q_true_sym, omega_err, q_est, history, in_window)[1]
+    return out
 
 
 def run_offset_filter(cfg: Config, model: ObservationModel, observations: Tensor, q_est0: Tensor,
@@ -348,6 +396,7 @@ def run_estimators(cfg: Config, gp_model: ObservationModel | None = None, *, see
                          "filter.estimate_omega false")
     with_offset = {"joint_ukf", "gpukf"} if cfg.filter.estimate_offset else {"joint_ukf"}
     out = ScenarioResult(sc, window)
+    q_sym = symmetry_quaternions(scene.facets)
     for name in estimators:
         start = time.perf_counter()
         if name == "no_update":
@@ -362,5 +411,5 @@ def run_estimators(cfg: Config, gp_model: ObservationModel | None = None, *, see
                 history = run_filter(cfg, model, sc, q_est0, offset=name in with_offset, start_model=start_model,
                                      params=params)
             q_est = history.q_est
-        out.results[name] = score_estimator(sc, q_est, window, history, time.perf_counter() - start)
+        out.results[name] = score_estimator(sc, q_est, window, history, time.perf_counter() - start, q_sym=q_sym)
     return out

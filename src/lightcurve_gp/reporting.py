@@ -67,7 +67,9 @@ class SeedRow:
     a failed case) — never NaN, so that the JSON and CSV files hold no non-standard values. ``omega_rmse_deg_s``
     is the RMSE of the body-rate error's norm over the scoring window, ``omega_error_final_deg_s`` that norm at
     the last sample (deg/s), ``nees_full_mean`` the mean NEES of the whole estimated state ``[δp, ω]`` (the
-    attitude NEES for filters that take ω as known)."""
+    attitude NEES for filters that take ω as known). The ``…_mod_symmetry…`` fields score the estimate against the
+    nearest of the truths the shape's symmetries make indistinguishable by the light curve, ``symmetry`` that
+    truth's index (0: the truth itself); ``None`` in records made before they existed."""
 
     seed: int
     estimator: str
@@ -83,6 +85,12 @@ class SeedRow:
     omega_rmse_deg_s: float | None = None
     omega_error_final_deg_s: float | None = None
     nees_full_mean: float | None = None
+    rmse_yaw_mod_symmetry_deg: float | None = None
+    rmse_pitch_mod_symmetry_deg: float | None = None
+    rmse_roll_mod_symmetry_deg: float | None = None
+    symmetry: int | None = None
+    omega_error_final_mod_symmetry_deg_s: float | None = None
+    nees_full_mean_mod_symmetry: float | None = None
 
     def rmse_deg(self) -> tuple[float, float, float]:
         """RMSE (yaw, pitch, roll) in degrees, NaN where missing."""
@@ -109,8 +117,20 @@ def seed_rows(result: ScenarioResult) -> list[SeedRow]:
                                 _finite(float(r.nees_mean[i])), r.seconds / result.steps,
                                 omega_rmse_deg_s=_finite(float(r.omega_rmse_deg_s[i])),
                                 omega_error_final_deg_s=_finite(float(r.omega_error_final_deg_s[i])),
-                                nees_full_mean=_finite(float(r.nees_full_mean[i]))))
+                                nees_full_mean=_finite(float(r.nees_full_mean[i])), **_symmetric_cells(r, i)))
     return rows
+
+
+def _symmetric_cells(r, i: int) -> dict[str, Any]:
+    """The :class:`SeedRow` fields modulo symmetry of seed ``i`` of an estimator result (none when not scored)."""
+    if r.rmse_mod_symmetry_deg is None:
+        return {}
+    yaw, pitch, roll = (_finite(float(v)) for v in r.rmse_mod_symmetry_deg[i])
+    return {"rmse_yaw_mod_symmetry_deg": yaw, "rmse_pitch_mod_symmetry_deg": pitch, "rmse_roll_mod_symmetry_deg": roll,
+            "symmetry": int(r.symmetry_index[i]),
+            "omega_error_final_mod_symmetry_deg_s": _finite(float(r.omega_error_final_mod_symmetry_deg_s[i])),
+            "nees_full_mean_mod_symmetry": None if r.nees_full_mean_mod_symmetry is None
+            else _finite(float(r.nees_full_mean_mod_symmetry[i]))}
 
 
 @dataclass
@@ -143,6 +163,11 @@ class CaseRecord:
     def rmse_deg(self, estimator: str) -> np.ndarray:
         """Per-seed RMSE ``(S, 3)`` (deg, yaw/pitch/roll) of one estimator, NaN where a seed failed."""
         return np.array([r.rmse_deg() for r in self.estimator_rows(estimator)], dtype=float).reshape(-1, 3)
+
+    def rmse_deg_mod_symmetry(self, estimator: str) -> np.ndarray:
+        """Per-seed RMSE ``(S, 3)`` (deg) against the nearest symmetric truth, NaN where not scored."""
+        names = ("rmse_yaw_mod_symmetry_deg", "rmse_pitch_mod_symmetry_deg", "rmse_roll_mod_symmetry_deg")
+        return np.stack([self.metric(estimator, n) for n in names], axis=-1).reshape(-1, 3)
 
     def metric(self, estimator: str, name: str) -> np.ndarray:
         """Per-seed values ``(S,)`` of one :class:`SeedRow` metric, NaN where missing."""
