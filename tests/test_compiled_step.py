@@ -1,12 +1,14 @@
 """The compiled filter step (``filter.compile: true``): the same estimates as the eager step on short runs of the
 paper's filter (the renderer traced into the graph, the exact GP's mean fused, a GP with a variance called eagerly
-between two compiled halves), the eager redo of a step whose square root falls back, and the config key."""
+between two compiled halves), the eager redo of a step whose square root falls back, the exported step compiled
+again when the model or the shapes change (and only then), and the config key."""
 
 import dataclasses
 
 import pytest
 import torch
 
+import lightcurve_gp.usque_compiled as usque_compiled
 from lightcurve_gp.config import ConfigError, config_to_dict, load_config
 from lightcurve_gp.data import generate_training_set
 from lightcurve_gp.observation import ExactGP
@@ -55,7 +57,7 @@ def _both(model, params, truth, *, B=2, P0=None):
 def _assert_same(eager, compiled):
     for name in ("q_est", "P", "y_pred", "y_var", "m_past"):
         a, b = getattr(eager, name), getattr(compiled, name)
-        assert torch.allclose(a, b, rtol=0.0, atol=TOL, equal_nan=True), (name, float((a - b).abs().nanmax()))
+        assert torch.allclose(a, b, rtol=0.0, atol=TOL, equal_nan=True), (name, float((a - b).abs().nan_to_num().max()))
     assert torch.equal(eager.updated, compiled.updated)
     assert torch.equal(eager.fallbacks, compiled.fallbacks)
 
@@ -94,6 +96,55 @@ def test_a_step_whose_square_root_falls_back_is_done_again_eagerly():
                                   increments=increments, params=dataclasses.replace(params, compile=compile_)))
     _assert_same(*runs)
     assert runs[1].fallbacks.tolist() == [0, 1]
+
+
+class _ShiftedToy(_UncountedToy):
+    """:class:`_UncountedToy` plus a plain tensor attribute (not a buffer: a constant of the exported graph)."""
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.shift = torch.zeros((), dtype=torch.float64)
+
+    def _predict(self, q, m_past, variance):
+        mean, var = super()._predict(q, m_past, variance)
+        return mean + self.shift, var
+
+
+@pytest.mark.slow
+def test_the_exported_step_is_compiled_again_when_the_model_or_the_shapes_change(monkeypatch):
+    """A Python attribute (a constant of the graph), a plain tensor changed in place (its version counter) and the
+    batch size each compile a new step whose estimates are the eager ones; a buffer changed in place (an input of
+    the graph) and a run like the one before reuse the compiled step."""
+    exports = []
+    export = usque_compiled._export
+    monkeypatch.setattr(usque_compiled, "_export", lambda *a: exports.append(1) or export(*a))
+    _, y, q_est0, increments = scenario(B=3, T=STEPS)
+    model = _ShiftedToy(m_past_gain=0.1)
+    params = UsqueParams(Q=1e-6, R=1e-4, variance="none")
+    P0 = initial_covariance(10.0, dtype=torch.float64)
+
+    def runs(B=2):
+        return [run_usque(model=model, q_est0=q_est0[:B], P0=P0, observations=y[:B], m_past0=y[:B, 0],
+                          increments=increments[:B], params=dataclasses.replace(params, compile=c))
+                for c in (False, True)]
+
+    changes = [("first run", lambda: None, 1), ("same run", lambda: None, 0),
+               ("python attribute", lambda: setattr(model, "m_past_gain", 0.3), 1),
+               ("plain tensor in place", lambda: model.shift.add_(0.2), 1),
+               ("buffer in place", lambda: model.a.mul_(1.1), 0)]
+    before = None
+    for what, change, compiles in changes:
+        change()
+        count = len(exports)
+        eager, compiled = runs()
+        _assert_same(eager, compiled)
+        assert len(exports) - count == compiles, what
+        if before is not None and compiles + (what == "buffer in place"):
+            assert not torch.allclose(before.y_pred[:, 1:], compiled.y_pred[:, 1:]), what
+        before = compiled
+    count = len(exports)
+    _assert_same(*runs(B=3))
+    assert len(exports) == count + 1
 
 
 def test_blocked_kernel_sum_is_the_kernel_row_times_the_weights():

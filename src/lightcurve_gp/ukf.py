@@ -46,7 +46,7 @@ from .unscented import (
     unscented_weights,
     warn_fallbacks,
 )
-from .usque_compiled import compiled_usque_step
+from .usque_compiled import compiled_stepper
 from .usque_update import Prior, RunConstants, adapted_noise, measurement_update, redrawn_sigma_points, sigma_set
 
 __all__ = [
@@ -395,7 +395,7 @@ def run_usque(*, model: ObservationModel, q_est0: Tensor, P0: Tensor, observatio
         history.add(state, StepRecord(nan_b, nan_b, nan_b, nan_b, state.m_past, no, no, no))
         if omega0 is None:
             L_steps, G_steps = _step_matrices(increments.to(dtype=dtype, device=device), layout, B, run.scale)
-        step = compiled_usque_step if params.compile else usque_step
+        step = compiled_stepper() if params.compile else usque_step
         for k in range(1, T + 1):
             run_k = run if R_steps is None else dataclasses.replace(run, R=R_steps[k])
             if omega0 is None:
