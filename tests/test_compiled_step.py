@@ -4,6 +4,7 @@ between two compiled halves), the eager redo of a step whose square root falls b
 again when the model or the shapes change (and only then), and the config key."""
 
 import dataclasses
+import math
 
 import pytest
 import torch
@@ -17,7 +18,7 @@ from lightcurve_gp.observation.parametric import Parametric
 from lightcurve_gp.render import Scene
 from lightcurve_gp.scenario import simulate_scenario
 from lightcurve_gp.ukf import UsqueParams, initial_covariance, run_usque
-from lightcurve_gp.unscented import SqrtFallbackWarning
+from lightcurve_gp.unscented import UNROLLED_CHOLESKY_MAX, SqrtFallbackWarning, cholesky_unrolled
 from tests.helpers import ToyModel, scenario
 
 
@@ -155,6 +156,21 @@ def test_blocked_kernel_sum_is_the_kernel_row_times_the_weights():
     assert blocks.shape == (4, 5, 256) and w_blocks.shape == (4, 1, 256)
     want = exp_neg_sqdist(xs, cross_kernel_cache(refs)) @ w
     assert torch.allclose(blocked_kernel_sum(xs, blocks, w_blocks), want, rtol=1e-12, atol=1e-12)
+
+
+def test_the_unrolled_cholesky_is_lapacks_and_fails_where_lapack_fails():
+    """The factor a compiled step uses for small matrices: LAPACK's to rounding where it succeeds, flagged exactly
+    where ``cholesky_ex`` reports a failure (a negative and a NaN pivot among positive definite matrices)."""
+    g = torch.Generator().manual_seed(1)
+    for n in range(1, UNROLLED_CHOLESKY_MAX + 1):
+        m = torch.randn(5, n, n, generator=g, dtype=torch.float64)
+        a = m @ m.mT + 0.1 * torch.eye(n, dtype=torch.float64)
+        a[1, -1, -1] = -1.0
+        a[3, 0, 0] = math.nan
+        L, failed = cholesky_unrolled(a)
+        want, info = torch.linalg.cholesky_ex(a)
+        assert failed.tolist() == (info != 0).tolist() == [False, True, False, True, False], n
+        assert torch.allclose(L[~failed], want[~failed], rtol=0.0, atol=1e-12), n
 
 
 def test_the_compile_key_is_checked_and_left_out_of_the_keys_when_off():

@@ -16,6 +16,8 @@ from torch import Tensor
 
 __all__ = [
     "SqrtFallbackWarning",
+    "UNROLLED_CHOLESKY_MAX",
+    "cholesky_unrolled",
     "UnscentedWeights",
     "matrix_sqrt",
     "sqrt_psd",
@@ -102,15 +104,43 @@ def matrix_sqrt(a: Tensor) -> tuple[Tensor, Tensor]:
     return s, failed
 
 
+#: largest matrix that :func:`sqrt_psd` factorises elementwise inside a compiled graph (the filters' states: 3–8)
+UNROLLED_CHOLESKY_MAX = 8
+
+
+def cholesky_unrolled(a: Tensor) -> tuple[Tensor, Tensor]:
+    """Lower Cholesky factors of symmetric matrices ``(..., n, n)`` written out elementwise (``L_jj = √(a_jj −
+    Σ_k L_jk²)``, ``L_ij = (a_ij − Σ_k L_ik L_jk) / L_jj``, the unblocked algorithm of LAPACK's ``potf2``), and
+    ``(...)`` where a pivot is not positive or not finite (LAPACK's failure; that factor is not to be used).
+    A compiled graph fuses it into a few loops where the library call costs ~15 µs for a 3 × 3 matrix."""
+    n = a.shape[-1]
+    L: list[list[Tensor | None]] = [[None] * n for _ in range(n)]
+    failed = torch.zeros(a.shape[:-2], dtype=torch.bool, device=a.device)
+    for j in range(n):
+        pivot = a[..., j, j] - sum((L[j][k] ** 2 for k in range(j)), torch.zeros_like(a[..., j, j]))
+        ok = pivot > 0  # False for NaN too
+        failed = failed | ~ok
+        L[j][j] = torch.sqrt(torch.where(ok, pivot, torch.ones_like(pivot)))
+        for i in range(j + 1, n):
+            L[i][j] = (a[..., i, j] - sum((L[i][k] * L[j][k] for k in range(j)), torch.zeros_like(pivot))) / L[j][j]
+    zero = torch.zeros_like(a[..., 0, 0])
+    rows = [torch.stack([L[i][j] if j <= i else zero for j in range(n)], -1) for i in range(n)]
+    return torch.stack(rows, -2), failed
+
+
 def sqrt_psd(a: Tensor) -> tuple[Tensor, Tensor]:
     """:func:`matrix_sqrt` for matrices already symmetric (the common path costs one Cholesky and one sync).
 
     Inside a compiled graph (:mod:`lightcurve_gp.usque_compiled`) the factor is returned without the fallback: a
-    failed matrix is only flagged."""
+    failed matrix is only flagged; a small one (``n ≤`` :data:`UNROLLED_CHOLESKY_MAX`) is factorised by
+    :func:`cholesky_unrolled`, which the compiler fuses with the rest of the step."""
+    if torch.compiler.is_compiling():  # no read-back inside a compiled step: it redoes a failed step eagerly
+        if a.shape[-1] <= UNROLLED_CHOLESKY_MAX:
+            return cholesky_unrolled(a)
+        s, info = torch.linalg.cholesky_ex(a)
+        return s, info != 0
     s, info = torch.linalg.cholesky_ex(a)
     failed = info != 0
-    if torch.compiler.is_compiling():  # no read-back inside a compiled step: it redoes a failed step eagerly
-        return s, failed
     if bool(failed.any()):
         s, failed = matrix_sqrt(a)
     return s, failed
