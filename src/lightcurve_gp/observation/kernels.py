@@ -34,6 +34,7 @@ __all__ = [
 #: kernel exponents are clamped at −EXP_CLAMP: exp(−80) ≈ 2e−35 is numerically zero next to θ1, and float32 ``exp``
 #: of arguments below about −87 takes a slow denormal path
 EXP_CLAMP = 80.0
+_LOG2_E = 1.0 / math.log(2.0)
 #: diagonal jitters (relative to the matrix's scale) tried in turn when a Cholesky factorisation fails
 JITTERS = (1e-10, 1e-8, 1e-6, 1e-4)
 
@@ -95,9 +96,11 @@ def weighted_blocks(xs_ref: Tensor, weights: Tensor, block: int = 256) -> tuple[
 def blocked_kernel_sum(xs: Tensor, refs: Tensor, weights: Tensor) -> Tensor:
     """``Σ_j w_j exp(−‖xs_i − r_j‖²)`` ``(P,)`` of scaled inputs ``xs (P, d)`` against blocked references and
     weights (:func:`weighted_blocks`), written elementwise so that a compiled graph runs it as one loop over the
-    blocks (each block's references stay in the L1 cache for all ``P`` points; no ``P × R`` matrix is stored)."""
+    blocks (each block's references stay in the L1 cache for all ``P`` points; no ``P × R`` matrix is stored). The
+    exponential is taken as ``2^(−log2(e) ‖·‖²)``: the generated loop's ``exp2`` ran ~6 % faster than its ``exp``
+    (207.8 against 221.6 µs for 7 × 19 260 values, median of 11 alternating rounds), the same to rounding."""
     diff = xs.unsqueeze(0).unsqueeze(-1) - refs.unsqueeze(1)  # (nb, P, d, block)
-    return (torch.exp(-(diff * diff).sum(2)) * weights).sum(-1).sum(0)
+    return (torch.exp2((diff * diff).sum(2) * -_LOG2_E) * weights).sum(-1).sum(0)
 
 
 def kernel_matrix(xs1: Tensor, xs2: Tensor, outputscale: float | Tensor) -> Tensor:
