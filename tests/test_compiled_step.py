@@ -23,11 +23,12 @@ from tests.helpers import ToyModel, scenario
 
 
 class _UncountedToy(ToyModel):
-    """:class:`ToyModel` without its call counter (a counter read in a compiled graph recompiles it every call)."""
+    """:class:`ToyModel` without its call counter (a model whose Python state changes when called is refused)."""
 
     def _predict(self, q, m_past, variance):
+        out = super()._predict(q, m_past, variance)
         self.calls = 0
-        return super()._predict(q, m_past, variance)
+        return out
 
 CONFIG = "configs/boxwing.yaml"
 STEPS = 12
@@ -118,7 +119,7 @@ def test_the_exported_step_is_compiled_again_when_the_model_or_the_shapes_change
     the graph) and a run like the one before reuse the compiled step."""
     exports = []
     export = usque_compiled._export
-    monkeypatch.setattr(usque_compiled, "_export", lambda *a: exports.append(1) or export(*a))
+    monkeypatch.setattr(usque_compiled, "_export", lambda *a, **k: exports.append(1) or export(*a, **k))
     _, y, q_est0, increments = scenario(B=3, T=STEPS)
     model = _ShiftedToy(m_past_gain=0.1)
     params = UsqueParams(Q=1e-6, R=1e-4, variance="none")
@@ -146,6 +147,14 @@ def test_the_exported_step_is_compiled_again_when_the_model_or_the_shapes_change
     count = len(exports)
     _assert_same(*runs(B=3))
     assert len(exports) == count + 1
+
+
+def test_a_model_that_changes_its_python_state_when_called_is_refused():
+    _, y, q_est0, increments = scenario(B=1, T=2)
+    params = UsqueParams(Q=1e-6, R=1e-4, variance="none", compile=True)
+    with pytest.raises(ValueError, match=r"^filter\.compile: ToyModel changed its Python state when called "):
+        run_usque(model=ToyModel(), q_est0=q_est0, P0=initial_covariance(10.0, dtype=torch.float64), observations=y,
+                  m_past0=y[:, 0], increments=increments, params=params)
 
 
 def test_blocked_kernel_sum_is_the_kernel_row_times_the_weights():

@@ -308,7 +308,7 @@ class FilterConfig:
     q_placement: str = _spec("both", choices=("both", "after"),
                              doc="process noise added to P+ before the sigma points and to P- (both; Crassidis & "
                                  "Markley) or once to P- after the propagation (after; the paper)")
-    compile: bool = _spec(False, doc="run each omega-known filter step as compiled graphs (torch.compile): the "
+    compile: bool = _spec(False, doc="run each omega-known filter step as compiled graphs (inductor): the "
                                      "same estimates to rounding, faster per step; the first step of a shape "
                                      "compiles (seconds)")
 

@@ -1,42 +1,49 @@
 """The ω-known USQUE step compiled into fused graphs (``filter.compile: true``, :attr:`UsqueParams.compile`).
 
-One filter's step (B = 1) on the CPU is a few hundred small tensor operations — the sigma points, their
-propagation, the model's prediction, the gain and the reset (:func:`lightcurve_gp.ukf.usque_step`) — and eager
-torch spends microseconds of dispatch on each. :func:`compiled_stepper` compiles the very same function with
-inductor (fixed shapes, its C++ wrapper): the step becomes a few generated C++ loops plus the library calls that
-stay calls (the Cholesky factor, small matrix products).
+One filter's step (B = 1) on the CPU is a few hundred small tensor operations — the sigma points, their propagation,
+the model's prediction, the gain and the reset (:func:`lightcurve_gp.ukf.usque_step`) — and eager torch spends
+microseconds of dispatch on each. :func:`compiled_stepper` compiles the very same function with inductor (fixed
+shapes, its C++ wrapper): the step becomes a few generated C++ loops plus the library calls that stay calls (small
+matrix products; the sigma points' Cholesky factor is written out elementwise,
+:func:`~lightcurve_gp.unscented.cholesky_unrolled`, and fused).
 
-Two forms. When the model says its prediction traces (``fuses_in_compiled_step``), the whole step is exported
-once (``torch.export``, non-strict: the same Python runs, ``torch.compiler.is_compiling()`` is true) to one graph of
-flat tensors and compiled by ``torch._inductor.compile``; each step then calls that compiled graph directly, with
-no TorchDynamo frame, guard check or wrapper in between (those cost ~35–160 µs per call, more than the UKF step's
-own graph). What dynamo's guards did is done once per run instead (:class:`_ExportedStep`): the compiled graph is
+Two forms. When the model says its prediction traces (``fuses_in_compiled_step``), the whole step is exported once
+(``torch.export``, non-strict: the same Python runs, ``torch.compiler.is_compiling()`` is true) to one graph of flat
+tensors and compiled by ``torch._inductor.compile``; each step then calls that compiled graph directly, with no
+TorchDynamo frame, guard check or wrapper in between (on this project's 2-core CPU ~50 µs per call of a one-line
+function against 11 µs for the graph called directly; 78–90 µs per GPUKF step and 45–76 µs per UKF step, README:
+Performance). What dynamo's guards did is done once per run instead (:class:`_ExportedStep`): the compiled graph is
 looked up by the model object, a fingerprint of the model's Python state (its plain attributes and the identity and
 version counter of every tensor it holds outside its buffers, such as the renderer's scene: these are constants of
-the graph) and the shapes, strides, dtypes and devices of every input (its buffers and parameters are inputs, read
-at the start of each run), and the run's Python constants (weights' layout, GRP ``a, f``, ``T``, the variant); any
-change exports and compiles again. Within a run the compiled graph checks every input's size and stride itself
-and raises on a mismatch. Otherwise (a GP asked for a variance, the sparse GP, models without that method) the
-model is called eagerly between two halves compiled by ``torch.compile`` (TorchDynamo, with its guards).
+the graph) and the shapes, strides, dtypes and devices of every input (its buffers and parameters are inputs, read at
+the start of each run), and the run's Python constants (the state layout, ``n + λ``, GRP ``a, f``, ``t_span_past``,
+the variant); any change exports and compiles again (so does a model whose fingerprint moved for a reason its mean
+does not see, e.g. the exact GP's full Cholesky factor computed or dropped). Within a run the compiled graph checks
+every input's size and stride itself and raises on a mismatch. Otherwise (a GP asked for a variance, the sparse GP,
+models without that method) the model is called eagerly between two halves compiled by ``torch.compile``
+(TorchDynamo, with its guards).
 
 What cannot be inside one graph is a host synchronisation: the square root's fallback test, the model's finiteness
-check and the renderer's zero-flux test read values back to Python. Under compilation those read-backs are left
-out (``torch.compiler.is_compiling()`` in :func:`~lightcurve_gp.unscented.sqrt_psd`,
+check and the renderer's zero-flux test read values back to Python. Under compilation those read-backs are left out
+(``torch.compiler.is_compiling()`` in :func:`~lightcurve_gp.unscented.sqrt_psd`,
 :func:`~lightcurve_gp.observation.base.check_inputs` and :meth:`~lightcurve_gp.render.Scene.magnitude`) and the
 compiled step returns one flag instead: any square root that fell back, or a posterior that is not finite. A step so
-flagged is done again by the eager :func:`~lightcurve_gp.ukf.usque_step`, which applies the fallback, raises or
-warns exactly as the uncompiled filter does. The estimates of both paths therefore agree to rounding (the fused
-loops sum in another order). The exact GP's mean is the one model-side change: inside the graph it is written
-elementwise over blocks of training points (:func:`~lightcurve_gp.observation.kernels.blocked_kernel_sum`), so the
-kernel row, its ``exp`` and the sum with ``α`` are one loop; eagerly it stays one matrix product.
+flagged is done again by the eager :func:`~lightcurve_gp.ukf.usque_step`, which applies the fallback, raises or warns
+exactly as the uncompiled filter does. The estimates of both paths therefore agree to rounding (the fused loops sum
+in another order). The exact GP's mean is the one model-side change: inside the graph it is written elementwise over
+blocks of training points (:func:`~lightcurve_gp.observation.kernels.blocked_kernel_sum`), so the kernel row, its
+``exp`` and the sum with ``α`` are one loop; eagerly it stays one matrix product.
 
-Costs: the first run of each new shape (``B``, the state layout, the model; with per-filter increments
-``(B, T, 4)`` also each run length ``T``) compiles — seconds to tens of seconds, once per process, less when
-inductor's on-disk cache (``TORCHINDUCTOR_CACHE_DIR``) already holds the graph; every run then pays the model's
-fingerprint (microseconds). A model's Python side effects inside its prediction (a call counter) happen once, when
-the step is exported, not at every step. The step's arithmetic is not reduced: the exact GP's mean
-(7 × 19 260 ``exp`` in the paper's case) stays, and the generated loop's ``exp`` is slower than the eager one
-(MKL's), which is why the GPs with a variance and the sparse GP keep their kernel rows eager.
+Costs: the first run of each new shape (``B``, the state layout, the model; with per-filter increments ``(B, T, 4)``
+also each run length ``T``) compiles — seconds to tens of seconds, once per process, less when inductor's on-disk
+cache (``TORCHINDUCTOR_CACHE_DIR``) already holds the graph; every run then pays the model's fingerprint
+(microseconds). A model whose Python state changes when it is called (a call counter, the pass model's sample index)
+would be frozen by one traced graph: such a model says so (``fuses_in_compiled_step`` false, e.g.
+:class:`~lightcurve_gp.observation.along_pass.AlongPass`), and one that does not is refused with a
+:class:`ValueError` when its step is exported (its state moved during the trace). The step's arithmetic is not
+reduced: the exact GP's mean (7 × 19 260 exponentials in float64 in the paper's case, ~2/3 of the GPUKF step) stays,
+and the generated loop's exponential (SLEEF's) is slower than the eager one (MKL's), which is why the GPs with a
+variance and the sparse GP keep their kernel rows eager.
 """
 
 from __future__ import annotations
@@ -129,8 +136,8 @@ def compiled_stepper() -> Callable[..., tuple[FilterState, StepRecord]]:
         nonlocal chosen
         if chosen is None:
             fuses = getattr(run.model, "fuses_in_compiled_step", None)
-            chosen = _ExportedStep.for_run(run, state, inputs) if fuses is not None and fuses(run.variance) \
-                else _halves_step
+            exported = isinstance(run.model, torch.nn.Module) and fuses is not None and fuses(run.variance)
+            chosen = _ExportedStep.for_run(run, state, inputs) if exported else _halves_step
         return chosen(run, state, **inputs)
 
     return step
@@ -139,18 +146,21 @@ def compiled_stepper() -> Callable[..., tuple[FilterState, StepRecord]]:
 class _FlatStep(torch.nn.Module):
     """:func:`_whole_step` of flat tensors — the run's :data:`_RUN_TENSORS`, the state's ``fields`` present, the
     step's :data:`_STEP_INPUTS` — returning the new state's fields (contiguous, as the first step's are), the
-    record's and the redo flag; the model is a submodule, so that export makes its buffers and parameters inputs."""
+    record's and the redo flag; the model is a submodule, so that export makes its buffers and parameters inputs.
+    ``traced`` receives the model's fingerprint after the traced step (export restores a module's attributes after
+    tracing: a model that changed them when called is seen only there)."""
 
-    def __init__(self, run: RunConstants, fields: tuple[str, ...]):
+    def __init__(self, run: RunConstants, fields: tuple[str, ...], traced: Callable[[Any], None]):
         super().__init__()
         self.model = run.model
-        self.run, self.fields = run, fields
+        self.run, self.fields, self.traced = run, fields, traced
 
     def forward(self, *flat: Tensor) -> tuple[Tensor, ...]:
         n, m = len(_RUN_TENSORS), len(self.fields)
         run = dataclasses.replace(self.run, **dict(zip(_RUN_TENSORS, flat[:n])))
         state = _state(self.fields, flat[n:n + m])
         new, record, redo = _whole_step(run, state, **dict(zip(_STEP_INPUTS, flat[n + m:])))
+        self.traced(_fingerprint(self.model, [], set()))
         return (*(getattr(new, f).contiguous() for f in self.fields), *record, redo)
 
 
@@ -242,9 +252,7 @@ class _ExportedStep:
         entries = _EXPORTED.setdefault(model, {})
         entry = entries.get(key)
         if entry is None or not entry.holds(objects):
-            entry = _export(run, fields, flat)
-            objects = []  # the state the model is in after tracing (a call counter moved) is the next run's
-            key = (_fingerprint(model, objects, set()), shape)
+            entry = _export(run, fields, flat, fingerprint=key[0])
             entries[key] = entry = dataclasses.replace(entry, refs=tuple(_weak(o) for o in objects))
         return cls(entry.fn, _prefix(model, entry.sources), fields)
 
@@ -267,9 +275,15 @@ def _prefix(model: Any, sources: tuple[tuple[str, Any], ...]) -> tuple[Tensor, .
     return tuple(src if kind == "constant" else getters[kind](src) for kind, src in sources)
 
 
-def _export(run: RunConstants, fields: tuple[str, ...], flat: tuple[Tensor, ...]) -> _Compiled:
-    """Export :class:`_FlatStep` on the first step's tensors and compile its graph with inductor (C++ wrapper)."""
-    program = torch.export.export(_FlatStep(run, fields), flat, strict=False)
+def _export(run: RunConstants, fields: tuple[str, ...], flat: tuple[Tensor, ...], *, fingerprint: Any) -> _Compiled:
+    """Export :class:`_FlatStep` on the first step's tensors and compile its graph with inductor (C++ wrapper);
+    refuse a model whose fingerprint (before: ``fingerprint``) moved while its step was traced."""
+    traced: list = []
+    program = torch.export.export(_FlatStep(run, fields, traced.append), flat, strict=False)
+    if traced != [fingerprint]:
+        raise ValueError(f"filter.compile: {type(run.model).__name__} changed its Python state when called (a "
+                         "counter, a per-call setting), which one traced graph would freeze; such a model must "
+                         "return False from fuses_in_compiled_step (it is then called eagerly)")
     kinds = {"PARAMETER": "parameter", "BUFFER": "buffer", "CONSTANT_TENSOR": "constant"}
     specs = program.graph_signature.input_specs
     head = specs[:len(specs) - len(flat)]
