@@ -34,7 +34,7 @@ import numpy as np
 import torch
 from matplotlib.figure import Figure
 
-from lightcurve_gp.config import config_from_dict, load_raw_config
+from lightcurve_gp.config import apply_overrides, config_from_dict, load_raw_config
 from lightcurve_gp.dynamics import propagate
 from lightcurve_gp.geometry import pass_geometry
 from lightcurve_gp.io import write_json_atomic, write_text_atomic
@@ -201,6 +201,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--executor", choices=EXECUTORS, default="local")
     p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="config override applied to every pass config (repeatable), e.g. filter.process_noise=2.0e-6")
     return p
 
 
@@ -212,7 +214,7 @@ def main(argv=None) -> int:
                               "seeds": [args.seed_start, args.seed_start + args.seeds], "scenarios": {}}
     lines = ["# Real passes", ""]
     for name in args.configs.split(","):
-        raw = load_raw_config(ROOT / "configs" / f"{name}.yaml")
+        raw = apply_overrides(load_raw_config(ROOT / "configs" / f"{name}.yaml"), args.set)
         cfg = config_from_dict(raw)
         results = run_scenario(raw, args)
         entry = {"pass": pass_summary(cfg), "results": {str(k): v for k, v in results.items()},
