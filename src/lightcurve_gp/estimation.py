@@ -223,7 +223,7 @@ def _window_nees(q_true: Tensor, omega_err_deg_s: Tensor, q_est: Tensor, history
 def _symmetric_scores(sc: Scenario, q_est: Tensor, omega_est: Tensor, q_sym: Tensor, window,
                       history: FilterHistory | None, in_window: Tensor) -> dict[str, Tensor]:
     """The :class:`EstimatorResult` fields against the nearest symmetric truth ``q_R ⊗ q_true`` turning at
-    ``A(q_R) ω_true`` (``omega_est (S or T+1, …, 3)`` rad/s)."""
+    ``A(q_R) ω_true`` (``omega_est (S, T+1, 3)`` or ``(T+1, 3)``, rad/s)."""
     q_sym = q_sym.to(q_est)
     rmse, best = nearest_symmetric_rmse(sc.q_true, q_est, q_sym, sc.times, window)
     omega_sym = sc.omega_true.unsqueeze(0) @ attitude_matrix(q_sym[best]).mT  # (S, T+1, 3)
