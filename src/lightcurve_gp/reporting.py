@@ -164,11 +164,6 @@ class CaseRecord:
         """Per-seed RMSE ``(S, 3)`` (deg, yaw/pitch/roll) of one estimator, NaN where a seed failed."""
         return np.array([r.rmse_deg() for r in self.estimator_rows(estimator)], dtype=float).reshape(-1, 3)
 
-    def rmse_deg_mod_symmetry(self, estimator: str) -> np.ndarray:
-        """Per-seed RMSE ``(S, 3)`` (deg) against the nearest symmetric truth, NaN where not scored."""
-        names = ("rmse_yaw_mod_symmetry_deg", "rmse_pitch_mod_symmetry_deg", "rmse_roll_mod_symmetry_deg")
-        return np.stack([self.metric(estimator, n) for n in names], axis=-1).reshape(-1, 3)
-
     def metric(self, estimator: str, name: str) -> np.ndarray:
         """Per-seed values ``(S,)`` of one :class:`SeedRow` metric, NaN where missing."""
         return np.array([math.nan if getattr(r, name) is None else getattr(r, name)
