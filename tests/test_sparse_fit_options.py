@@ -1,5 +1,5 @@
-"""The cheaper fits of the sparse GP (model.sparse: optimizer, fit_dtype, fit_subset, fit_inducing, fit_objective)
-and the bound they are compared on."""
+"""The cheaper fits of the sparse GP (model.sparse: optimizer, fit_dtype, fit_subset, fit_inducing, fit_objective,
+fit_form) and the bound they are compared on."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from lightcurve_gp.model_store import model_key
 from lightcurve_gp.observation.fitting import (
     fit_hyperparameters,
     gpytorch_sgpr_model,
+    gram_bound,
     maximise_mll,
     seeded_subset,
     sgpr_bound,
@@ -22,7 +23,9 @@ from lightcurve_gp.observation.sparse_gp import SparseGP, sgpr_cache
 
 ROBUST = Path(__file__).resolve().parents[1] / "configs" / "boxwing_robust.yaml"
 F64 = torch.float64
-NEW_KEYS = ("optimizer", "fit_dtype", "fit_subset", "fit_inducing", "fit_objective")
+#: the options below are GPyTorch-form options; the robust config itself fits in the Gram form
+GPYTORCH_FORM = ["model.sparse.fit_form=gpytorch"]
+NEW_KEYS = ("optimizer", "fit_dtype", "fit_subset", "fit_inducing", "fit_objective", "fit_form")
 
 
 def _data(n: int, seed: int = 0):
@@ -36,7 +39,7 @@ def _data(n: int, seed: int = 0):
 
 
 def _model_cfg(*overrides: str):
-    base = ["model.sparse.num_inducing=40", "model.sparse.iterations=8"]
+    base = ["model.sparse.num_inducing=40", "model.sparse.iterations=8", *GPYTORCH_FORM]
     return load_config(ROBUST, base + list(overrides)).model
 
 
@@ -53,6 +56,7 @@ def train():
     ("model.sparse.fit_inducing=1.5", "model.sparse.fit_inducing: expected an integer, got 1.5"),
     ("model.sparse.fit_objective=exact", "model.sparse.fit_objective: 'exact' is not one of sparse_bound, "
                                          "exact_subset"),
+    ("model.sparse.fit_form=dense", "model.sparse.fit_form: 'dense' is not one of gpytorch, gram"),
 ])
 def test_bad_fit_options_are_config_errors_naming_the_key(override, message):
     with pytest.raises(ConfigError) as err:
@@ -70,18 +74,18 @@ def test_fewer_fit_inducing_inputs_cannot_be_moved():
 def test_default_fit_options_leave_the_model_key_alone():
     """At their defaults the options are absent from the config dict (stored models keep their keys); any other
     value is written, read back and changes the key."""
-    cfg = load_config(ROBUST)
+    cfg = load_config(ROBUST, GPYTORCH_FORM)
     assert set(NEW_KEYS).isdisjoint(config_to_dict(cfg)["model"]["sparse"])
     keys = {model_key(cfg)}
     for override in ("optimizer=lbfgs", "fit_dtype=float32", "fit_subset=3000", "fit_inducing=500",
-                     "fit_objective=exact_subset"):
+                     "fit_objective=exact_subset", "fit_form=gram"):
         extra = ["model.sparse.fit_subset=2000"] if override.startswith("fit_objective") else []
-        changed = load_config(ROBUST, [f"model.sparse.{override}", *extra])
+        changed = load_config(ROBUST, [*GPYTORCH_FORM, f"model.sparse.{override}", *extra])
         raw = config_to_dict(changed)
         assert override.split("=")[0] in raw["model"]["sparse"]
         assert config_from_dict(raw).model == changed.model and config_to_dict(config_from_dict(raw)) == raw
         keys.add(model_key(changed))
-    assert len(keys) == 6
+    assert len(keys) == 7
 
 
 @pytest.mark.parametrize("overrides, message", [
@@ -98,8 +102,81 @@ def test_default_fit_options_leave_the_model_key_alone():
 ])
 def test_exact_subset_objective_needs_a_subset_and_no_inducing_options(overrides, message):
     with pytest.raises(ConfigError) as err:
-        load_config(ROBUST, overrides)
+        load_config(ROBUST, GPYTORCH_FORM + overrides)
     assert str(err.value) == message
+
+
+@pytest.mark.parametrize("overrides, message", [
+    (["model.sparse.fit_objective=exact_subset", "model.sparse.fit_subset=2000"],
+     "model.sparse.fit_form: gram computes the collapsed bound, which model.sparse.fit_objective exact_subset does "
+     "not use"),
+    (["model.sparse.fit_dtype=float32"],
+     "model.sparse.fit_form: gram needs model.sparse.fit_dtype float64 (K_uu + K_uf K_fu / sigma^2 rounded to "
+     "float32 is not positive definite)"),
+])
+def test_gram_form_refuses_what_it_cannot_do(overrides, message):
+    with pytest.raises(ConfigError) as err:
+        load_config(ROBUST, ["model.sparse.fit_form=gram", *overrides])
+    assert str(err.value) == message
+
+
+def test_gram_bound_names_the_matrix_that_is_not_positive_definite():
+    x = torch.zeros(4, 2, dtype=F64)  # four equal inducing inputs: K_uu has rank one
+    with pytest.raises(ValueError) as err:
+        gram_bound(x, x[:, 0], x, torch.tensor(1.0, dtype=F64), torch.tensor(1.0, dtype=F64),
+                   torch.tensor(0.1, dtype=F64))
+    assert str(err.value) == ("model.sparse.fit_form: gram: K_uu is not positive definite at theta1 1, sigma^2 0.1; "
+                              "fit_form gpytorch adds a jitter where this form cannot")
+
+
+def test_gram_bound_refuses_float32():
+    x = torch.zeros(3, 2, dtype=torch.float32)
+    with pytest.raises(ValueError, match="gram_bound needs float64 inputs"):
+        gram_bound(x, x[:, 0], x, torch.tensor(1.0), torch.tensor(1.0), torch.tensor(0.1))
+
+
+def _gpytorch_bound_and_gradient(x, r, z, theta1, ls, noise):
+    """GPyTorch's bound per point and its gradient over (θ1, ℓ, σ², Z) through the model's own parameters."""
+    import gpytorch
+
+    model, likelihood = gpytorch_sgpr_model(x, r, z, theta1, ls, noise, False)
+    model.train()
+    likelihood.train()
+    mll = gpytorch.mlls.ExactMarginalLogLikelihood(likelihood, model)
+    base, zp = model.base_covar, model.covar_module.inducing_points
+    with gpytorch.settings.max_cholesky_size(10**9):
+        value = mll(model(x), r)
+    return value, base, likelihood, zp
+
+
+def test_gram_form_equals_gpytorchs_bound_and_gradient(train):
+    """The Gram form (K_uf K_fu) of the collapsed bound against GPyTorch's InducingPointKernel form: the value and
+    the gradient over the raw hyperparameters and the inducing inputs, to rounding."""
+    tol = 1e-9
+    ts = GPTrainingSet.prepare(*train, _model_cfg(), None)
+    z = ts.x[::7].clone()
+    value, base, likelihood, zp = _gpytorch_bound_and_gradient(ts.x, ts.r, z, 0.8, torch.full((9,), 0.6, dtype=F64),
+                                                               0.02)
+    params = [base.raw_outputscale, base.base_kernel.raw_lengthscale, likelihood.raw_noise, zp]
+    expected = torch.autograd.grad(value, params)
+    gram = gram_bound(ts.x, ts.r, zp, base.outputscale, base.base_kernel.lengthscale, likelihood.noise.reshape(()))
+    got = torch.autograd.grad(gram, params)
+    assert float(gram.detach()) == pytest.approx(float(value.detach()), rel=tol, abs=tol)
+    for g, e in zip(got, expected):
+        assert torch.allclose(g, e, rtol=tol, atol=tol * float(e.abs().max())), (g, e)
+
+
+def test_gram_form_takes_gpytorchs_adam_steps(train):
+    """The same Adam fit in both forms ends at the same hyperparameters (float64, to 1e-8 relative), away from the
+    start."""
+    q, m, y = train
+    cfg = _model_cfg("model.fit_hyperparameters=true")
+    z = GPTrainingSet.prepare(q, m, y, cfg, None).x[::7].clone()
+    fits = [SparseGP.from_data(q, m, y, _model_cfg("model.fit_hyperparameters=true", f"model.sparse.fit_form={form}"),
+                               inducing_points=z) for form in ("gpytorch", "gram")]
+    values = [(f.theta1, float(f.theta2[0]), f.noise_std) for f in fits]
+    assert values[1] == pytest.approx(values[0], rel=1e-8)
+    assert values[0][0] != pytest.approx(cfg.theta1, rel=1e-2)
 
 
 def test_bound_with_the_training_inputs_as_inducing_inputs_is_the_evidence(train):

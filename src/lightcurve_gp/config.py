@@ -321,6 +321,12 @@ def _check_sparse_fit(sp: SparseModelConfig) -> None:
     if sp.fit_inducing is not None and sp.optimize_inducing:
         raise ConfigError("model.sparse.fit_inducing: cannot be combined with model.sparse.optimize_inducing (the "
                           "fitted inducing inputs would be replaced by num_inducing new ones)")
+    if sp.fit_form == "gram" and sp.fit_objective == "exact_subset":
+        raise ConfigError("model.sparse.fit_form: gram computes the collapsed bound, which model.sparse.fit_objective "
+                          "exact_subset does not use")
+    if sp.fit_form == "gram" and sp.fit_dtype != "float64":
+        raise ConfigError("model.sparse.fit_form: gram needs model.sparse.fit_dtype float64 (K_uu + K_uf K_fu / "
+                          "sigma^2 rounded to float32 is not positive definite)")
     if sp.fit_objective != "exact_subset":
         return
     if sp.fit_subset is None:
@@ -346,8 +352,8 @@ def config_to_dict(cfg: Any) -> dict:
     :func:`config_from_dict` reads back: the model section keeps only the settings of its own kind, and options
     that are off (``data.surfaces`` null, ``filter.adaptive_noise`` none, ``filter.estimate_omega`` false, a null
     ``filter.surface_measurement_noise``, ``filter.model_error`` none, the default USQUE variant, a zero
-    ``scenario.initial_omega_error_deg_s``, the sparse fit's default objective, optimizer, precision, subset and
-    inducing count) are left out."""
+    ``scenario.initial_omega_error_deg_s``, the sparse fit's default objective, optimizer, precision, subset,
+    inducing count and form) are left out."""
     out = dataclasses.asdict(cfg)
     model = out.get("model") if isinstance(cfg, Config) else out if isinstance(cfg, ModelConfig) else None
     for section in MODEL_KIND_SECTIONS if model is not None else ():
@@ -393,7 +399,7 @@ def config_to_dict(cfg: Any) -> dict:
 
 #: options of the sparse fit left out of :func:`config_to_dict` at their defaults (today's fit keeps its keys)
 _SPARSE_FIT_DEFAULTS = {"optimizer": "adam", "fit_dtype": "float64", "fit_subset": None, "fit_inducing": None,
-                        "fit_objective": "sparse_bound"}
+                        "fit_objective": "sparse_bound", "fit_form": "gpytorch"}
 
 
 def parse_override(text: str) -> tuple[list[str], Any]:

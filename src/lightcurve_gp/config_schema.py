@@ -202,6 +202,9 @@ class SparseModelConfig:
                                                    "condition on all of them; null: fit on all")
     fit_inducing: int | None = _spec(None, lo=1, doc="fit with this many k-means inducing inputs, then condition "
                                                      "with num_inducing; null: num_inducing")
+    fit_form: str = _spec("gpytorch", choices=("gpytorch", "gram"),
+                          doc="how the collapsed bound is computed: gpytorch (its InducingPointKernel); gram: from "
+                              "K_uf K_fu (the same bound and Adam path, half the arithmetic; float64 only)")
 
 
 #: the sections of ``model`` that hold the settings of one model kind

@@ -3,13 +3,20 @@
 The exact GP maximises its log marginal likelihood (the evidence) on a seeded subset of the training points; the
 inducing-point GP maximises Titsias' collapsed bound — GPyTorch's ``InducingPointKernel`` under
 ``ExactMarginalLogLikelihood`` (its added loss term is the bound's trace term) — over its inducing inputs and/or
-hyperparameters. Both run :func:`maximise_mll` (Adam, or L-BFGS for the sparse GP's ``model.sparse.optimizer``)
+hyperparameters. The same bound can be computed from the Gram matrix ``K_uf K_fu`` (:func:`gram_bound`): one
+``M × N × M`` product forward and one backward, the rest ``M × M`` algebra — about half the arithmetic of GPyTorch's
+form, whose ``L⁻¹ K_uf`` solve and ``A Aᵀ`` product both scale as ``M²N``. It needs float64: ``K_uu + K_uf K_fu/σ²``
+adds a matrix of entries up to ``N θ1²/σ²`` to one whose small eigenvalues carry the bound, and float32 rounding of
+the first (about 1e-7 of each entry) already makes the sum indefinite on the robust config's data.
+Both run :func:`maximise_mll` (Adam, or L-BFGS for the sparse GP's ``model.sparse.optimizer``)
 with a progress bar. GPyTorch is used for fitting only; predictions are plain torch on cached tensors
 (:mod:`.exact_gp`, :mod:`.sparse_gp`).
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from typing import Any
 
 import torch
@@ -22,6 +29,7 @@ __all__ = [
     "fit_sgpr",
     "gpytorch_exact_model",
     "gpytorch_sgpr_model",
+    "gram_bound",
     "hyper_start",
     "maximise_mll",
     "seeded_subset",
@@ -106,8 +114,61 @@ def gpytorch_sgpr_model(x: Tensor, r: Tensor, z: Tensor, outputscale: float, len
     return model, likelihood
 
 
+class _Gram(torch.autograd.Function):
+    """``K Kᵀ`` ``(M, M)`` of ``K (M, N)`` whose backward is the one product ``(Ḡ + Ḡᵀ) K`` (autograd's ``mm`` would
+    take two, one per operand)."""
+
+    @staticmethod
+    def forward(k: Tensor) -> Tensor:
+        return k @ k.T
+
+    @staticmethod
+    def setup_context(ctx, inputs, output) -> None:
+        ctx.save_for_backward(inputs[0])
+
+    @staticmethod
+    def backward(ctx, grad: Tensor) -> Tensor:
+        (k,) = ctx.saved_tensors
+        return (grad + grad.T) @ k
+
+
+def gram_bound(x: Tensor, r: Tensor, z: Tensor, outputscale: Tensor, lengthscale: Tensor, noise: Tensor) -> Tensor:
+    """Titsias' collapsed bound per point (nats), differentiable in ``outputscale`` (θ1), ``lengthscale`` (ℓ,
+    ``(d,)`` or one shared value), ``noise`` (σ²) and ``z``, of centred outputs ``r (N,)`` at mapped inputs
+    ``x (N, d)`` with inducing inputs ``z (M, d)``, all float64:
+
+    ``log N(r; 0, Q + σ²I) − tr(K − Q) / (2σ²)`` over ``N``, with ``Q = K_fu K_uu⁻¹ K_uf``, from ``G = K_uf K_fu``,
+    ``b = K_uf r`` and ``B = K_uu + G/σ²``: ``log|Q + σ²I| = log|B| − log|K_uu| + N log σ²``,
+    ``rᵀ(Q + σ²I)⁻¹r = rᵀr/σ² − bᵀB⁻¹b/σ⁴``, ``tr Q = tr(K_uu⁻¹ G)``. Equal to :func:`sgpr_bound` (GPyTorch's form)
+    to rounding."""
+    if x.dtype != torch.float64:
+        raise ValueError(f"gram_bound needs float64 inputs (module docstring), got {x.dtype}")
+    n = x.shape[0]
+    scale = lengthscale.reshape(-1).to(x)
+    xs, zs = x / scale, z / scale
+    sq_z = (zs * zs).sum(-1)
+    k_uu = outputscale * torch.exp(-0.5 * (sq_z[:, None] + sq_z[None, :] - 2.0 * zs @ zs.T).clamp_min(0.0))
+    d2 = sq_z[:, None] + (xs * xs).sum(-1)[None, :] - 2.0 * zs @ xs.T
+    k_uf = outputscale * torch.exp(-0.5 * d2.clamp_min(0.0))
+    gram = _Gram.apply(k_uf)
+    b = k_uf @ r
+    chol_uu, info_uu = torch.linalg.cholesky_ex(k_uu)
+    chol_b, info_b = torch.linalg.cholesky_ex(k_uu + gram / noise)
+    if int(info_uu) or int(info_b):
+        which = "K_uu" if int(info_uu) else "K_uu + K_uf K_fu / sigma^2"
+        raise ValueError(f"model.sparse.fit_form: gram: {which} is not positive definite at theta1 "
+                         f"{float(outputscale.detach()):.4g}, sigma^2 {float(noise.detach()):.4g}; fit_form gpytorch "
+                         "adds a jitter where this form cannot")
+    logdet = 2.0 * (torch.log(torch.diagonal(chol_b)).sum() - torch.log(torch.diagonal(chol_uu)).sum()) \
+        + n * torch.log(noise)
+    quad = (r @ r) / noise - (b @ torch.cholesky_solve(b[:, None], chol_b)[:, 0]) / noise**2
+    trace_q = torch.cholesky_solve(gram, chol_uu).diagonal().sum()
+    return -0.5 * (logdet + quad + n * math.log(2.0 * math.pi) + (n * outputscale - trace_q) / noise) / n
+
+
 def maximise_mll(model, likelihood, x: Tensor, y: Tensor, params: list, *, iterations: int, lr: float,
-                 progress: bool = False, desc: str = "GP hyperparameters", optimizer: str = "adam") -> list[float]:
+                 progress: bool = False, desc: str = "GP hyperparameters", optimizer: str = "adam",
+                 objective: Callable[[], Tensor] | None = None) -> list[float]:
     """Maximise the ``ExactMarginalLogLikelihood`` of a GPyTorch ``ExactGP`` model (exact Cholesky, any size) over
     ``params`` — the exact evidence, or the collapsed SGPR bound when the model's kernel is an
     ``InducingPointKernel``.
@@ -116,7 +177,8 @@ def maximise_mll(model, likelihood, x: Tensor, y: Tensor, params: list, *, itera
     strong-Wolfe line search and at most ``iterations`` objective evaluations (``lr`` unused); it stops earlier when
     the gradient or the change of the objective vanishes. Returns the objective per point at each evaluation and
     after the last step (``iterations + 1`` values for Adam, at most that for L-BFGS); ``progress`` shows a bar
-    with the current value."""
+    with the current value. ``objective``, when given, is maximised instead of GPyTorch's
+    ``ExactMarginalLogLikelihood`` (the same bound in another form, :func:`gram_bound`, over the same parameters)."""
     import gpytorch
     from tqdm.auto import tqdm
 
@@ -124,14 +186,16 @@ def maximise_mll(model, likelihood, x: Tensor, y: Tensor, params: list, *, itera
         raise ValueError(f"optimizer must be adam or lbfgs, got {optimizer!r}")
     model.train()
     likelihood.train()
-    mll = gpytorch.mlls.ExactMarginalLogLikelihood(likelihood, model)
+    if objective is None:
+        mll = gpytorch.mlls.ExactMarginalLogLikelihood(likelihood, model)
+        objective = lambda: mll(model(x), y)  # noqa: E731
     history: list[float] = []
     with gpytorch.settings.max_cholesky_size(10**9), tqdm(total=iterations, desc=desc, disable=not progress,
                                                           leave=False) as bar:
         steps = _adam_steps if optimizer == "adam" else _lbfgs_steps
-        steps(lambda: -mll(model(x), y), params, iterations=iterations, lr=lr, history=history, bar=bar)
+        steps(lambda: -objective(), params, iterations=iterations, lr=lr, history=history, bar=bar)
         with torch.no_grad():
-            history.append(float(mll(model(x), y)))
+            history.append(float(objective()))
     return history
 
 
@@ -189,20 +253,29 @@ def fit_hyperparameters(x: Tensor, y_centred: Tensor, outputscale: float, length
 
 def fit_sgpr(x: Tensor, r: Tensor, z: Tensor, outputscale: float, lengthscale: Tensor, noise: float, *,
              optimize_inducing: bool, fit_hyper: bool, ard: bool, iterations: int, lr: float,
-             progress: bool = False, optimizer: str = "adam") -> tuple[Tensor, float, Tensor, float, list[float]]:
+             progress: bool = False, optimizer: str = "adam",
+             gram: bool = False) -> tuple[Tensor, float, Tensor, float, list[float]]:
     """Maximise GPyTorch's collapsed SGPR bound (:func:`maximise_mll` with ``optimizer``) over the inducing inputs
     ``z (M, d)`` (``optimize_inducing``) and/or ``(θ1, ℓ, σ²)`` (``fit_hyper``), in the dtype of ``x``; returns
-    ``(Z, θ1, ℓ (d,), σ², bound-per-point history)`` (``Z`` and ``ℓ`` in that dtype)."""
+    ``(Z, θ1, ℓ (d,), σ², bound-per-point history)`` (``Z`` and ``ℓ`` in that dtype).
+
+    ``gram``: the same bound in its Gram form (:func:`gram_bound`, float64) over the same GPyTorch parameters, so
+    Adam takes the same steps as on GPyTorch's form, to rounding."""
     model, likelihood = gpytorch_sgpr_model(x, r, z, outputscale, lengthscale, noise, ard)
     params = []
     if optimize_inducing:
         params.append(model.covar_module.inducing_points)
     if fit_hyper:
         params += list(model.base_covar.parameters()) + list(likelihood.parameters())
+    objective = None
+    if gram:
+        base, inducing = model.base_covar, model.covar_module.inducing_points
+        objective = lambda: gram_bound(x, r, inducing, base.outputscale, base.base_kernel.lengthscale,  # noqa: E731
+                                       likelihood.noise.reshape(()))
     history: list[float] = []
     if params and iterations > 0:
         history = maximise_mll(model, likelihood, x, r, params, iterations=iterations, lr=lr, progress=progress,
-                               desc="SGPR bound", optimizer=optimizer)
+                               desc="SGPR bound", optimizer=optimizer, objective=objective)
     return (model.covar_module.inducing_points.detach().clone(), float(model.base_covar.outputscale.detach()),
             _fitted_lengthscale(model.base_covar, x.shape[-1]), float(likelihood.noise.detach()), history)
 

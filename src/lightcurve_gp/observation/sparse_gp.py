@@ -5,7 +5,8 @@ inputs ``Z`` are initialised from the mapped training inputs by k-means (a few s
 random subset, and optionally optimised (``model.sparse.optimize_inducing``) for ``model.sparse.iterations`` Adam
 steps on the collapsed bound (:func:`.fitting.fit_sgpr`). Kernel hyperparameters stay the paper's unless
 ``model.fit_hyperparameters``. The fit may be made cheaper than the final model (``model.sparse``: ``optimizer``
-L-BFGS, ``fit_dtype`` float32, a ``fit_subset`` of the points, ``fit_inducing`` fewer inducing inputs), or made on
+L-BFGS, ``fit_dtype`` float32, a ``fit_subset`` of the points, ``fit_inducing`` fewer inducing inputs, ``fit_form``
+gram: the same bound from ``K_uf K_fu``, :func:`.fitting.gram_bound`), or made on
 the exact GP's evidence of a ``fit_subset`` instead of the bound (``fit_objective: exact_subset``: no Nyström
 error term, which penalises short lengthscales on the bound); the conditioning below is float64 on all points with
 all ``num_inducing`` inducing inputs either way.
@@ -132,7 +133,7 @@ def _fit(ts: GPTrainingSet, z: Tensor, cfg: Any, *, seed: int, kmeans_iterations
          progress: bool) -> tuple[Tensor, float, Tensor, float, list[float]]:
     """The fit ``cfg.sparse`` asks for, on ``fit_subset`` seeded random training points (all when null), in
     ``fit_dtype``, by ``optimizer``: ``fit_objective`` ``sparse_bound``, :func:`~.fitting.fit_sgpr` with
-    ``fit_inducing`` k-means inducing inputs (``z (M, d)`` when null); ``exact_subset``,
+    ``fit_inducing`` k-means inducing inputs (``z (M, d)`` when null), in ``fit_form``; ``exact_subset``,
     :func:`~.fitting.fit_hyperparameters` on the exact evidence of the subset (no inducing inputs).
 
     Returns ``(Z, θ1, ℓ (d,), σ², objective-per-point history)`` for the float64 conditioning on all points: ``Z``
@@ -153,7 +154,8 @@ def _fit(ts: GPTrainingSet, z: Tensor, cfg: Any, *, seed: int, kmeans_iterations
     z_fitted, outputscale, lengthscale, noise, history = fit_sgpr(
         x.to(dtype), r.to(dtype), z_fit.to(dtype), ts.outputscale, ts.lengthscale.to(dtype), ts.noise,
         optimize_inducing=sp.optimize_inducing, fit_hyper=cfg.fit_hyperparameters, ard=cfg.ard,
-        iterations=sp.iterations, lr=cfg.fit_lr, progress=progress, optimizer=sp.optimizer)
+        iterations=sp.iterations, lr=cfg.fit_lr, progress=progress, optimizer=sp.optimizer,
+        gram=sp.fit_form == "gram")
     z = z_fitted.to(z) if sp.optimize_inducing else z
     return z, outputscale, lengthscale.to(torch.float64), noise, history
 
