@@ -1,7 +1,8 @@
 """Cheaper fits of the robust config's sparse GP against today's: fit time, final bound and the robust GPUKF.
 
 Each variant is a list of overrides of configs/boxwing_robust.yaml (``model.sparse``: ``fit_objective``,
-``optimizer``, ``fit_dtype``, ``fit_subset``, ``fit_inducing``, ``iterations``, ``num_inducing``; ``model.theta1``
+``optimizer``, ``fit_dtype``, ``fit_form``, ``fit_subset``, ``fit_inducing``, ``iterations``, ``num_inducing``;
+``model.theta1``
 ... for the start). Its model
 is trained into the model store ``--runs/models`` unless it is there (``--retrain`` trains it again), with
 ``--threads`` torch threads, the 1-minute load average recorded before and after. Then, on one footing for every
@@ -33,7 +34,13 @@ from lightcurve_gp.data import load_or_generate, model_targets
 from lightcurve_gp.estimation import run_estimators
 from lightcurve_gp.io import write_json_atomic, write_text_atomic
 from lightcurve_gp.model_store import get_or_train, model_key
-from lightcurve_gp.observation.fitting import gpytorch_exact_model, gpytorch_sgpr_model, seeded_subset, sgpr_bound
+from lightcurve_gp.observation.fitting import (
+    gpytorch_exact_model,
+    gpytorch_sgpr_model,
+    gram_bound,
+    seeded_subset,
+    sgpr_bound,
+)
 from lightcurve_gp.observation.gp_base import GPTrainingSet
 from lightcurve_gp.observation.sparse_gp import kmeans
 from lightcurve_gp.reporting import markdown_table
@@ -59,6 +66,13 @@ VARIANTS = {
                             "model.sparse.fit_dtype=float32"],
     "exact2000_adam_f32": ["model.sparse.fit_objective=exact_subset", "model.sparse.fit_subset=2000",
                            "model.sparse.fit_dtype=float32"],
+    # the robust config's 150 Adam steps on the bound in GPyTorch's form (the config's fit before it set
+    # fit_form: gram; the model of the row "today") and in its Gram form (fitting.gram_bound, float64)
+    "gpytorch_form": ["model.sparse.fit_form=gpytorch"],
+    "adam_gram": ["model.sparse.fit_form=gram"],
+    # fewer, larger Adam steps on the Gram form (lr x steps as today's 0.05 x 150, or a little more)
+    "adam_gram_lr0.15_50": ["model.sparse.fit_form=gram", "model.fit_lr=0.15", "model.sparse.iterations=50"],
+    "adam_gram_lr0.2_40": ["model.sparse.fit_form=gram", "model.fit_lr=0.2", "model.sparse.iterations=40"],
     # today's fitted (theta1, theta2 = 2 l^2, sigma) as the config's values, not fitted again
     "fixed_at_today": ["model.fit_hyperparameters=false", "model.theta1=0.6288411986593109",
                        "model.theta2=0.6866688713277718", "model.noise_std=0.3357213235541524"],
@@ -163,14 +177,21 @@ def time_evaluations(cfg, runs: Path, evaluations: int) -> dict:
         inducing = z.shape[0]
         model, likelihood = gpytorch_sgpr_model(x, r, z, *start, cfg.model.ard)
     mll = gpytorch.mlls.ExactMarginalLogLikelihood(likelihood, model)
+    if sp.fit_form == "gram":  # the same bound from K_uf K_fu (float64)
+        params = [torch.tensor(v, dtype=torch.float64, requires_grad=True) for v in (ts.outputscale, ts.noise)]
+        lengthscale = ts.lengthscale.clone().requires_grad_()
+        objective = lambda: gram_bound(x, r, z, params[0], lengthscale, params[1])  # noqa: E731
+    else:
+        objective = lambda: mll(model(x), r)  # noqa: E731
     seconds = []
     with gpytorch.settings.max_cholesky_size(10**9):
         for _ in range(evaluations):
             t0 = time.perf_counter()
-            (-mll(model(x), r)).backward()
+            (-objective()).backward()
             seconds.append(time.perf_counter() - t0)
     per = statistics.median(seconds)
-    return {"objective": sp.fit_objective, "fit_points": len(r), "fit_inducing": inducing, "dtype": sp.fit_dtype,
+    return {"objective": sp.fit_objective, "form": sp.fit_form, "fit_points": len(r), "fit_inducing": inducing,
+            "dtype": sp.fit_dtype,
             "seconds_per_evaluation": per, "evaluations_timed": evaluations, "iterations": sp.iterations,
             "extrapolated_fit_s": per * sp.iterations, "threads": torch.get_num_threads(),
             "load_1min": os.getloadavg()[0]}
