@@ -8,9 +8,16 @@ operators by self CPU time and the count of operator calls per step.
 With ``--compile`` the filter runs with ``filter.compile: true`` (:mod:`lightcurve_gp.usque_compiled`); its first
 run, which compiles, is timed apart and printed.
 
+With ``--floor`` (exact model) the same process then times, each alone, the three pieces of arithmetic the exact
+GP's mean cannot avoid for the step's 7 sigma points against its N training points, in torch and in numpy: the
+matrix product that gives the ``7 × N`` kernel exponents, their ``exp`` (into a preallocated buffer) and the
+product with ``α`` (medians of ``--floor-repeats`` calls). Their sum bounds from below what any implementation of
+this step costs on the machine, whatever it fuses or compiles.
+
     python benchmarks/profile_step.py
     python benchmarks/profile_step.py --compile
     python benchmarks/profile_step.py --model parametric --rows 25
+    python benchmarks/profile_step.py --compile --floor
 """
 
 from __future__ import annotations
@@ -32,6 +39,9 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--compile", action="store_true", help="the compiled step (filter.compile: true); its "
                         "first run, which compiles, is timed apart")
+    parser.add_argument("--floor", action="store_true", help="also time the exact GP mean's arithmetic alone "
+                        "(exponent product, exp, product with alpha) in torch and numpy")
+    parser.add_argument("--floor-repeats", type=int, default=301, help="calls per piece of --floor (median)")
     parser.add_argument("--cache-dir", default=str(C.ROOT / "runs" / "bench"), help="trained-model cache")
     return parser.parse_args()
 
@@ -88,7 +98,40 @@ def main() -> None:
           f"of {args.repeats} runs of {args.steps} steps, unprofiled); {calls / args.steps:.0f} operator calls per "
           "step (profiled run)")
     print(events.table(sort_by="self_cpu_time_total", row_limit=args.rows))
+    if args.floor and args.model == "exact":
+        print_floor(model, data, per_step, repeats=args.floor_repeats)
     print(f"load average at the end {C.load_average()}")
+
+
+def print_floor(model, data, per_step: float, *, repeats: int) -> None:
+    """Time the exact GP mean's unavoidable arithmetic for 7 sigma-point-like inputs (module docstring) in torch
+    and numpy and print it as a table next to the step's own time ``per_step`` (s)."""
+    import numpy as np
+    import torch
+
+    from lightcurve_gp.observation.kernels import scaled
+
+    q, m_past = C.sigma_like_inputs(data, 1, 7, seed=0)
+    xs = scaled(model.inputs(q[0], m_past[0]), model.lengthscale)  # (7, d), the model's scaled inputs
+    aug = torch.cat([xs, torch.ones_like(xs[:, :1]), (xs * xs).sum(-1, keepdim=True)], dim=-1)
+    cache, alpha = model.xs_train_cache, model.alpha_scaled  # (d + 2, N), (N,)
+    expo, buf = aug @ cache, torch.empty(aug.shape[0], cache.shape[1], dtype=cache.dtype)
+    a_np, c_np, al_np = aug.numpy(), cache.numpy(), alpha.numpy()
+    e_np, b_np = a_np @ c_np, np.empty_like(a_np @ c_np)
+    pieces = {"kernel exponents (7 × (d+2)) @ ((d+2) × N)": (lambda: torch.mm(aug, cache, out=buf),
+                                                           lambda: np.matmul(a_np, c_np, out=b_np)),
+              "exp of the 7 × N exponents": (lambda: torch.exp(expo, out=buf), lambda: np.exp(e_np, out=b_np)),
+              "(7 × N) @ α": (lambda: torch.mv(expo, alpha), lambda: e_np @ al_np)}
+    table = C.Table(f"exact GP mean, 7 points against N = {cache.shape[1]} (d = {xs.shape[-1]}), float64, "
+                    f"median of {repeats}", ["piece", "torch", "numpy"])
+    total = [0.0, 0.0]
+    for name, (fn_t, fn_n) in pieces.items():
+        t, n = (C.time_call(f, repeats=repeats, warmup=5)["median"] for f in (fn_t, fn_n))
+        total = [total[0] + t, total[1] + n]
+        table.add([name, C.fmt_seconds(t), C.fmt_seconds(n)])
+    table.add(["sum: the mean's floor", C.fmt_seconds(total[0]), C.fmt_seconds(total[1])])
+    table.add(["the whole filter step above", C.fmt_seconds(per_step), ""])
+    table.print()
 
 
 if __name__ == "__main__":
