@@ -14,6 +14,7 @@ from lightcurve_gp.observation.fitting import (
     fit_hyperparameters,
     gpytorch_sgpr_model,
     gram_bound,
+    inducing_sqdist,
     maximise_mll,
     seeded_subset,
     sgpr_bound,
@@ -164,6 +165,28 @@ def test_gram_form_equals_gpytorchs_bound_and_gradient(train):
     assert float(gram.detach()) == pytest.approx(float(value.detach()), rel=tol, abs=tol)
     for g, e in zip(got, expected):
         assert torch.allclose(g, e, rtol=tol, atol=tol * float(e.abs().max())), (g, e)
+
+
+def test_gram_form_from_fixed_distances_in_blocks_equals_the_direct_one(train, monkeypatch):
+    """With the distances computed once and the kernel taken in blocks of 7 columns (several blocks, the last one
+    short), the bound and its gradient over (θ1, ℓ, σ²) equal the direct Gram form's to rounding."""
+    import lightcurve_gp.observation.fitting as fitting
+
+    monkeypatch.setattr(fitting, "GRAM_BLOCK", 7)
+    ts = GPTrainingSet.prepare(*train, _model_cfg(), None)
+    z = ts.x[::11].clone()
+    params = [torch.tensor(v, dtype=F64, requires_grad=True) for v in (0.8, 0.6, 0.02)]
+    results = []
+    for sqdist in (None, inducing_sqdist(ts.x, z)):
+        value = gram_bound(ts.x, ts.r, z, params[0], params[1], params[2], sqdist=sqdist)
+        results.append((value.detach(), torch.autograd.grad(value, params)))
+    (v0, g0), (v1, g1) = results
+    assert float(v1) == pytest.approx(float(v0), rel=1e-12)
+    for a, b in zip(g1, g0):
+        assert float(a) == pytest.approx(float(b), rel=1e-9)
+    with pytest.raises(ValueError, match="sqdist needs one shared lengthscale"):
+        gram_bound(ts.x, ts.r, z, params[0], torch.full((9,), 0.6, dtype=F64), params[2],
+                   sqdist=inducing_sqdist(ts.x, z))
 
 
 def test_gram_form_takes_gpytorchs_adam_steps(train):

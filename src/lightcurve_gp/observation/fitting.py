@@ -31,6 +31,7 @@ __all__ = [
     "gpytorch_sgpr_model",
     "gram_bound",
     "hyper_start",
+    "inducing_sqdist",
     "maximise_mll",
     "seeded_subset",
     "sgpr_bound",
@@ -132,7 +133,57 @@ class _Gram(torch.autograd.Function):
         return (grad + grad.T) @ k
 
 
-def gram_bound(x: Tensor, r: Tensor, z: Tensor, outputscale: Tensor, lengthscale: Tensor, noise: Tensor) -> Tensor:
+class _RbfGram(torch.autograd.Function):
+    """``(E Eᵀ (M, M), E r (M,))`` of ``E = exp(−D / (2ℓ²))`` for fixed squared distances ``D (M, N)``, constant
+    ``r (N,)`` and one shared lengthscale ``ℓ`` (0-d), built over blocks of :data:`GRAM_BLOCK` columns: ``E`` is never
+    stored whole (each block is taken again in the backward, ``∂/∂ℓ = Σ Ē ⊙ E ⊙ D / ℓ³`` with
+    ``Ē = (Ḡ + Ḡᵀ) E + b̄ rᵀ``), so no ``M × N`` temporary is allocated per evaluation."""
+
+    @staticmethod
+    def forward(sqdist: Tensor, lengthscale: Tensor, r: Tensor) -> tuple[Tensor, Tensor]:
+        m, n = sqdist.shape
+        c = -0.5 / lengthscale**2
+        gram, b = sqdist.new_zeros(m, m), sqdist.new_zeros(m)
+        for j in range(0, n, GRAM_BLOCK):
+            e = torch.exp(sqdist[:, j:j + GRAM_BLOCK] * c)
+            gram.addmm_(e, e.T)
+            b.addmv_(e, r[j:j + GRAM_BLOCK])
+        return gram, b
+
+    @staticmethod
+    def setup_context(ctx, inputs, output) -> None:
+        ctx.save_for_backward(*inputs)
+
+    @staticmethod
+    def backward(ctx, grad_gram: Tensor | None, grad_b: Tensor | None) -> tuple[None, Tensor, None]:
+        sqdist, lengthscale, r = ctx.saved_tensors
+        m, n = sqdist.shape
+        c = -0.5 / lengthscale**2
+        sym = grad_gram + grad_gram.T if grad_gram is not None else sqdist.new_zeros(m, m)
+        total = sqdist.new_zeros(())
+        for j in range(0, n, GRAM_BLOCK):
+            d = sqdist[:, j:j + GRAM_BLOCK]
+            e = torch.exp(d * c)
+            e_bar = sym @ e
+            if grad_b is not None:
+                e_bar.addr_(grad_b, r[j:j + GRAM_BLOCK])
+            total += e_bar.mul_(e).mul_(d).sum()
+        return None, total / lengthscale**3, None
+
+
+#: columns per block of :class:`_RbfGram` (1500 × 2048 float64 is 24 MB, under glibc's largest mmap threshold, so
+#: the blocks' memory is reused between evaluations instead of mapped and faulted in anew)
+GRAM_BLOCK = 2048
+
+
+def inducing_sqdist(x: Tensor, z: Tensor) -> Tensor:
+    """Squared distances ``‖z_i − x_j‖²`` ``(M, N)`` of inducing inputs ``z (M, d)`` and inputs ``x (N, d)``, for
+    :func:`gram_bound` when neither they nor the (shared) lengthscale's dimension split change during a fit."""
+    return ((z * z).sum(-1)[:, None] + (x * x).sum(-1)[None, :] - 2.0 * z @ x.T).clamp_min_(0.0)
+
+
+def gram_bound(x: Tensor, r: Tensor, z: Tensor, outputscale: Tensor, lengthscale: Tensor, noise: Tensor, *,
+               sqdist: Tensor | None = None) -> Tensor:
     """Titsias' collapsed bound per point (nats), differentiable in ``outputscale`` (θ1), ``lengthscale`` (ℓ,
     ``(d,)`` or one shared value), ``noise`` (σ²) and ``z``, of centred outputs ``r (N,)`` at mapped inputs
     ``x (N, d)`` with inducing inputs ``z (M, d)``, all float64:
@@ -140,18 +191,27 @@ def gram_bound(x: Tensor, r: Tensor, z: Tensor, outputscale: Tensor, lengthscale
     ``log N(r; 0, Q + σ²I) − tr(K − Q) / (2σ²)`` over ``N``, with ``Q = K_fu K_uu⁻¹ K_uf``, from ``G = K_uf K_fu``,
     ``b = K_uf r`` and ``B = K_uu + G/σ²``: ``log|Q + σ²I| = log|B| − log|K_uu| + N log σ²``,
     ``rᵀ(Q + σ²I)⁻¹r = rᵀr/σ² − bᵀB⁻¹b/σ⁴``, ``tr Q = tr(K_uu⁻¹ G)``. Equal to :func:`sgpr_bound` (GPyTorch's form)
-    to rounding."""
+    to rounding.
+
+    ``sqdist``: :func:`inducing_sqdist` ``(M, N)`` of ``x`` and ``z``, computed once for a fit that moves neither
+    ``z`` nor more than one shared lengthscale (then ``z`` gets no gradient): each evaluation takes the kernel from
+    it in blocks (:class:`_RbfGram`) instead of building the distances' several ``M × N`` temporaries."""
     if x.dtype != torch.float64:
         raise ValueError(f"gram_bound needs float64 inputs (module docstring), got {x.dtype}")
     n = x.shape[0]
     scale = lengthscale.reshape(-1).to(x)
-    xs, zs = x / scale, z / scale
+    zs = z / scale
     sq_z = (zs * zs).sum(-1)
     k_uu = outputscale * torch.exp(-0.5 * (sq_z[:, None] + sq_z[None, :] - 2.0 * zs @ zs.T).clamp_min(0.0))
-    d2 = sq_z[:, None] + (xs * xs).sum(-1)[None, :] - 2.0 * zs @ xs.T
-    k_uf = outputscale * torch.exp(-0.5 * d2.clamp_min(0.0))
-    gram = _Gram.apply(k_uf)
-    b = k_uf @ r
+    if sqdist is None:  # E = K_uf / θ1
+        xs = x / scale
+        e_uf = torch.exp(-0.5 * (sq_z[:, None] + (xs * xs).sum(-1)[None, :] - 2.0 * zs @ xs.T).clamp_min(0.0))
+        gram_e, b_e = _Gram.apply(e_uf), e_uf @ r
+    else:
+        if scale.numel() != 1:
+            raise ValueError("gram_bound: sqdist needs one shared lengthscale")
+        gram_e, b_e = _RbfGram.apply(sqdist, scale.reshape(()), r)
+    gram, b = outputscale**2 * gram_e, outputscale * b_e
     chol_uu, info_uu = torch.linalg.cholesky_ex(k_uu)
     chol_b, info_b = torch.linalg.cholesky_ex(k_uu + gram / noise)
     if int(info_uu) or int(info_b):
@@ -270,8 +330,10 @@ def fit_sgpr(x: Tensor, r: Tensor, z: Tensor, outputscale: float, lengthscale: T
     objective = None
     if gram:
         base, inducing = model.base_covar, model.covar_module.inducing_points
+        # fixed inducing inputs and one shared lengthscale: the distances once, one exp per evaluation
+        sqdist = inducing_sqdist(x, z) if not (optimize_inducing or ard) else None
         objective = lambda: gram_bound(x, r, inducing, base.outputscale, base.base_kernel.lengthscale,  # noqa: E731
-                                       likelihood.noise.reshape(()))
+                                       likelihood.noise.reshape(()), sqdist=sqdist)
     history: list[float] = []
     if params and iterations > 0:
         history = maximise_mll(model, likelihood, x, r, params, iterations=iterations, lr=lr, progress=progress,
