@@ -38,6 +38,7 @@ from lightcurve_gp.observation.fitting import (
     gpytorch_exact_model,
     gpytorch_sgpr_model,
     gram_bound,
+    inducing_sqdist,
     seeded_subset,
     sgpr_bound,
 )
@@ -177,10 +178,10 @@ def time_evaluations(cfg, runs: Path, evaluations: int) -> dict:
         inducing = z.shape[0]
         model, likelihood = gpytorch_sgpr_model(x, r, z, *start, cfg.model.ard)
     mll = gpytorch.mlls.ExactMarginalLogLikelihood(likelihood, model)
-    if sp.fit_form == "gram":  # the same bound from K_uf K_fu (float64)
+    if sp.fit_form == "gram":  # the same bound from K_uf K_fu (float64), the distances once as in the fit
         params = [torch.tensor(v, dtype=torch.float64, requires_grad=True) for v in (ts.outputscale, ts.noise)]
-        lengthscale = ts.lengthscale.clone().requires_grad_()
-        objective = lambda: gram_bound(x, r, z, params[0], lengthscale, params[1])  # noqa: E731
+        lengthscale, sqdist = ts.lengthscale[:1].clone().requires_grad_(), inducing_sqdist(x, z)
+        objective = lambda: gram_bound(x, r, z, params[0], lengthscale, params[1], sqdist=sqdist)  # noqa: E731
     else:
         objective = lambda: mll(model(x), r)  # noqa: E731
     seconds = []

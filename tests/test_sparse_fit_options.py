@@ -114,6 +114,11 @@ def test_exact_subset_objective_needs_a_subset_and_no_inducing_options(overrides
     (["model.sparse.fit_dtype=float32"],
      "model.sparse.fit_form: gram needs model.sparse.fit_dtype float64 (K_uu + K_uf K_fu / sigma^2 rounded to "
      "float32 is not positive definite)"),
+    (["model.ard=true"],
+     "model.sparse.fit_form: gram fits one shared lengthscale; it cannot be combined with model.ard true"),
+    (["model.sparse.optimize_inducing=true"],
+     "model.sparse.fit_form: gram keeps the inducing inputs fixed; it cannot be combined with "
+     "model.sparse.optimize_inducing"),
 ])
 def test_gram_form_refuses_what_it_cannot_do(overrides, message):
     with pytest.raises(ConfigError) as err:
@@ -124,7 +129,7 @@ def test_gram_form_refuses_what_it_cannot_do(overrides, message):
 def test_gram_bound_names_the_matrix_that_is_not_positive_definite():
     x = torch.zeros(4, 2, dtype=F64)  # four equal inducing inputs: K_uu has rank one
     with pytest.raises(ValueError) as err:
-        gram_bound(x, x[:, 0], x, torch.tensor(1.0, dtype=F64), torch.tensor(1.0, dtype=F64),
+        gram_bound(x, x[:, 0], x, torch.tensor(1.0, dtype=F64), torch.tensor([1.0], dtype=F64),
                    torch.tensor(0.1, dtype=F64))
     assert str(err.value) == ("model.sparse.fit_form: gram: K_uu is not positive definite at theta1 1, sigma^2 0.1; "
                               "fit_form gpytorch adds a jitter where this form cannot")
@@ -136,57 +141,38 @@ def test_gram_bound_refuses_float32():
         gram_bound(x, x[:, 0], x, torch.tensor(1.0), torch.tensor(1.0), torch.tensor(0.1))
 
 
-def _gpytorch_bound_and_gradient(x, r, z, theta1, ls, noise):
-    """GPyTorch's bound per point and its gradient over (θ1, ℓ, σ², Z) through the model's own parameters."""
+def test_gram_form_equals_gpytorchs_bound_and_gradient(train, monkeypatch):
+    """The Gram form (K_uf K_fu, built in blocks of 7 columns: several blocks, the last one short) of the collapsed
+    bound against GPyTorch's InducingPointKernel form: the value and the gradient over the raw hyperparameters, to
+    rounding."""
     import gpytorch
 
-    model, likelihood = gpytorch_sgpr_model(x, r, z, theta1, ls, noise, False)
-    model.train()
-    likelihood.train()
-    mll = gpytorch.mlls.ExactMarginalLogLikelihood(likelihood, model)
-    base, zp = model.base_covar, model.covar_module.inducing_points
-    with gpytorch.settings.max_cholesky_size(10**9):
-        value = mll(model(x), r)
-    return value, base, likelihood, zp
-
-
-def test_gram_form_equals_gpytorchs_bound_and_gradient(train):
-    """The Gram form (K_uf K_fu) of the collapsed bound against GPyTorch's InducingPointKernel form: the value and
-    the gradient over the raw hyperparameters and the inducing inputs, to rounding."""
-    tol = 1e-9
-    ts = GPTrainingSet.prepare(*train, _model_cfg(), None)
-    z = ts.x[::7].clone()
-    value, base, likelihood, zp = _gpytorch_bound_and_gradient(ts.x, ts.r, z, 0.8, torch.full((9,), 0.6, dtype=F64),
-                                                               0.02)
-    params = [base.raw_outputscale, base.base_kernel.raw_lengthscale, likelihood.raw_noise, zp]
-    expected = torch.autograd.grad(value, params)
-    gram = gram_bound(ts.x, ts.r, zp, base.outputscale, base.base_kernel.lengthscale, likelihood.noise.reshape(()))
-    got = torch.autograd.grad(gram, params)
-    assert float(gram.detach()) == pytest.approx(float(value.detach()), rel=tol, abs=tol)
-    for g, e in zip(got, expected):
-        assert torch.allclose(g, e, rtol=tol, atol=tol * float(e.abs().max())), (g, e)
-
-
-def test_gram_form_from_fixed_distances_in_blocks_equals_the_direct_one(train, monkeypatch):
-    """With the distances computed once and the kernel taken in blocks of 7 columns (several blocks, the last one
-    short), the bound and its gradient over (θ1, ℓ, σ²) equal the direct Gram form's to rounding."""
     import lightcurve_gp.observation.fitting as fitting
 
     monkeypatch.setattr(fitting, "GRAM_BLOCK", 7)
     ts = GPTrainingSet.prepare(*train, _model_cfg(), None)
-    z = ts.x[::11].clone()
-    params = [torch.tensor(v, dtype=F64, requires_grad=True) for v in (0.8, 0.6, 0.02)]
-    results = []
-    for sqdist in (None, inducing_sqdist(ts.x, z)):
-        value = gram_bound(ts.x, ts.r, z, params[0], params[1], params[2], sqdist=sqdist)
-        results.append((value.detach(), torch.autograd.grad(value, params)))
-    (v0, g0), (v1, g1) = results
-    assert float(v1) == pytest.approx(float(v0), rel=1e-12)
-    for a, b in zip(g1, g0):
-        assert float(a) == pytest.approx(float(b), rel=1e-9)
-    with pytest.raises(ValueError, match="sqdist needs one shared lengthscale"):
-        gram_bound(ts.x, ts.r, z, params[0], torch.full((9,), 0.6, dtype=F64), params[2],
-                   sqdist=inducing_sqdist(ts.x, z))
+    z = ts.x[::7].clone()
+    model, likelihood = gpytorch_sgpr_model(ts.x, ts.r, z, 0.8, torch.full((9,), 0.6, dtype=F64), 0.02, False)
+    model.train()
+    likelihood.train()
+    base = model.base_covar
+    params = [base.raw_outputscale, base.base_kernel.raw_lengthscale, likelihood.raw_noise]
+    with gpytorch.settings.max_cholesky_size(10**9):
+        value = gpytorch.mlls.ExactMarginalLogLikelihood(likelihood, model)(model(ts.x), ts.r)
+    expected = torch.autograd.grad(value, params)
+    gram = gram_bound(ts.x, ts.r, z, base.outputscale, base.base_kernel.lengthscale, likelihood.noise.reshape(()))
+    got = torch.autograd.grad(gram, params)
+    assert float(gram.detach()) == pytest.approx(float(value.detach()), rel=1e-12)
+    for g, e in zip(got, expected):
+        assert float(g) == pytest.approx(float(e), rel=1e-9)
+
+
+def test_gram_bound_takes_one_shared_lengthscale(train):
+    ts = GPTrainingSet.prepare(*train, _model_cfg(), None)
+    one = torch.tensor(1.0, dtype=F64)
+    with pytest.raises(ValueError, match="gram_bound needs one shared lengthscale, got 9"):
+        gram_bound(ts.x, ts.r, ts.x[::7], one, torch.full((9,), 0.6, dtype=F64), one)
+    assert inducing_sqdist(ts.x, ts.x[:3]).shape == (3, len(ts.r))
 
 
 def test_gram_form_takes_gpytorchs_adam_steps(train):

@@ -208,7 +208,7 @@ def _cross_check(cfg: Config) -> None:
                           f"{'rho_normalised or surface_normalised' if cfg.filter.estimate_offset else 'magnitude'} "
                           f"(got {cfg.model.target})")
     _check_training_spins(cfg)
-    _check_sparse_fit(cfg.model.sparse)
+    _check_sparse_fit(cfg.model.sparse, ard=cfg.model.ard)
     single_spin = not isinstance(cfg.data.omega0_deg_s, SpinRangeConfig) and not isinstance(cfg.data.omega0_deg_s[0],
                                                                                            list)
     if cfg.filter.estimate_omega and cfg.model.inputs == "quaternion" and single_spin:
@@ -316,14 +316,20 @@ def _check_model_kinds(raw_model: Any) -> None:
                               f"model.kind {kind}")
 
 
-def _check_sparse_fit(sp: SparseModelConfig) -> None:
-    """The options of the sparse fit that do not go together."""
+def _check_sparse_fit(sp: SparseModelConfig, *, ard: bool) -> None:
+    """The options of the sparse fit that do not go together (``ard``: ``model.ard``)."""
     if sp.fit_inducing is not None and sp.optimize_inducing:
         raise ConfigError("model.sparse.fit_inducing: cannot be combined with model.sparse.optimize_inducing (the "
                           "fitted inducing inputs would be replaced by num_inducing new ones)")
     if sp.fit_form == "gram" and sp.fit_objective == "exact_subset":
         raise ConfigError("model.sparse.fit_form: gram computes the collapsed bound, which model.sparse.fit_objective "
                           "exact_subset does not use")
+    if sp.fit_form == "gram" and ard:
+        raise ConfigError("model.sparse.fit_form: gram fits one shared lengthscale; it cannot be combined with "
+                          "model.ard true")
+    if sp.fit_form == "gram" and sp.optimize_inducing:
+        raise ConfigError("model.sparse.fit_form: gram keeps the inducing inputs fixed; it cannot be combined with "
+                          "model.sparse.optimize_inducing")
     if sp.fit_form == "gram" and sp.fit_dtype != "float64":
         raise ConfigError("model.sparse.fit_form: gram needs model.sparse.fit_dtype float64 (K_uu + K_uf K_fu / "
                           "sigma^2 rounded to float32 is not positive definite)")

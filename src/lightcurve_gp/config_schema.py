@@ -204,7 +204,8 @@ class SparseModelConfig:
                                                      "with num_inducing; null: num_inducing")
     fit_form: str = _spec("gpytorch", choices=("gpytorch", "gram"),
                           doc="how the collapsed bound is computed: gpytorch (its InducingPointKernel); gram: from "
-                              "K_uf K_fu (the same bound and Adam path, half the arithmetic; float64 only)")
+                              "K_uf K_fu (the same bound and Adam path, half the arithmetic; float64, fixed "
+                              "inducing inputs and model.ard false only)")
 
 
 #: the sections of ``model`` that hold the settings of one model kind

@@ -3,9 +3,10 @@
 The exact GP maximises its log marginal likelihood (the evidence) on a seeded subset of the training points; the
 inducing-point GP maximises Titsias' collapsed bound — GPyTorch's ``InducingPointKernel`` under
 ``ExactMarginalLogLikelihood`` (its added loss term is the bound's trace term) — over its inducing inputs and/or
-hyperparameters. The same bound can be computed from the Gram matrix ``K_uf K_fu`` (:func:`gram_bound`): one
-``M × N × M`` product forward and one backward, the rest ``M × M`` algebra — about half the arithmetic of GPyTorch's
-form, whose ``L⁻¹ K_uf`` solve and ``A Aᵀ`` product both scale as ``M²N``. It needs float64: ``K_uu + K_uf K_fu/σ²``
+hyperparameters. With fixed inducing inputs and one shared lengthscale the same bound can be computed from the Gram
+matrix ``K_uf K_fu`` (:func:`gram_bound`): one ``M × N × M`` product forward and one backward, the rest ``M × M``
+algebra — about half the arithmetic of GPyTorch's form, whose ``L⁻¹ K_uf`` solve and ``A Aᵀ`` product both scale as
+``M²N``. It needs float64: ``K_uu + K_uf K_fu/σ²``
 adds a matrix of entries up to ``N θ1²/σ²`` to one whose small eigenvalues carry the bound, and float32 rounding of
 the first (about 1e-7 of each entry) already makes the sum indefinite on the robust config's data.
 Both run :func:`maximise_mll` (Adam, or L-BFGS for the sparse GP's ``model.sparse.optimizer``)
@@ -115,24 +116,6 @@ def gpytorch_sgpr_model(x: Tensor, r: Tensor, z: Tensor, outputscale: float, len
     return model, likelihood
 
 
-class _Gram(torch.autograd.Function):
-    """``K Kᵀ`` ``(M, M)`` of ``K (M, N)`` whose backward is the one product ``(Ḡ + Ḡᵀ) K`` (autograd's ``mm`` would
-    take two, one per operand)."""
-
-    @staticmethod
-    def forward(k: Tensor) -> Tensor:
-        return k @ k.T
-
-    @staticmethod
-    def setup_context(ctx, inputs, output) -> None:
-        ctx.save_for_backward(inputs[0])
-
-    @staticmethod
-    def backward(ctx, grad: Tensor) -> Tensor:
-        (k,) = ctx.saved_tensors
-        return (grad + grad.T) @ k
-
-
 class _RbfGram(torch.autograd.Function):
     """``(E Eᵀ (M, M), E r (M,))`` of ``E = exp(−D / (2ℓ²))`` for fixed squared distances ``D (M, N)``, constant
     ``r (N,)`` and one shared lengthscale ``ℓ`` (0-d), built over blocks of :data:`GRAM_BLOCK` columns: ``E`` is never
@@ -177,40 +160,32 @@ GRAM_BLOCK = 2048
 
 
 def inducing_sqdist(x: Tensor, z: Tensor) -> Tensor:
-    """Squared distances ``‖z_i − x_j‖²`` ``(M, N)`` of inducing inputs ``z (M, d)`` and inputs ``x (N, d)``, for
-    :func:`gram_bound` when neither they nor the (shared) lengthscale's dimension split change during a fit."""
+    """Squared distances ``‖z_i − x_j‖²`` ``(M, N)`` of inducing inputs ``z (M, d)`` and inputs ``x (N, d)``
+    (unscaled: :func:`gram_bound` divides by one shared ``2ℓ²``)."""
     return ((z * z).sum(-1)[:, None] + (x * x).sum(-1)[None, :] - 2.0 * z @ x.T).clamp_min_(0.0)
 
 
 def gram_bound(x: Tensor, r: Tensor, z: Tensor, outputscale: Tensor, lengthscale: Tensor, noise: Tensor, *,
                sqdist: Tensor | None = None) -> Tensor:
-    """Titsias' collapsed bound per point (nats), differentiable in ``outputscale`` (θ1), ``lengthscale`` (ℓ,
-    ``(d,)`` or one shared value), ``noise`` (σ²) and ``z``, of centred outputs ``r (N,)`` at mapped inputs
-    ``x (N, d)`` with inducing inputs ``z (M, d)``, all float64:
+    """Titsias' collapsed bound per point (nats), differentiable in ``outputscale`` (θ1), one shared ``lengthscale``
+    (ℓ, one element) and ``noise`` (σ²), of centred outputs ``r (N,)`` at mapped inputs ``x (N, d)`` with fixed
+    inducing inputs ``z (M, d)``, all float64:
 
     ``log N(r; 0, Q + σ²I) − tr(K − Q) / (2σ²)`` over ``N``, with ``Q = K_fu K_uu⁻¹ K_uf``, from ``G = K_uf K_fu``,
     ``b = K_uf r`` and ``B = K_uu + G/σ²``: ``log|Q + σ²I| = log|B| − log|K_uu| + N log σ²``,
     ``rᵀ(Q + σ²I)⁻¹r = rᵀr/σ² − bᵀB⁻¹b/σ⁴``, ``tr Q = tr(K_uu⁻¹ G)``. Equal to :func:`sgpr_bound` (GPyTorch's form)
-    to rounding.
-
-    ``sqdist``: :func:`inducing_sqdist` ``(M, N)`` of ``x`` and ``z``, computed once for a fit that moves neither
-    ``z`` nor more than one shared lengthscale (then ``z`` gets no gradient): each evaluation takes the kernel from
-    it in blocks (:class:`_RbfGram`) instead of building the distances' several ``M × N`` temporaries."""
+    to rounding. ``G`` and ``b`` are built in column blocks from the squared distances ``sqdist``
+    (:func:`inducing_sqdist`, computed here when not given; a fit computes them once), never a whole ``M × N``
+    array (:class:`_RbfGram`)."""
     if x.dtype != torch.float64:
         raise ValueError(f"gram_bound needs float64 inputs (module docstring), got {x.dtype}")
+    if lengthscale.numel() != 1:
+        raise ValueError(f"gram_bound needs one shared lengthscale, got {lengthscale.numel()}")
     n = x.shape[0]
-    scale = lengthscale.reshape(-1).to(x)
-    zs = z / scale
-    sq_z = (zs * zs).sum(-1)
-    k_uu = outputscale * torch.exp(-0.5 * (sq_z[:, None] + sq_z[None, :] - 2.0 * zs @ zs.T).clamp_min(0.0))
-    if sqdist is None:  # E = K_uf / θ1
-        xs = x / scale
-        e_uf = torch.exp(-0.5 * (sq_z[:, None] + (xs * xs).sum(-1)[None, :] - 2.0 * zs @ xs.T).clamp_min(0.0))
-        gram_e, b_e = _Gram.apply(e_uf), e_uf @ r
-    else:
-        if scale.numel() != 1:
-            raise ValueError("gram_bound: sqdist needs one shared lengthscale")
-        gram_e, b_e = _RbfGram.apply(sqdist, scale.reshape(()), r)
+    ell = lengthscale.reshape(())
+    sqdist = inducing_sqdist(x, z) if sqdist is None else sqdist
+    k_uu = outputscale * torch.exp(inducing_sqdist(z, z) * (-0.5 / ell**2))
+    gram_e, b_e = _RbfGram.apply(sqdist, ell, r)  # K_uf K_fu / θ1², K_uf r / θ1
     gram, b = outputscale**2 * gram_e, outputscale * b_e
     chol_uu, info_uu = torch.linalg.cholesky_ex(k_uu)
     chol_b, info_b = torch.linalg.cholesky_ex(k_uu + gram / noise)
@@ -319,8 +294,9 @@ def fit_sgpr(x: Tensor, r: Tensor, z: Tensor, outputscale: float, lengthscale: T
     ``z (M, d)`` (``optimize_inducing``) and/or ``(θ1, ℓ, σ²)`` (``fit_hyper``), in the dtype of ``x``; returns
     ``(Z, θ1, ℓ (d,), σ², bound-per-point history)`` (``Z`` and ``ℓ`` in that dtype).
 
-    ``gram``: the same bound in its Gram form (:func:`gram_bound`, float64) over the same GPyTorch parameters, so
-    Adam takes the same steps as on GPyTorch's form, to rounding."""
+    ``gram``: the same bound in its Gram form (:func:`gram_bound`, float64; fixed inducing inputs and one shared
+    lengthscale) over the same GPyTorch parameters, so Adam takes the same steps as on GPyTorch's form, to
+    rounding."""
     model, likelihood = gpytorch_sgpr_model(x, r, z, outputscale, lengthscale, noise, ard)
     params = []
     if optimize_inducing:
@@ -329,10 +305,10 @@ def fit_sgpr(x: Tensor, r: Tensor, z: Tensor, outputscale: float, lengthscale: T
         params += list(model.base_covar.parameters()) + list(likelihood.parameters())
     objective = None
     if gram:
-        base, inducing = model.base_covar, model.covar_module.inducing_points
-        # fixed inducing inputs and one shared lengthscale: the distances once, one exp per evaluation
-        sqdist = inducing_sqdist(x, z) if not (optimize_inducing or ard) else None
-        objective = lambda: gram_bound(x, r, inducing, base.outputscale, base.base_kernel.lengthscale,  # noqa: E731
+        if optimize_inducing or ard:
+            raise ValueError("the Gram form fits one shared lengthscale with fixed inducing inputs")
+        base, sqdist = model.base_covar, inducing_sqdist(x, z)  # the distances once for the whole fit
+        objective = lambda: gram_bound(x, r, z, base.outputscale, base.base_kernel.lengthscale,  # noqa: E731
                                        likelihood.noise.reshape(()), sqdist=sqdist)
     history: list[float] = []
     if params and iterations > 0:
