@@ -157,6 +157,17 @@ def table(results: dict) -> str:
     return markdown_table(header, rows)
 
 
+def table_page(results: dict, *, seeds: range, rho: float, config: str, folder: Path) -> str:
+    """training_variants.md: the title, the config whose filter ran, links to the other variant tables of ``folder``
+    (the same models under another filter, say) and :func:`table`."""
+    others = sorted(p.name for p in folder.glob("training_variants_*.md"))
+    lines = [f"# Robust GP fit variants ({len(seeds)} seeds from {seeds.start}, rho_true {rho:g})", "",
+             f"Filter: {config}."]
+    if others:
+        lines.append("Other tables of this folder: " + ", ".join(f"[{n}]({n})" for n in others) + ".")
+    return "\n".join(lines) + "\n\n" + table(results)
+
+
 def time_evaluations(cfg, runs: Path, evaluations: int) -> dict:
     """Seconds per evaluation of the objective and its gradient on the variant's fit problem (its objective, subset,
     inducing inputs and dtype; the paper's start), the median of ``evaluations``, and that times
@@ -229,8 +240,8 @@ def main(argv=None) -> int:
         print(f"{name}: {json.dumps(entry)}", flush=True)
         write_json_atomic({"seeds": [seeds.start, seeds.stop], "rho_true": args.rho, "config": _relative(args.config),
                            "variants": results}, out)
-        write_text_atomic(f"# Robust GP fit variants ({args.seeds} seeds from {seeds.start}, rho_true "
-                          f"{args.rho:g})\n\n" + table(results), args.out / "training_variants.md")
+        write_text_atomic(table_page(results, seeds=seeds, rho=args.rho, config=_relative(args.config),
+                                     folder=args.out), args.out / "training_variants.md")
     return 0
 
 
