@@ -172,7 +172,7 @@ def write_report(path: str | Path, info: dict, tables: Sequence[Table], extra: d
 
 def load_cfg(overrides: Sequence[str] = ()):
     """The paper's config (``configs/boxwing.yaml``) with ``key=value`` overrides."""
-    from lightcurve_gp.config import load_config
+    from lightcurve_gp.config.load import load_config
 
     return load_config(CONFIG, overrides=list(overrides))
 
@@ -185,7 +185,7 @@ def quick_overrides(quick: bool) -> list[str]:
 def cached_gp(cfg, data, kind: str, *, num_inducing: int | None = None, cache_dir: str | Path = "runs/bench",
               refit: bool = False, after_fit: Callable[[Any], dict] | None = None):
     """An ExactGP / SparseGP of ``cfg`` (with ``kind`` and ``num_inducing``) from the model store ``cache_dir``
-    (:func:`lightcurve_gp.model_store.get_or_train`), trained there with ``os.cpu_count()`` threads when missing or
+    (:func:`lightcurve_gp.training.store.get_or_train`), trained there with ``os.cpu_count()`` threads when missing or
     with ``refit``. ``data`` is the training set the caller uses (the store trains on the same set of ``cfg``).
 
     ``extra`` holds ``fit_s`` (training seconds, from the store entry's ``metrics.json``), ``n_train`` and whatever
@@ -197,8 +197,8 @@ def cached_gp(cfg, data, kind: str, *, num_inducing: int | None = None, cache_di
 
     import torch
 
-    from lightcurve_gp.io import write_json_atomic
-    from lightcurve_gp.model_store import get_or_train, store_folder
+    from lightcurve_gp.files import write_json_atomic
+    from lightcurve_gp.training.store import get_or_train, store_folder
 
     sparse = dataclasses.replace(cfg.model.sparse, num_inducing=num_inducing or cfg.model.sparse.num_inducing)
     mcfg = dataclasses.replace(cfg.model, kind=kind, sparse=sparse)
@@ -229,7 +229,7 @@ def sigma_like_inputs(data, sets: int, per_set: int, seed: int, spread_deg: floa
     training point."""
     import torch
 
-    from lightcurve_gp.rotations import quat_mul, quat_normalize, rotvec_to_quat
+    from lightcurve_gp.attitude.rotations import quat_mul, quat_normalize, rotvec_to_quat
 
     gen = torch.Generator().manual_seed(seed)
     dtype = data.q.dtype

@@ -129,7 +129,7 @@ class Report:
 
     def write(self) -> None:
         # imported here, so that a run checks the packages the project needs before importing it
-        from lightcurve_gp.io import write_text_atomic
+        from lightcurve_gp.files import write_text_atomic
 
         write_text_atomic(self.markdown(), self.md_path)
         write_text_atomic(self.csv(), self.csv_path)

@@ -10,7 +10,7 @@
   ``likelihood(model(x)).mean`` on the same training data and hyperparameters, to run inside the library's filter.
 
 Each runner takes one filter's inputs as numpy arrays and returns the estimates ``(T+1, 4)``; all follow the
-library's USQUE (:func:`lightcurve_gp.ukf.run_usque`: ``Q`` added to the sigma covariance and again to ``P⁻``,
+library's USQUE (:func:`lightcurve_gp.filters.usque.run_usque`: ``Q`` added to the sigma covariance and again to ``P⁻``,
 the paper's ``λ = 0`` weights), so their estimates agree with it to round-off (the GPyTorch one to its CG
 tolerance).
 """
@@ -29,7 +29,7 @@ __all__ = ["GPyTorchMean", "UsqueSetup", "filterpy_usque", "numpy_gpukf"]
 
 class UsqueSetup:
     """The filter constants as numpy: weights ``wm, wc (7,)``, ``n + λ``, ``Q, R``, GRP ``(a, f)``, ``T`` of the
-    running mean, from :class:`lightcurve_gp.ukf.UsqueParams`."""
+    running mean, from :class:`lightcurve_gp.filters.usque.UsqueParams`."""
 
     def __init__(self, params):
         lam, wm, wc = params.weights(3, dtype=torch.float64)
@@ -64,7 +64,8 @@ def grp_to_quat(p: np.ndarray, a: float, f: float) -> np.ndarray:
 
 
 def _propagate(s: UsqueSetup, q: np.ndarray, P: np.ndarray, inc: np.ndarray):
-    """USQUE steps 1–5 (the rotation form of :func:`lightcurve_gp.ukf.run_usque`): ``(q₀⁻, P⁻, S⁻, χ⁻ (7, 3))``."""
+    """USQUE steps 1–5 (the rotation form of :func:`lightcurve_gp.filters.usque.run_usque`): ``(q₀⁻, P⁻, S⁻, χ⁻ (7,
+    3))``."""
     d = inc / np.linalg.norm(inc)
     S_m = math.sqrt(s.scale) * attitude_matrix(d) @ np.linalg.cholesky(P + s.Q)
     P_m = S_m @ S_m.T / s.scale + s.Q

@@ -3,7 +3,7 @@
 The model is the robust config's trained GP from the model store (``--runs``/models) when it is there, else a
 stand-in of the same size: an SGPR with the config's inducing-point count on Sobol attitudes, hyperparameters not
 fitted (a step's cost depends on the number of inducing points and inputs only). The bank asks for no predictive
-variance (:mod:`lightcurve_gp.global_start`). Prints the seconds per step and the 1-minute load average before and
+variance (:mod:`lightcurve_gp.filters.bank`). Prints the seconds per step and the 1-minute load average before and
 after; a 600-step bank costs about 600 times the step (the light curve of the paper's scenario).
 
 ``python benchmarks/bench_bank.py [--bank-size 1024] [--steps 20] [--threads 1]``
@@ -23,9 +23,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def model_for(cfg, runs: Path):
-    from lightcurve_gp.attitudes import sobol_attitudes
-    from lightcurve_gp.model_store import open_model, store_folder
+    from lightcurve_gp.attitude.sampling import sobol_attitudes
     from lightcurve_gp.observation import SparseGP
+    from lightcurve_gp.training.store import open_model, store_folder
 
     path = store_folder(cfg, runs / "models") / "model.pt"
     if path.is_file():
@@ -39,8 +39,8 @@ def model_for(cfg, runs: Path):
 
 def main() -> None:
     from lightcurve_gp import load_config
-    from lightcurve_gp.global_start import bank_attitudes, run_filter
-    from lightcurve_gp.scenario import simulate_scenario
+    from lightcurve_gp.filters.bank import bank_attitudes, run_filter
+    from lightcurve_gp.simulation.scenario import simulate_scenario
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--config", default=str(ROOT / "configs/boxwing_robust.yaml"))

@@ -1,10 +1,11 @@
 """Benchmark of batched USQUE filtering (paper scenario) with each observation model.
 
 Time per filter step: median of ``--repeats`` short runs (``--steps`` steps of the paper's scenario, after one
-2-step warm-up run) of ``B`` filters advancing together (``lightcurve_gp.ukf.run_usque``), for B in ``--batches``,
+2-step warm-up run) of ``B`` filters advancing together (``lightcurve_gp.filters.usque.run_usque``), for B in
+``--batches``,
 with the ExactGP (N = 19260) and the SparseGP (M = 512), each with its predictive variance in ``Pyy`` and mean only
 (the paper's GPUKF), and the parametric renderer; the "ω + b" rows run the 7-state filter ``[δp, ω, b]`` (body rate
-and magnitude offset estimated: every sigma point propagated with its own rate, :mod:`lightcurve_gp.ukf_rates`).
+and magnitude offset estimated: every sigma point propagated with its own rate, :mod:`lightcurve_gp.filters.rates`).
 Reported as ms per step and µs per filter-step. Beside the batched B = 100 run, a Python loop over 100
 single-filter runs (what a one-filter library offers) and the ratio. Then one whole 600 s run of one filter per
 model (median over 5 noise seeds: the cost of the ExactGP's fast variance depends on how far the
@@ -76,8 +77,8 @@ class Bench:
     def add_device(self, device: str) -> None:
         import torch
 
-        from lightcurve_gp.estimation import prior_covariance
-        from lightcurve_gp.ukf import initial_covariance
+        from lightcurve_gp.evaluation.estimators import prior_covariance
+        from lightcurve_gp.filters.usque import initial_covariance
 
         dev, sc = torch.device(device), self.scenario
         P0 = initial_covariance(self.cfg.filter.p0_deg, dtype=self.cfg.torch_dtype, device=dev)
@@ -91,7 +92,7 @@ class Bench:
         ``rates``: the 7-state filter ``[δp, ω, b]``."""
         import torch
 
-        from lightcurve_gp.ukf import run_usque
+        from lightcurve_gp.filters.usque import run_usque
 
         t = self.tensors[device]
         rows = torch.arange(start, start + B, device=t["obs"].device) % t["obs"].shape[0]
@@ -118,10 +119,10 @@ class Bench:
 def load_models(cfg, args):
     """(label, target key, model, filter parameters) per row, and the scene: "mean only" is the paper's GPUKF (GP
     mean in the filter); the other GP rows add the model's predictive variance (model.variance = fast) to Pyy."""
-    from lightcurve_gp.data import load_or_generate
+    from lightcurve_gp.filters.usque import UsqueParams
     from lightcurve_gp.observation.parametric import Parametric
-    from lightcurve_gp.render import Scene
-    from lightcurve_gp.ukf import UsqueParams
+    from lightcurve_gp.photometry.render import Scene
+    from lightcurve_gp.training.sets import load_or_generate
 
     data, _, _ = load_or_generate(cfg, C.ROOT / "runs" / "cache", progress=False)
     sparse, _, _ = C.cached_gp(cfg, data, "sparse", num_inducing=512, cache_dir=args.cache_dir,
@@ -213,7 +214,7 @@ def measure_cuda(bench: Bench, models, step_tab) -> None:
 def measure_long_run(cfg, models, scene, long_tab) -> None:
     """A 3600 s run of 100 filters with ω + b in the state and the SparseGP, with its variance and mean only (the
     paper's GPUKF): one timed run each."""
-    from lightcurve_gp.scenario import simulate_scenario
+    from lightcurve_gp.simulation.scenario import simulate_scenario
 
     duration, B, target = LONG_RUN
     long_cfg = C.load_cfg([f"scenario.duration_s={duration}", *C.quick_overrides(False)])
@@ -244,7 +245,7 @@ def main() -> None:
 
     import torch
 
-    from lightcurve_gp.scenario import simulate_scenario
+    from lightcurve_gp.simulation.scenario import simulate_scenario
 
     C.set_threads(args.threads)
     cfg = C.load_cfg(C.quick_overrides(args.quick))

@@ -48,7 +48,7 @@ def _cache_note(cached: bool) -> str:
 def one_off_costs(cfg, args):
     """Training-set generation, exact conditioning with its fast-variance check, sparse fitting at each M:
     the table, the training data, the ExactGP and the SparseGPs by M."""
-    from lightcurve_gp.data import generate_training_set, load_or_generate
+    from lightcurve_gp.training.sets import generate_training_set, load_or_generate
 
     once = C.Table("One-off costs", ["item", "value", "target", "note"])
     data, seconds = C.timed(lambda: load_or_generate(cfg, C.ROOT / "runs" / "cache", progress=False)[0])
@@ -160,7 +160,7 @@ def main() -> None:
     args = parse_args()
 
     from lightcurve_gp.observation.parametric import Parametric
-    from lightcurve_gp.render import Scene
+    from lightcurve_gp.photometry.render import Scene
 
     C.set_threads(args.threads)
     cfg = C.load_cfg(C.quick_overrides(args.quick))

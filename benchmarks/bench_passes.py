@@ -1,11 +1,12 @@
 """Cost of real passes (issue goals): geometry sampling of 7200 samples, rendering the truth of a 2 h pass, and one
 filter step of the geometry-aware sparse GP against the attitude-only one.
 
-* geometry: :func:`lightcurve_gp.geometry.pass_geometry` of ``configs/geo_pass.yaml`` (7201 samples), median of
+* geometry: :func:`lightcurve_gp.passes.geometry.pass_geometry` of ``configs/geo_pass.yaml`` (7201 samples), median of
   ``--repeats`` calls after one warm-up (the first call of a process also imports astropy and reads the IERS
   tables: reported apart);
 * truth rendering: ``Scene.magnitude`` of the 7201 true attitudes with the per-sample scene;
-* filter step: one :func:`~lightcurve_gp.ukf.run_usque` over ``--steps`` steps of ``--filters`` offset filters,
+* filter step: one :func:`~lightcurve_gp.filters.usque.run_usque` over ``--steps`` steps of ``--filters`` offset
+filters,
   per step, with a ``body_geometry`` SGPR bound along the pass (:class:`AlongPass`) and with an ``attitude_matrix``
   SGPR of the same size (M inducing points, fitted on the same number of points, no hyperparameter fit: the cost of
   a prediction does not depend on the fitted values).
@@ -36,12 +37,12 @@ def _median_time(fn, repeats: int) -> float:
 
 
 def _filter_step_seconds(cfg, geometry, inputs: str, filters: int, steps: int, repeats: int) -> float:
-    from lightcurve_gp.config import config_from_dict, config_to_dict
-    from lightcurve_gp.data import generate_training_set, model_targets
-    from lightcurve_gp.estimation import run_offset_filter
+    from lightcurve_gp.attitude.rotations import quat_normalize
+    from lightcurve_gp.config.load import config_from_dict, config_to_dict
+    from lightcurve_gp.evaluation.estimators import run_offset_filter
     from lightcurve_gp.observation.along_pass import AlongPass
     from lightcurve_gp.observation.sparse_gp import SparseGP
-    from lightcurve_gp.rotations import quat_normalize
+    from lightcurve_gp.training.sets import generate_training_set, model_targets
 
     raw = config_to_dict(cfg)
     raw["model"].update(inputs=inputs, fit_hyperparameters=False)
@@ -71,10 +72,10 @@ def main() -> int:
     args = p.parse_args()
     torch.set_num_threads(args.threads)
     t0 = time.perf_counter()
-    from lightcurve_gp.config import load_config
-    from lightcurve_gp.geometry import pass_geometry
-    from lightcurve_gp.render import Scene
-    from lightcurve_gp.scenario import simulate_scenario
+    from lightcurve_gp.config.load import load_config
+    from lightcurve_gp.passes.geometry import pass_geometry
+    from lightcurve_gp.photometry.render import Scene
+    from lightcurve_gp.simulation.scenario import simulate_scenario
 
     cfg = load_config(ROOT / "configs" / "geo_pass.yaml")
     geometry = pass_geometry(cfg)

@@ -38,8 +38,8 @@ def run_case(device: str, dtype_name: str, grouped: bool, layout: str, n_traj: i
              threads: int | None) -> dict:
     import torch
 
-    from lightcurve_gp.config import load_config
-    from lightcurve_gp.render import Scene
+    from lightcurve_gp.config.load import load_config
+    from lightcurve_gp.photometry.render import Scene
 
     if threads:
         torch.set_num_threads(threads)

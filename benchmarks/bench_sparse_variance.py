@@ -59,7 +59,7 @@ def alternate(fns: dict, repeats: int) -> dict:
 
 def paper_m512(args, tab) -> None:
     data_cfg = C.load_cfg()
-    from lightcurve_gp.data import load_or_generate
+    from lightcurve_gp.training.sets import load_or_generate
 
     data, _, _ = load_or_generate(data_cfg, C.ROOT / "runs" / "cache", progress=False)
     model, _, _ = C.cached_gp(data_cfg, data, "sparse", num_inducing=512, cache_dir=args.cache_dir)
@@ -80,10 +80,10 @@ def paper_m512(args, tab) -> None:
 def robust_m1500(args, tab) -> None:
     import torch
 
-    from lightcurve_gp.config import load_config
-    from lightcurve_gp.estimation import run_offset_filter
-    from lightcurve_gp.model_store import get_or_train
-    from lightcurve_gp.scenario import simulate_scenario
+    from lightcurve_gp.config.load import load_config
+    from lightcurve_gp.evaluation.estimators import run_offset_filter
+    from lightcurve_gp.simulation.scenario import simulate_scenario
+    from lightcurve_gp.training.store import get_or_train
 
     cfg = load_config(ROBUST, overrides=["model.fit_hyperparameters=false"])
     threads = torch.get_num_threads()

@@ -24,11 +24,11 @@ def _spin(stop) -> None:
 
 def _filter_steps(steps: int):
     from lightcurve_gp import load_config
-    from lightcurve_gp.data import generate_training_set
+    from lightcurve_gp.filters.usque import UsqueParams, initial_covariance, run_usque
     from lightcurve_gp.observation import ExactGP
-    from lightcurve_gp.render import Scene
-    from lightcurve_gp.scenario import simulate_scenario
-    from lightcurve_gp.ukf import UsqueParams, initial_covariance, run_usque
+    from lightcurve_gp.photometry.render import Scene
+    from lightcurve_gp.simulation.scenario import simulate_scenario
+    from lightcurve_gp.training.sets import generate_training_set
 
     cfg = load_config(CONFIG, overrides=["data.icosphere_subdivisions=1"])
     scene = Scene.from_config(cfg)

@@ -3,7 +3,7 @@
 Paper scenario (``configs/boxwing.yaml``), one filter (B = 1), float64, ``--threads`` torch threads (default 1):
 
 * GPUKF with the exact GP (N = 19 260, mean only, as in the paper): the library's USQUE, eager and with
-  ``filter.compile: true`` (the step as compiled graphs, :mod:`lightcurve_gp.usque_compiled`); the same filter with
+  ``filter.compile: true`` (the step as compiled graphs, :mod:`lightcurve_gp.filters.compiled`); the same filter with
   GPyTorch's default prediction path ``likelihood(model(x)).mean`` as its observation model (its one-off mean
   solve timed apart); a straightforward numpy GPUKF written for this benchmark (``_peers.numpy_gpukf``).
 * Conventional UKF with the renderer: the library's USQUE with the parametric model, eager and compiled; filterpy's
@@ -75,7 +75,7 @@ class Case:
 
 def library_runner(model, params, sc, P0):
     """The library's ``run_usque`` on one filter (seed ``seed`` of the scenario's observations)."""
-    from lightcurve_gp.ukf import run_usque
+    from lightcurve_gp.filters.usque import run_usque
 
     def run(n_steps: int, seed: int) -> np.ndarray:
         obs = sc.observations[seed:seed + 1, :n_steps + 1]
@@ -148,7 +148,7 @@ def time_round_robin(cases: list[Case], *, steps: int, repeats: int, run_repeats
 
 def time_batch(model, params, sc, P0, B: int, steps: int, repeats: int) -> float:
     """Median seconds per step of ``B`` filters (observations cycling through the scenario's seeds)."""
-    from lightcurve_gp.ukf import run_usque
+    from lightcurve_gp.filters.usque import run_usque
 
     rows = np.arange(B) % sc.observations.shape[0]
     obs = sc.observations[rows, :steps + 1]
@@ -208,11 +208,11 @@ def main() -> None:
     import torch
     from _peers import GPyTorchMean, UsqueSetup
 
-    from lightcurve_gp.data import load_or_generate
+    from lightcurve_gp.filters.usque import UsqueParams, initial_covariance
     from lightcurve_gp.observation.parametric import Parametric
-    from lightcurve_gp.render import Scene
-    from lightcurve_gp.scenario import simulate_scenario
-    from lightcurve_gp.ukf import UsqueParams, initial_covariance
+    from lightcurve_gp.photometry.render import Scene
+    from lightcurve_gp.simulation.scenario import simulate_scenario
+    from lightcurve_gp.training.sets import load_or_generate
 
     C.set_threads(args.threads)
     cfg = C.load_cfg(C.quick_overrides(args.quick))

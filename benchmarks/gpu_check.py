@@ -61,14 +61,14 @@ def paper_config(quick: bool):
 
 
 def cpu_training_set(cfg):
-    from lightcurve_gp.data import generate_training_set
+    from lightcurve_gp.training.sets import generate_training_set
 
     return generate_training_set(cfg, progress=False)
 
 
 def device_training_set(cfg, scene):
     """The training set of ``cfg`` generated on ``scene``'s device (what ``generate_training_set`` does on CPU)."""
-    from lightcurve_gp.data import initial_attitudes, window_samples
+    from lightcurve_gp.training.sets import initial_attitudes, window_samples
 
     dev, dtype = scene.sun.device, scene.sun.dtype
     q0 = initial_attitudes(cfg.data, dtype=dtype, device=dev)
@@ -79,7 +79,7 @@ def device_training_set(cfg, scene):
 
 def make_scene(cfg, device, dtype, chunk_elements: int | None = None):
     """The config's scene on ``device``; ``chunk_elements`` (attitude-facet pairs per chunk) overrides the default."""
-    from lightcurve_gp.render import Scene
+    from lightcurve_gp.photometry.render import Scene
 
     scene = Scene.from_config(cfg, dtype=dtype, device=device)
     if chunk_elements:
@@ -135,8 +135,8 @@ def exact_conditioning_inputs(model, data):
 
 def scenario_tensors(cfg, seeds: int, device) -> dict:
     """Observations ``(seeds, T+1)``, increments, initial estimate and ``P0`` of the paper's scenario on ``device``."""
-    from lightcurve_gp.scenario import simulate_scenario
-    from lightcurve_gp.ukf import initial_covariance
+    from lightcurve_gp.filters.usque import initial_covariance
+    from lightcurve_gp.simulation.scenario import simulate_scenario
 
     sc = simulate_scenario(cfg, seeds=range(seeds))
     return {"obs": sc.observations.to(device), "inc": sc.increments.to(device), "q0": sc.q_est0.to(device),
@@ -144,7 +144,7 @@ def scenario_tensors(cfg, seeds: int, device) -> dict:
 
 
 def filter_params(cfg, with_variance: bool):
-    from lightcurve_gp.ukf import UsqueParams
+    from lightcurve_gp.filters.usque import UsqueParams
 
     params = UsqueParams.from_config(cfg)
     return dataclasses.replace(params, variance=cfg.model.variance if with_variance else "none")
@@ -152,7 +152,7 @@ def filter_params(cfg, with_variance: bool):
 
 def run_filter(model, tensors: dict, params, batch: int, steps: int):
     """``steps`` steps of ``batch`` filters; filter ``b`` reads noise seed ``b mod seeds``."""
-    from lightcurve_gp.ukf import run_usque
+    from lightcurve_gp.filters.usque import run_usque
 
     rows = torch.arange(batch, device=tensors["obs"].device) % tensors["obs"].shape[0]
     obs = tensors["obs"][rows, :steps + 1]

@@ -5,7 +5,7 @@ Profiles ``--steps`` steps of ``run_usque`` with the ExactGP (N = 19 260, mean o
 ``--repeats`` unprofiled runs; on a shared machine the CPU time leaves out the time spent waiting for a core), the
 operators by self CPU time and the count of operator calls per step.
 
-With ``--compile`` the filter runs with ``filter.compile: true`` (:mod:`lightcurve_gp.usque_compiled`); its first
+With ``--compile`` the filter runs with ``filter.compile: true`` (:mod:`lightcurve_gp.filters.compiled`); its first
 run, which compiles, is timed apart and printed.
 
 With ``--floor`` (exact model) the same process then times, each alone, the three pieces of arithmetic the exact
@@ -52,11 +52,11 @@ def main() -> None:
     import torch
     from torch.profiler import ProfilerActivity, profile
 
-    from lightcurve_gp.data import load_or_generate
+    from lightcurve_gp.filters.usque import UsqueParams, initial_covariance, run_usque
     from lightcurve_gp.observation.parametric import Parametric
-    from lightcurve_gp.render import Scene
-    from lightcurve_gp.scenario import simulate_scenario
-    from lightcurve_gp.ukf import UsqueParams, initial_covariance, run_usque
+    from lightcurve_gp.photometry.render import Scene
+    from lightcurve_gp.simulation.scenario import simulate_scenario
+    from lightcurve_gp.training.sets import load_or_generate
 
     C.set_threads(args.threads)
     cfg = C.load_cfg()

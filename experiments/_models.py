@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from lightcurve_gp.model_store import get_or_train
+from lightcurve_gp.training.store import get_or_train
 
 __all__ = ["trained_model"]
 

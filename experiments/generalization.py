@@ -3,13 +3,15 @@
 Seeds come in two blocks: the tuning block (default 1000-1099) may inform choices; the held-out block (default
 2000-2299) is never used for one and gives the reported numbers; the paper block (``--blocks paper``, noise seeds
 0-199, ``--paper-rho`` 0.7) is the paper's case: every seed the config's truth, the seeds differing by noise alone
-(:func:`lightcurve_gp.truths.paper_case_draw`). ``--error-angles`` adds the initial-error table:
+(:func:`lightcurve_gp.simulation.truths.paper_case_draw`). ``--error-angles`` adds the initial-error table:
 the same truths of ``--error-seeds`` (default 2000-2099) with a fixed initial-error angle (5, 10, 20, 30 deg, random
-axis, P0 matched). Truths: :mod:`lightcurve_gp.truths`; estimators and metrics: :mod:`lightcurve_gp.generalization`.
+axis, P0 matched). Truths: :mod:`lightcurve_gp.simulation.truths`; estimators and metrics:
+:mod:`lightcurve_gp.evaluation.suite`.
 
 Resumable: seeds run in blocks of ``--block-size``; each (block, estimator) is one case of the sweep's case store
 (:mod:`lightcurve_gp.sweep.store`), ``<runs>/generalization/cases/<case-id>.json``: a
-:class:`~lightcurve_gp.reporting.CaseRecord` whose rows hold the metrics and whose summary holds the suite's per-seed
+:class:`~lightcurve_gp.evaluation.reporting.CaseRecord` whose rows hold the metrics and whose summary holds the
+suite's per-seed
 rows. The id hashes what the estimator depends on, the seeds and the error mode (:func:`block_id`); a record is
 written atomically when its case finishes, and a rerun skips stored cases, so a killed run continues and a new
 candidate config reruns only what it changes (its GPUKF, for a new model). The GP comes from the model store
@@ -36,16 +38,16 @@ from matplotlib.figure import Figure
 from tqdm.auto import tqdm
 
 from experiments.robust_gpukf import trained_model
-from lightcurve_gp.config import ConfigError, config_hash, config_to_dict, load_config
-from lightcurve_gp.generalization import SUITE_ESTIMATORS, nees_band, run_suite
-from lightcurve_gp.generalization_summary import SUMMARY_COLUMNS, seed_rows, summarize, whitened_correlation
-from lightcurve_gp.io import write_json_atomic, write_text_atomic
-from lightcurve_gp.model_store import model_key
-from lightcurve_gp.plots import _save, rmse_boxplot
-from lightcurve_gp.render import Scene
-from lightcurve_gp.reporting import CaseRecord, SeedRow, csv_text, markdown_table
+from lightcurve_gp.config.load import ConfigError, config_hash, config_to_dict, load_config
+from lightcurve_gp.evaluation.plots import _save, rmse_boxplot
+from lightcurve_gp.evaluation.reporting import CaseRecord, SeedRow, csv_text, markdown_table
+from lightcurve_gp.evaluation.suite import SUITE_ESTIMATORS, nees_band, run_suite
+from lightcurve_gp.evaluation.suite_summary import SUMMARY_COLUMNS, seed_rows, summarize, whitened_correlation
+from lightcurve_gp.files import write_json_atomic, write_text_atomic
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.simulation.truths import draw_truths, paper_case_draw, simulate_truths
 from lightcurve_gp.sweep.store import read_case, write_case
-from lightcurve_gp.truths import draw_truths, paper_case_draw, simulate_truths
+from lightcurve_gp.training.store import model_key
 
 ROOT = Path(__file__).resolve().parents[1]
 SUITE_FORMAT = 1

@@ -3,18 +3,19 @@
 Per seed ``s``: the paper's scenario (spin, surface, 600 s at 1 Hz, noise variance 0.5) with a random true initial
 attitude (``random_attitudes(1, seed=s)``) and ``ρ_true = (0.3, 0.4, 0.6, 0.7)[s mod 4]``, the robust config (GP of
 the reference curve, magnitude offset in the state); a bank of ``--bank-size`` filters over SO(3)
-(:mod:`lightcurve_gp.global_start`) ranked by innovation log-likelihood, the best ``--keep`` rerun with the config's
+(:mod:`lightcurve_gp.filters.bank`) ranked by innovation log-likelihood, the best ``--keep`` rerun with the config's
 settings. Beside it, the filter started from the config's initial error about the truth
 (``scenario.initial_error_deg``, the other tables' start): what an initial guess 10–15° off reaches on the same
 light curve. Scored on 400–600 s: the top-ranked filter is "within 10°" when the median |Euler error| over the
 window is below 10° on all three axes (the RMSE criterion of the other tables is reported beside it); "truth in the
 top five" when any of the five best is within 10°. Beside these strict scores, the same "modulo the shape's
 symmetry": the error against the nearest of the attitudes ``q_R ⊗ q_true(t)`` that render the same light curve
-(:mod:`lightcurve_gp.symmetry`; four for the box-wing). Nothing here was tuned: bank size, P0 (the config's 10°) and
+(:mod:`lightcurve_gp.photometry.symmetry`; four for the box-wing). Nothing here was tuned: bank size, P0 (the config's
+10°) and
 the bank's variance choice were fixed before any seed ran.
 
 Pruning (``--prune-after-s S --prune-keep K``): all members run the first ``S`` seconds, the best ``K`` continue
-(:func:`lightcurve_gp.global_start.run_bank`). ``--prune-study`` (unpruned runs only) adds to each row what every
+(:func:`lightcurve_gp.filters.bank.run_bank`). ``--prune-study`` (unpruned runs only) adds to each row what every
 pruning of a small grid would have done: since a survivor's continuation is its uninterrupted run, the pruned
 ranking is the unpruned one restricted to the survivors, so one unpruned run scores every (S, K) exactly.
 
@@ -37,19 +38,19 @@ from tqdm.auto import tqdm
 
 from experiments._models import trained_model
 from experiments.generalization import seed_range
-from lightcurve_gp.attitudes import random_attitudes
-from lightcurve_gp.config import ConfigError, config_hash, load_config
-from lightcurve_gp.global_start import bank_attitudes, innovation_log_likelihood, run_bank, run_filter
-from lightcurve_gp.io import write_json_atomic, write_text_atomic
-from lightcurve_gp.metrics import attitude_error_vector, attitude_errors_deg, nees
-from lightcurve_gp.model_store import model_key
-from lightcurve_gp.observed import nis_summary
-from lightcurve_gp.reporting import CaseRecord, csv_text, markdown_table, quantiles
-from lightcurve_gp.rotations import quat_mul
-from lightcurve_gp.scenario import simulate_scenario
-from lightcurve_gp.shapes import facets_from_config
+from lightcurve_gp.attitude.metrics import attitude_error_vector, attitude_errors_deg, nees
+from lightcurve_gp.attitude.rotations import quat_mul
+from lightcurve_gp.attitude.sampling import random_attitudes
+from lightcurve_gp.config.load import ConfigError, config_hash, load_config
+from lightcurve_gp.evaluation.reporting import CaseRecord, csv_text, markdown_table, quantiles
+from lightcurve_gp.files import write_json_atomic, write_text_atomic
+from lightcurve_gp.filters.bank import bank_attitudes, innovation_log_likelihood, run_bank, run_filter
+from lightcurve_gp.observed.run import nis_summary
+from lightcurve_gp.photometry.shapes import facets_from_config
+from lightcurve_gp.photometry.symmetry import symmetry_quaternions
+from lightcurve_gp.simulation.scenario import simulate_scenario
 from lightcurve_gp.sweep.store import read_case, write_case
-from lightcurve_gp.symmetry import symmetry_quaternions
+from lightcurve_gp.training.store import model_key
 
 ROOT = Path(__file__).resolve().parents[1]
 RHO_CYCLE = (0.3, 0.4, 0.6, 0.7)

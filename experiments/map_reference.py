@@ -1,6 +1,7 @@
 """What the prior and the light curve allow: a batch MAP estimate of the attitude from all observations so far.
 
-At each checkpoint ``t`` (every ``--every`` s inside the scoring window) :func:`lightcurve_gp.batch_map.batch_map`
+At each checkpoint ``t`` (every ``--every`` s inside the scoring window)
+:func:`lightcurve_gp.inference.attitude.batch_map`
 maximises the posterior of the initial attitude (and, with an offset, the magnitude offset) given ``ỹ_1 … ỹ_t``,
 the known dynamics and the filters' prior, re-linearising every observation at every iteration.
 
@@ -22,13 +23,13 @@ import torch
 
 from experiments._cli import ROOT, robust_arguments
 from experiments._models import trained_model
-from lightcurve_gp.batch_map import MapPrior, batch_map, map_rmse_deg
-from lightcurve_gp.config import load_config
-from lightcurve_gp.io import write_json_atomic, write_text_atomic
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.evaluation.reporting import markdown_table
+from lightcurve_gp.files import write_json_atomic, write_text_atomic
+from lightcurve_gp.inference.attitude import MapPrior, batch_map, map_rmse_deg
 from lightcurve_gp.observation.parametric import Parametric
-from lightcurve_gp.render import Scene
-from lightcurve_gp.reporting import markdown_table
-from lightcurve_gp.scenario import Scenario, simulate_scenario
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.simulation.scenario import Scenario, simulate_scenario
 
 
 def run_map(model, sc: Scenario, cfg, checkpoints: list[int], offset: bool) -> tuple[dict, list]:

@@ -37,16 +37,16 @@ import numpy as np
 import torch
 from matplotlib.figure import Figure
 
-from lightcurve_gp.config import apply_overrides, config_from_dict, load_raw_config
-from lightcurve_gp.dynamics import propagate
-from lightcurve_gp.geometry import pass_geometry
-from lightcurve_gp.io import write_json_atomic, write_text_atomic
-from lightcurve_gp.metrics import chi2_band
-from lightcurve_gp.plots import _save
-from lightcurve_gp.render import Scene
-from lightcurve_gp.reporting import markdown_table
-from lightcurve_gp.rotations import quat_mul, quat_normalize, rotvec_to_quat
-from lightcurve_gp.scenario import simulate_scenario
+from lightcurve_gp.attitude.dynamics import propagate
+from lightcurve_gp.attitude.metrics import chi2_band
+from lightcurve_gp.attitude.rotations import quat_mul, quat_normalize, rotvec_to_quat
+from lightcurve_gp.config.load import apply_overrides, config_from_dict, load_raw_config
+from lightcurve_gp.evaluation.plots import _save
+from lightcurve_gp.evaluation.reporting import markdown_table
+from lightcurve_gp.files import write_json_atomic, write_text_atomic
+from lightcurve_gp.passes.geometry import pass_geometry
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.simulation.scenario import simulate_scenario
 from lightcurve_gp.sweep import EXECUTORS, run_sweep
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -8,8 +8,8 @@ import math
 from pathlib import Path
 from typing import Any, Sequence
 
-from lightcurve_gp.estimation import DEFAULT_ESTIMATORS
-from lightcurve_gp.reporting import CaseRecord, Quantiles, format_quantiles, quantiles, write_table
+from lightcurve_gp.evaluation.estimators import DEFAULT_ESTIMATORS
+from lightcurve_gp.evaluation.reporting import CaseRecord, Quantiles, format_quantiles, quantiles, write_table
 from lightcurve_gp.sweep import SweepResult
 
 AXES_NAMES = ("yaw", "pitch", "roll")

@@ -14,7 +14,7 @@ Goal (issue "GPUKF accuracy near a filter that knows rho"): median RMSE per axis
 >= 90 % of seeds below 10 deg on all axes, mean NEES inside its 95 % chi-square band. An ablation on one rho shows
 what each ingredient buys. Writes ``--out`` (experiments/results/robust/): results.json, table.md, ablation.md and
 one box plot per rho; the per-seed RMSE goes to ``--raw`` (runs/robust/per_seed_rmse.json, not committed). Trained
-models come from the model store runs/models/<model key>/ (lightcurve_gp.model_store), trained there when missing.
+models come from the model store runs/models/<model key>/ (lightcurve_gp.training.store), trained there when missing.
 
     python -m experiments.robust_gpukf
 """
@@ -27,14 +27,14 @@ from pathlib import Path
 
 from experiments._cli import ROOT, robust_arguments
 from experiments._models import trained_model
-from lightcurve_gp.config import load_config
-from lightcurve_gp.estimation import ScenarioResult, run_estimators
-from lightcurve_gp.io import write_json_atomic, write_text_atomic
-from lightcurve_gp.metrics import model_error_on_trajectory
-from lightcurve_gp.plots import rmse_boxplot
-from lightcurve_gp.render import Scene
-from lightcurve_gp.reporting import SUMMARY_HEADER, markdown_table, summary_row
-from lightcurve_gp.scenario import simulate_scenario
+from lightcurve_gp.attitude.metrics import model_error_on_trajectory
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.evaluation.estimators import ScenarioResult, run_estimators
+from lightcurve_gp.evaluation.plots import rmse_boxplot
+from lightcurve_gp.evaluation.reporting import SUMMARY_HEADER, markdown_table, summary_row
+from lightcurve_gp.files import write_json_atomic, write_text_atomic
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.simulation.scenario import simulate_scenario
 
 GOAL_RATIO = 1.25
 GOAL_FRACTION = 0.9

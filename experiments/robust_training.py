@@ -29,11 +29,10 @@ from pathlib import Path
 import torch
 
 from experiments._cli import ROOT, robust_arguments
-from lightcurve_gp.config import load_config
-from lightcurve_gp.data import load_or_generate, model_targets
-from lightcurve_gp.estimation import run_estimators
-from lightcurve_gp.io import write_json_atomic, write_text_atomic
-from lightcurve_gp.model_store import get_or_train, model_key
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.evaluation.estimators import run_estimators
+from lightcurve_gp.evaluation.reporting import markdown_table
+from lightcurve_gp.files import write_json_atomic, write_text_atomic
 from lightcurve_gp.observation.fitting import (
     gpytorch_exact_model,
     gpytorch_sgpr_model,
@@ -44,7 +43,8 @@ from lightcurve_gp.observation.fitting import (
 )
 from lightcurve_gp.observation.gp_base import GPTrainingSet
 from lightcurve_gp.observation.sparse_gp import kmeans
-from lightcurve_gp.reporting import markdown_table
+from lightcurve_gp.training.sets import load_or_generate, model_targets
+from lightcurve_gp.training.store import get_or_train, model_key
 
 #: the variants measured: config overrides of the robust config
 VARIANTS = {

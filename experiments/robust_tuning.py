@@ -13,11 +13,11 @@ import sys
 
 from experiments._cli import robust_arguments
 from experiments._models import trained_model
-from lightcurve_gp.config import load_config
-from lightcurve_gp.estimation import run_estimators
-from lightcurve_gp.io import write_text_atomic
-from lightcurve_gp.render import Scene
-from lightcurve_gp.reporting import SUMMARY_HEADER, markdown_table, summary_row
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.evaluation.estimators import run_estimators
+from lightcurve_gp.evaluation.reporting import SUMMARY_HEADER, markdown_table, summary_row
+from lightcurve_gp.files import write_text_atomic
+from lightcurve_gp.photometry.render import Scene
 
 
 def main(argv=None) -> int:

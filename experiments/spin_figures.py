@@ -8,8 +8,8 @@ from typing import Sequence
 import numpy as np
 from matplotlib.figure import Figure
 
-from lightcurve_gp.io import atomic_path
-from lightcurve_gp.plots import ESTIMATOR_COLORS
+from lightcurve_gp.evaluation.plots import ESTIMATOR_COLORS
+from lightcurve_gp.files import atomic_path
 
 __all__ = ["error_traces_figure"]
 

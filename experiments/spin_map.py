@@ -1,7 +1,7 @@
 """The batch MAP with ω0 unknown beside the spin filters: what the light curve allows at all over the same window.
 
 For one case of :mod:`experiments.spin_unknown` (a duration, a rate prior σ_ω and a ρ_true) :func:`map_case`
-simulates the same noisy light curves (the same noise seeds) and runs :func:`lightcurve_gp.map_spin.map_with_rate`
+simulates the same noisy light curves (the same noise seeds) and runs :func:`lightcurve_gp.inference.spin.map_with_rate`
 with the filters' prior (``filter.p0_deg``, ``filter.p0_omega_deg_s``, ``filter.measurement_noise``,
 ``filter.offset_prior_std``) and the filters' initial estimates ``q_est,0``, ``ω_est,0``. Its checkpoints are every
 ``every`` seconds from ``every`` to the end (each solve starts from the previous one); the ones inside the scoring
@@ -33,15 +33,15 @@ import numpy as np
 import torch
 
 from experiments._models import trained_model
-from lightcurve_gp.batch_map import MapPrior
-from lightcurve_gp.config import apply_overrides, config_from_dict, config_to_dict
-from lightcurve_gp.io import write_json_atomic
-from lightcurve_gp.map_spin import RateDynamics, map_with_rate, neg_log_posterior, rate_map_errors
+from lightcurve_gp.attitude.rotations import quat_inv, quat_mul, quat_to_rotvec
+from lightcurve_gp.config.load import apply_overrides, config_from_dict, config_to_dict
+from lightcurve_gp.evaluation.reporting import format_quantiles, quantiles
+from lightcurve_gp.files import write_json_atomic
+from lightcurve_gp.inference.attitude import MapPrior
+from lightcurve_gp.inference.spin import RateDynamics, map_with_rate, neg_log_posterior, rate_map_errors
 from lightcurve_gp.observation.parametric import Parametric
-from lightcurve_gp.render import Scene
-from lightcurve_gp.reporting import format_quantiles, quantiles
-from lightcurve_gp.rotations import quat_inv, quat_mul, quat_to_rotvec
-from lightcurve_gp.scenario import Scenario, simulate_scenario
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.simulation.scenario import Scenario, simulate_scenario
 
 __all__ = ["MAP_MODELS", "MAP_LABELS", "map_case", "map_row", "map_diagnostics_row", "DIAGNOSTICS_HEADER"]
 

@@ -16,9 +16,9 @@ import sys
 
 import torch
 
-from lightcurve_gp.cli import apply_threads
-from lightcurve_gp.config import SpinRangeConfig, load_config
-from lightcurve_gp.data import generate_training_set
+from lightcurve_gp.commands.common import apply_threads
+from lightcurve_gp.config.load import SpinRangeConfig, load_config
+from lightcurve_gp.training.sets import generate_training_set
 
 RANGE = SpinRangeConfig(low=[-0.5, -0.5, -0.5], high=[0.5, 0.5, 0.5])
 

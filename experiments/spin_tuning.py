@@ -31,10 +31,10 @@ from typing import Sequence
 
 from experiments._cli import sweep_arguments
 from experiments.spin_unknown import case_overrides
-from lightcurve_gp.cli import apply_threads
-from lightcurve_gp.config import apply_overrides, load_raw_config
-from lightcurve_gp.io import write_json_atomic, write_text_atomic
-from lightcurve_gp.reporting import format_quantiles, markdown_table, quantiles
+from lightcurve_gp.commands.common import apply_threads
+from lightcurve_gp.config.load import apply_overrides, load_raw_config
+from lightcurve_gp.evaluation.reporting import format_quantiles, markdown_table, quantiles
+from lightcurve_gp.files import write_json_atomic, write_text_atomic
 from lightcurve_gp.sweep import make_executor, run_sweep
 
 ROOT = Path(__file__).resolve().parents[1]

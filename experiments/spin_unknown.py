@@ -41,11 +41,11 @@ from typing import Sequence
 from experiments._cli import sweep_arguments
 from experiments.spin_figures import error_traces_figure
 from experiments.spin_map import DIAGNOSTICS_HEADER, MAP_LABELS, MAP_MODELS, map_case, map_diagnostics_row, map_row
-from lightcurve_gp.cli import apply_threads
-from lightcurve_gp.config import apply_overrides, load_raw_config
-from lightcurve_gp.io import write_json_atomic, write_text_atomic
-from lightcurve_gp.plots import rmse_boxplot
-from lightcurve_gp.reporting import CaseRecord, format_quantiles, markdown_table, quantiles
+from lightcurve_gp.commands.common import apply_threads
+from lightcurve_gp.config.load import apply_overrides, load_raw_config
+from lightcurve_gp.evaluation.plots import rmse_boxplot
+from lightcurve_gp.evaluation.reporting import CaseRecord, format_quantiles, markdown_table, quantiles
+from lightcurve_gp.files import write_json_atomic, write_text_atomic
 from lightcurve_gp.sweep import make_executor, run_sweep
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,7 +1,8 @@
 """Filter settings of the generalisation suite's filters, compared on tuning seeds only (never the held-out block).
 
 Each candidate is an estimator of the suite with config overrides (``name`` or ``name@key=value@key=value``); all
-run on the same truths (``lightcurve_gp.truths``, the suite's random draws, or with ``--paper-rho`` the paper's case
+run on the same truths (``lightcurve_gp.simulation.truths``, the suite's random draws, or with ``--paper-rho`` the
+paper's case
 of the suite's paper block) of every block of ``--blocks`` seeds,
 and the table gives, per block and pooled, the share of seeds below 10° on all axes over the scoring window, the
 share whose time-averaged NEES lies in its single-run band, the median NEES and the median RMSE per axis. This is
@@ -23,11 +24,11 @@ import torch
 
 from experiments._models import trained_model
 from experiments.generalization import seed_range, truth_draw
-from lightcurve_gp.config import ConfigError, load_config
-from lightcurve_gp.generalization import SUITE_ESTIMATORS, nees_band, run_suite
-from lightcurve_gp.render import Scene
-from lightcurve_gp.reporting import markdown_table
-from lightcurve_gp.truths import simulate_truths
+from lightcurve_gp.config.load import ConfigError, load_config
+from lightcurve_gp.evaluation.reporting import markdown_table
+from lightcurve_gp.evaluation.suite import SUITE_ESTIMATORS, nees_band, run_suite
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.simulation.truths import simulate_truths
 
 ROOT = Path(__file__).resolve().parents[1]
 

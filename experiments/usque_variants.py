@@ -25,10 +25,10 @@ import numpy as np
 
 from experiments._cli import sweep_arguments
 from experiments.spin_unknown import HEADER, ROOT, case_overrides, table_row
-from lightcurve_gp.cli import apply_threads
-from lightcurve_gp.config import apply_overrides, load_raw_config
-from lightcurve_gp.io import write_json_atomic, write_text_atomic
-from lightcurve_gp.reporting import CaseRecord, markdown_table
+from lightcurve_gp.commands.common import apply_threads
+from lightcurve_gp.config.load import apply_overrides, load_raw_config
+from lightcurve_gp.evaluation.reporting import CaseRecord, markdown_table
+from lightcurve_gp.files import write_json_atomic, write_text_atomic
 from lightcurve_gp.sweep import make_executor, run_sweep
 
 PAIR = ((False, "both"), (True, "after"))  # (sigma_redraw, q_placement): the default, the paper

@@ -2,8 +2,8 @@
 
 import torch
 
+from lightcurve_gp.attitude.rotations import attitude_matrix, euler321_to_quat, quat_conj, quat_mul, quat_to_rotvec
 from lightcurve_gp.observation.base import ObservationModule
-from lightcurve_gp.rotations import attitude_matrix, euler321_to_quat, quat_conj, quat_mul, quat_to_rotvec
 
 DT = torch.float64
 
@@ -78,7 +78,7 @@ def as_sets(overrides: list[str]) -> list[str]:
 
 def train_tiny(config: str, out, name: str):
     """Train the tiny model of ``config`` into ``out`` with ``python -m lightcurve_gp.train``; its model file."""
-    from lightcurve_gp import train
+    from lightcurve_gp.commands import train
 
     assert train.main([config, "--out", str(out), "--no-progress", *as_sets(tiny_training(name))]) == 0
     return out / name / "model.pt"
@@ -86,7 +86,7 @@ def train_tiny(config: str, out, name: str):
 
 def simulate_file(config: str, tmp_path, sets: list[str], *extra: str):
     """``python -m lightcurve_gp.simulate`` of ``config`` (noise seed 2) into ``tmp_path/obs.ecsv``; the file."""
-    from lightcurve_gp import simulate
+    from lightcurve_gp.commands import simulate
 
     obs = tmp_path / "obs.ecsv"
     assert simulate.main([config, "--out", str(obs), "--seed", "2", "--no-progress", *sets, *extra]) == 0

@@ -1,7 +1,7 @@
 """A generic additive-noise UKF for batched vector states: the reference the tests check USQUE against.
 
 The paper's UKF (section 2.5) for any state dimension ``n``, with the update redrawing sigma points from
-the prior like the paper ("computed again") and filterpy. The library's USQUE (:mod:`lightcurve_gp.ukf`) is a
+the prior like the paper ("computed again") and filterpy. The library's USQUE (:mod:`lightcurve_gp.filters.usque`) is a
 specialised, faster form of it for attitudes; this module shares only the weights and square roots with it.
 """
 
@@ -13,7 +13,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from lightcurve_gp.unscented import (
+from lightcurve_gp.filters.unscented import (
     UnscentedWeights,
     matrix_sqrt,
     symmetrise,

@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 import torch
 
-from lightcurve_gp.config import ConfigError, load_config
+from lightcurve_gp.config.load import ConfigError, load_config
+from lightcurve_gp.filters.usque import UsqueParams, adapted_noise, run_usque
 from lightcurve_gp.observation.base import ObservationModule
-from lightcurve_gp.ukf import UsqueParams, adapted_noise, run_usque
 
 from helpers import DT, ToyModel, scenario
 
@@ -107,7 +107,7 @@ def test_config_maps_forgetting_time_to_rate_and_names_bad_keys():
 
 def test_options_that_are_off_leave_the_config_dict_unchanged():
     """``adaptive_noise: none`` and ``data.surfaces: null`` are absent from the dict that cache and case keys hash."""
-    from lightcurve_gp.config import config_to_dict
+    from lightcurve_gp.config.load import config_to_dict
 
     base = config_to_dict(load_config(ROOT / "configs" / "boxwing_robust.yaml"))
     assert "adaptive_noise" not in base["filter"] and "surfaces" not in base["data"]

@@ -7,8 +7,8 @@ import pytest
 import torch
 from scipy.stats import kstest
 
-from lightcurve_gp.attitudes import grid_attitudes, icosphere_axes, random_attitudes, sobol_attitudes
-from lightcurve_gp.rotations import attitude_matrix
+from lightcurve_gp.attitude.rotations import attitude_matrix
+from lightcurve_gp.attitude.sampling import grid_attitudes, icosphere_axes, random_attitudes, sobol_attitudes
 
 F64 = torch.float64
 

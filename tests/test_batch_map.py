@@ -7,9 +7,9 @@ import pytest
 import torch
 from scipy.optimize import least_squares
 
-from lightcurve_gp.batch_map import MapPrior, batch_map, map_attitude, map_rmse_deg
-from lightcurve_gp.metrics import total_angle_deg
-from lightcurve_gp.rotations import quat_mul, rotvec_to_quat
+from lightcurve_gp.attitude.metrics import total_angle_deg
+from lightcurve_gp.attitude.rotations import quat_mul, rotvec_to_quat
+from lightcurve_gp.inference.attitude import MapPrior, batch_map, map_attitude, map_rmse_deg
 
 from helpers import DT, ToyModel, increment, scenario
 

@@ -7,17 +7,17 @@ from pathlib import Path
 import pytest
 import torch
 
-from lightcurve_gp.config import load_config
-from lightcurve_gp.data import model_targets
-from lightcurve_gp.geometry_training import geometry_training_set
+from lightcurve_gp.attitude.rotations import attitude_matrix, quat_mul
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.filters.usque import UsqueParams, initial_covariance, run_usque
 from lightcurve_gp.observation.along_pass import AlongPass, bind_geometry
 from lightcurve_gp.observation.body_geometry import GeometryBound, canonical_frame
 from lightcurve_gp.observation.inputs import body_geometry_features
 from lightcurve_gp.observation.parametric import Parametric
 from lightcurve_gp.observation.sparse_gp import SparseGP
-from lightcurve_gp.render import Scene
-from lightcurve_gp.rotations import attitude_matrix, quat_mul
-from lightcurve_gp.ukf import UsqueParams, initial_covariance, run_usque
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.training.geometry import geometry_training_set
+from lightcurve_gp.training.sets import model_targets
 
 ROOT = Path(__file__).resolve().parents[1]
 F64 = torch.float64
@@ -101,7 +101,7 @@ def _pass_scene(T, seed=10):
 
 
 def test_along_pass_predicts_each_sample_with_its_geometry():
-    from lightcurve_gp.geometry import PassGeometry
+    from lightcurve_gp.passes.geometry import PassGeometry
 
     T = 6
     _, scene = _pass_scene(T)
@@ -118,7 +118,7 @@ def test_along_pass_predicts_each_sample_with_its_geometry():
 
 
 def test_filter_along_a_constant_pass_equals_the_fixed_filter():
-    from lightcurve_gp.geometry import PassGeometry
+    from lightcurve_gp.passes.geometry import PassGeometry
 
     T = 40
     fixed, _ = _pass_scene(2)
@@ -137,7 +137,7 @@ def test_filter_along_a_constant_pass_equals_the_fixed_filter():
 
 
 def test_along_pass_binds_a_body_geometry_gp_sample_by_sample(gp):
-    from lightcurve_gp.geometry import PassGeometry
+    from lightcurve_gp.passes.geometry import PassGeometry
 
     T = 5
     geometry = PassGeometry.from_columns(times_s=torch.arange(T), sun=_random((T, 3), 20),
@@ -152,9 +152,9 @@ def test_along_pass_binds_a_body_geometry_gp_sample_by_sample(gp):
 
 
 def test_along_pass_passes_the_filters_parameters_to_a_surface_state_renderer():
-    from lightcurve_gp.geometry import PassGeometry
     from lightcurve_gp.observation.parametric import SurfaceStateRenderer
-    from lightcurve_gp.surface_state import surface_from_state
+    from lightcurve_gp.observation.surface_state import surface_from_state
+    from lightcurve_gp.passes.geometry import PassGeometry
 
     T = 4
     _, scene = _pass_scene(T, seed=30)

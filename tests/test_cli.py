@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from lightcurve_gp import estimate, train
+from lightcurve_gp.commands import estimate, train
 from lightcurve_gp.observation import load_model
 
 BOXWING = str(Path(__file__).resolve().parents[1] / "configs" / "boxwing.yaml")
@@ -41,8 +41,8 @@ def test_train_writes_model_metrics_and_figures(trained, capsys):
 
 
 def test_train_recomputes_its_heldout_metrics_from_the_saved_model(trained):
-    from lightcurve_gp.config import load_config
-    from lightcurve_gp.data import generate_heldout_set
+    from lightcurve_gp.config.load import load_config
+    from lightcurve_gp.training.sets import generate_heldout_set
 
     cfg = load_config(BOXWING, TINY)
     held = generate_heldout_set(cfg)
@@ -112,8 +112,8 @@ ROBUST_TINY = ["data.num_random=100", "data.rho_grid=[0.3, 0.5, 0.7]", "data.hel
 def test_offset_config_trains_on_normalised_magnitudes_and_estimates_with_the_offset_filter(tmp_path, capsys):
     """The robust config end to end from the commands: the GP learns the reference curve (rho_reference) and the
     estimate command runs the offset filter, whose offset recovers rho_true."""
-    from lightcurve_gp.config import load_config
-    from lightcurve_gp.data import generate_heldout_set
+    from lightcurve_gp.config.load import load_config
+    from lightcurve_gp.training.sets import generate_heldout_set
 
     assert train.main([ROBUST, "--out", str(tmp_path), "--no-progress", *sets(ROBUST_TINY)]) == 0
     run = tmp_path / "robust_tiny"

@@ -9,16 +9,16 @@ import math
 import pytest
 import torch
 
-import lightcurve_gp.usque_compiled as usque_compiled
-from lightcurve_gp.config import ConfigError, config_to_dict, load_config
-from lightcurve_gp.data import generate_training_set
+import lightcurve_gp.filters.compiled as usque_compiled
+from lightcurve_gp.config.load import ConfigError, config_to_dict, load_config
+from lightcurve_gp.filters.unscented import UNROLLED_CHOLESKY_MAX, SqrtFallbackWarning, cholesky_unrolled
+from lightcurve_gp.filters.usque import UsqueParams, initial_covariance, run_usque
 from lightcurve_gp.observation import ExactGP
 from lightcurve_gp.observation.kernels import blocked_kernel_sum, cross_kernel_cache, exp_neg_sqdist, weighted_blocks
 from lightcurve_gp.observation.parametric import Parametric
-from lightcurve_gp.render import Scene
-from lightcurve_gp.scenario import simulate_scenario
-from lightcurve_gp.ukf import UsqueParams, initial_covariance, run_usque
-from lightcurve_gp.unscented import UNROLLED_CHOLESKY_MAX, SqrtFallbackWarning, cholesky_unrolled
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.simulation.scenario import simulate_scenario
+from lightcurve_gp.training.sets import generate_training_set
 from tests.helpers import ToyModel, scenario
 
 

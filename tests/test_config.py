@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from lightcurve_gp.config import ConfigError, apply_overrides, config_from_dict, config_hash, load_config
+from lightcurve_gp.config.load import ConfigError, apply_overrides, config_from_dict, config_hash, load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 BOXWING = ROOT / "configs" / "boxwing.yaml"
@@ -156,9 +156,9 @@ def test_bad_meshes_are_config_errors(tmp_path, content, message):
 
 
 def test_content_hash_follows_the_mesh_file_not_its_path(tmp_path):
-    from lightcurve_gp.config import content_hash
-    from lightcurve_gp.data import data_cache_key
-    from lightcurve_gp.model_store import model_key
+    from lightcurve_gp.config.load import content_hash
+    from lightcurve_gp.training.sets import data_cache_key
+    from lightcurve_gp.training.store import model_key
 
     mesh = _box_obj(tmp_path / "object.obj")
     cfg = load_config(BOXWING, ["shape.kind=mesh", f"shape.mesh_path={mesh}"])

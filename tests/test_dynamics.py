@@ -7,8 +7,8 @@ import pytest
 import torch
 from scipy.integrate import solve_ivp
 
-from lightcurve_gp.dynamics import euler_rates, propagate, quaternion_increments, quaternion_rates, rk4_step
-from lightcurve_gp.rotations import attitude_matrix, axis_angle_to_quat, quat_mul, quat_normalize
+from lightcurve_gp.attitude.dynamics import euler_rates, propagate, quaternion_increments, quaternion_rates, rk4_step
+from lightcurve_gp.attitude.rotations import attitude_matrix, axis_angle_to_quat, quat_mul, quat_normalize
 
 F64 = torch.float64
 OMEGA0 = torch.deg2rad(torch.tensor([0.1, -0.1, -0.25], dtype=F64))  # the paper's ω0 (rad/s)

@@ -6,13 +6,13 @@ from pathlib import Path
 import pytest
 import torch
 
-from lightcurve_gp.config import load_config
-from lightcurve_gp.estimation import propagate_only, run_estimators
-from lightcurve_gp.metrics import total_angle_deg
+from lightcurve_gp.attitude.metrics import total_angle_deg
+from lightcurve_gp.attitude.rotations import euler321_to_quat, quat_mul
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.evaluation.estimators import propagate_only, run_estimators
 from lightcurve_gp.observation.parametric import Parametric
-from lightcurve_gp.render import Scene
-from lightcurve_gp.rotations import euler321_to_quat, quat_mul
-from lightcurve_gp.scenario import simulate_scenario
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.simulation.scenario import simulate_scenario
 
 BOXWING = Path(__file__).resolve().parents[1] / "configs" / "boxwing.yaml"
 
@@ -118,7 +118,7 @@ def test_joint_ukf_estimates_the_offset_of_an_unknown_rho():
     """The renderer at rho_reference with the offset in the state: its offset converges to -2.5 log10(rho/rho_ref)
     within its own uncertainty and its attitude is as good as the matched-rho UKF's (every axis below 10°), while
     the conventional UKF with rho_assumed = 0.5 fails."""
-    from lightcurve_gp.ukf_offset import rho_to_offset
+    from lightcurve_gp.filters.offset import rho_to_offset
 
     cfg = load_config(BOXWING, ["scenario.noise_var=0.01", "filter.measurement_noise=0.01"])
     res = run_estimators(cfg, seeds=range(3), rho_true=0.3, estimators=("ukf", "matched_ukf", "joint_ukf"))

@@ -7,10 +7,10 @@ import pytest
 import torch
 from astropy.time import Time
 
-from lightcurve_gp.config import load_config
-from lightcurve_gp.geometry import pass_geometry
-from lightcurve_gp.lightcurve_file import LightCurve
-from lightcurve_gp.observed import FileGeometryError, file_geometry
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.observed.lightcurve_file import LightCurve
+from lightcurve_gp.observed.run import FileGeometryError, file_geometry
+from lightcurve_gp.passes.geometry import pass_geometry
 
 LEO = Path(__file__).resolve().parents[1] / "configs" / "leo_pass.yaml"
 

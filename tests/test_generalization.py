@@ -8,15 +8,15 @@ import pytest
 import torch
 import yaml
 
-from lightcurve_gp.brdf import Surface
-from lightcurve_gp.config import load_config
-from lightcurve_gp.estimation import propagate_only
-from lightcurve_gp.generalization import nees_band, run_suite
-from lightcurve_gp.generalization_summary import ERROR_BINS, bin_label, seed_rows, summarize, whitened_correlation
-from lightcurve_gp.map_surface import batch_map
-from lightcurve_gp.metrics import total_angle_deg
-from lightcurve_gp.render import Scene
-from lightcurve_gp.truths import TruthDraw, draw_truths, simulate_truths
+from lightcurve_gp.attitude.metrics import total_angle_deg
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.evaluation.estimators import propagate_only
+from lightcurve_gp.evaluation.suite import nees_band, run_suite
+from lightcurve_gp.evaluation.suite_summary import ERROR_BINS, bin_label, seed_rows, summarize, whitened_correlation
+from lightcurve_gp.inference.surface import batch_map
+from lightcurve_gp.photometry.brdf import Surface
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.simulation.truths import TruthDraw, draw_truths, simulate_truths
 
 DT = torch.float64
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "boxwing_robust.yaml"

@@ -6,10 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from lightcurve_gp.config import ConfigError, load_config
-from lightcurve_gp.earth import EARTH_RADIUS_KM, TimeGrid, site_gcrs, sun_gcrs
-from lightcurve_gp.geometry import PassGeometry, cylindrical_shadow, elevation_deg, pass_geometry, sample_times
-from lightcurve_gp.orbit import MU_EARTH_KM3_S2, kepler_positions_gcrs, parse_utc, tle_positions_gcrs
+from lightcurve_gp.config.load import ConfigError, load_config
+from lightcurve_gp.passes.earth import EARTH_RADIUS_KM, TimeGrid, site_gcrs, sun_gcrs
+from lightcurve_gp.passes.geometry import PassGeometry, cylindrical_shadow, elevation_deg, pass_geometry, sample_times
+from lightcurve_gp.passes.orbit import MU_EARTH_KM3_S2, kepler_positions_gcrs, parse_utc, tle_positions_gcrs
 
 # the sgp4 package's verification TLE 00005 (SGP4-VER.TLE) and its TEME positions at 0 and 360 min (tcppver.out)
 TLE_00005 = ["1 00005U 58002B   00179.78495062  .00000023  00000-0  28098-4 0  4753",

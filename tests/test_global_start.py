@@ -5,9 +5,9 @@ from pathlib import Path
 import pytest
 import torch
 
-from lightcurve_gp.attitudes import random_attitudes
-from lightcurve_gp.config import load_config
-from lightcurve_gp.global_start import (
+from lightcurve_gp.attitude.sampling import random_attitudes
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.filters.bank import (
     bank_attitudes,
     continue_filters,
     innovation_log_likelihood,

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from lightcurve_gp.config import (
+from lightcurve_gp.config.load import (
     ConfigError,
     ExactModelConfig,
     ModelConfig,
@@ -499,7 +499,7 @@ def test_kind_sections_apply_to_their_kind():
 @pytest.mark.parametrize("kind", ["exact", "sparse"])
 def test_a_config_written_as_a_dict_reads_back(kind):
     """config_to_dict keeps only the settings of the model's kind, so that config_from_dict accepts it again."""
-    from lightcurve_gp.config import config_from_dict
+    from lightcurve_gp.config.load import config_from_dict
 
     cfg = load_config(BOXWING, [f"model.kind={kind}"])
     raw = config_to_dict(cfg)

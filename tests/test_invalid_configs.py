@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from lightcurve_gp import estimate, train
-from lightcurve_gp.config import ConfigError, config_from_dict
+from lightcurve_gp.commands import estimate, train
+from lightcurve_gp.config.load import ConfigError, config_from_dict
 
 ROOT = Path(__file__).resolve().parents[1]
 RAW = yaml.safe_load((ROOT / "configs" / "boxwing.yaml").read_text())

@@ -4,9 +4,9 @@ paper's ``λ = 0`` at ``n = 3``, and errors naming the key."""
 import pytest
 import torch
 
-from lightcurve_gp.config import ConfigError, load_config
-from lightcurve_gp.model_store import model_key
-from lightcurve_gp.ukf import UsqueParams
+from lightcurve_gp.config.load import ConfigError, load_config
+from lightcurve_gp.filters.usque import UsqueParams
+from lightcurve_gp.training.store import model_key
 
 DT = torch.float64
 ROBUST = "configs/boxwing_robust.yaml"

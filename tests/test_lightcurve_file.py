@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from astropy.time import Time
 
-from lightcurve_gp.lightcurve_file import (
+from lightcurve_gp.observed.lightcurve_file import (
     LightCurve,
     LightCurveFileError,
     read_light_curve,

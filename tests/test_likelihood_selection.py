@@ -5,13 +5,13 @@ import math
 
 import torch
 
-from lightcurve_gp.config import load_config
-from lightcurve_gp.estimation import SELECTED_LAM_RULES, run_surface_filter, run_surface_filter_selected
-from lightcurve_gp.global_start import innovation_log_likelihood
-from lightcurve_gp.likelihood_selection import select_by_likelihood, select_rows
-from lightcurve_gp.render import Scene
-from lightcurve_gp.scenario import simulate_scenario
-from lightcurve_gp.ukf import UsqueParams, run_usque
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.evaluation.estimators import SELECTED_LAM_RULES, run_surface_filter, run_surface_filter_selected
+from lightcurve_gp.filters.bank import innovation_log_likelihood
+from lightcurve_gp.filters.selection import select_by_likelihood, select_rows
+from lightcurve_gp.filters.usque import UsqueParams, run_usque
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.simulation.scenario import simulate_scenario
 
 from helpers import ToyModel, scenario
 

@@ -7,15 +7,15 @@ from pathlib import Path
 import pytest
 import torch
 
-from lightcurve_gp.batch_map import MapPrior, batch_map
-from lightcurve_gp.config import load_config
-from lightcurve_gp.dynamics import propagate, quaternion_increments
-from lightcurve_gp.map_spin import RateDynamics, map_with_rate, neg_log_posterior, rate_map_errors
-from lightcurve_gp.metrics import total_angle_deg
+from lightcurve_gp.attitude.dynamics import propagate, quaternion_increments
+from lightcurve_gp.attitude.metrics import total_angle_deg
+from lightcurve_gp.attitude.rotations import euler321_to_quat, quat_mul
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.inference.attitude import MapPrior, batch_map
+from lightcurve_gp.inference.spin import RateDynamics, map_with_rate, neg_log_posterior, rate_map_errors
 from lightcurve_gp.observation.parametric import Parametric
-from lightcurve_gp.render import Scene
-from lightcurve_gp.rotations import euler321_to_quat, quat_mul
-from lightcurve_gp.scenario import simulate_scenario
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.simulation.scenario import simulate_scenario
 
 from helpers import DT, ToyModel
 

@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from lightcurve_gp.metrics import (
+from lightcurve_gp.attitude.metrics import (
     attitude_error_vector,
     attitude_errors_deg,
     chi2_band,
@@ -16,7 +16,7 @@ from lightcurve_gp.metrics import (
     rmse_over_window,
     total_angle_deg,
 )
-from lightcurve_gp.rotations import euler321_to_quat, grp_to_quat, identity_quat, quat_mul, quat_normalize
+from lightcurve_gp.attitude.rotations import euler321_to_quat, grp_to_quat, identity_quat, quat_mul, quat_normalize
 
 from helpers import ToyModel
 

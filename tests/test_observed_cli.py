@@ -10,13 +10,13 @@ import torch
 from astropy.table import Table
 from scipy.stats import norm
 
-from lightcurve_gp import estimate, simulate
-from lightcurve_gp.config import load_config
-from lightcurve_gp.estimation import run_estimators
-from lightcurve_gp.global_start import innovation_log_likelihood, run_filter
-from lightcurve_gp.lightcurve_file import read_light_curve, write_light_curve
-from lightcurve_gp.model_store import open_model
-from lightcurve_gp.observed import file_inputs
+from lightcurve_gp.commands import estimate, simulate
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.evaluation.estimators import run_estimators
+from lightcurve_gp.filters.bank import innovation_log_likelihood, run_filter
+from lightcurve_gp.observed.lightcurve_file import read_light_curve, write_light_curve
+from lightcurve_gp.observed.run import file_inputs
+from lightcurve_gp.training.store import open_model
 
 from helpers import as_sets, simulate_file, tiny_training, train_tiny
 

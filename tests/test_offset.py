@@ -7,14 +7,14 @@ from pathlib import Path
 import pytest
 import torch
 
-from lightcurve_gp.attitudes import random_attitudes
-from lightcurve_gp.config import load_config
-from lightcurve_gp.data import TrainingSet, model_targets, normalised_targets
+from lightcurve_gp.attitude.rotations import attitude_matrix, quat_conj, quat_mul
+from lightcurve_gp.attitude.sampling import random_attitudes
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.filters.offset import initial_offset, offset_covariance, offset_to_rho, rho_to_offset
+from lightcurve_gp.filters.usque import UsqueParams, run_usque
 from lightcurve_gp.observation.inputs import INPUT_KINDS, InputMap, attitude_matrix_features
-from lightcurve_gp.render import Scene
-from lightcurve_gp.rotations import attitude_matrix, quat_conj, quat_mul
-from lightcurve_gp.ukf import UsqueParams, run_usque
-from lightcurve_gp.ukf_offset import initial_offset, offset_covariance, offset_to_rho, rho_to_offset
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.training.sets import TrainingSet, model_targets, normalised_targets
 
 from helpers import ToyModel, err_deg, scenario
 

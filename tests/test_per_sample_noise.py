@@ -1,11 +1,12 @@
-"""Per-sample measurement noise ``R (B, T+1)`` of :func:`lightcurve_gp.ukf.run_usque` (a file's ``mag_err²``)."""
+"""Per-sample measurement noise ``R (B, T+1)`` of :func:`lightcurve_gp.filters.usque.run_usque` (a file's
+``mag_err²``)."""
 
 import math
 
 import pytest
 import torch
 
-from lightcurve_gp.ukf import UsqueParams, initial_covariance, run_usque
+from lightcurve_gp.filters.usque import UsqueParams, initial_covariance, run_usque
 
 from helpers import DT, ToyModel, scenario
 

@@ -6,11 +6,11 @@ import math
 import pytest
 import torch
 
-from lightcurve_gp.config import ConfigError, config_to_dict, load_config
-from lightcurve_gp.dynamics import propagate
-from lightcurve_gp.estimation import prior_covariance, run_estimators
-from lightcurve_gp.model_store import model_key
-from lightcurve_gp.ukf import UsqueParams
+from lightcurve_gp.attitude.dynamics import propagate
+from lightcurve_gp.config.load import ConfigError, config_to_dict, load_config
+from lightcurve_gp.evaluation.estimators import prior_covariance, run_estimators
+from lightcurve_gp.filters.usque import UsqueParams
+from lightcurve_gp.training.store import model_key
 
 ROBUST = "configs/boxwing_robust.yaml"
 

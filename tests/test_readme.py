@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from lightcurve_gp.metrics import total_angle_deg
-from lightcurve_gp.rotations import euler321_to_quat, identity_quat
+from lightcurve_gp.attitude.metrics import total_angle_deg
+from lightcurve_gp.attitude.rotations import euler321_to_quat, identity_quat
 
 ROOT = Path(__file__).resolve().parents[1]
 

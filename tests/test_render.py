@@ -8,10 +8,10 @@ import pytest
 import torch
 from scipy.integrate import solve_ivp
 
-from lightcurve_gp.brdf import ashikhmin_shirley
-from lightcurve_gp.config import load_config
-from lightcurve_gp.render import Scene
-from lightcurve_gp.shapes import Facets, facets_from_config
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.photometry.brdf import ashikhmin_shirley
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.photometry.shapes import Facets, facets_from_config
 
 BOXWING = Path(__file__).resolve().parents[1] / "configs" / "boxwing.yaml"
 F64 = torch.float64

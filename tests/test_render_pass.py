@@ -5,10 +5,10 @@ from pathlib import Path
 import pytest
 import torch
 
-from lightcurve_gp.brdf import Surface
-from lightcurve_gp.config import load_config
-from lightcurve_gp.render import Scene
-from lightcurve_gp.shapes import facets_from_config
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.photometry.brdf import Surface
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.photometry.shapes import facets_from_config
 
 BOXWING = Path(__file__).resolve().parents[1] / "configs" / "boxwing.yaml"
 F64 = torch.float64

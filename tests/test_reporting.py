@@ -8,7 +8,7 @@ import math
 import pytest
 import torch
 
-from lightcurve_gp.reporting import (
+from lightcurve_gp.evaluation.reporting import (
     RESULT_COLUMNS,
     CaseRecord,
     Quantiles,

@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from lightcurve_gp.rotations import (
+from lightcurve_gp.attitude.rotations import (
     attitude_matrix,
     axis_angle_to_quat,
     euler321_to_quat,
@@ -244,7 +244,7 @@ def test_gradients_flow():
 
 def test_product_matrices_are_the_papers_product():
     """``q ⊗ p = L(q) p = R(p) q`` for batches of arbitrary (not unit) quaternions."""
-    from lightcurve_gp.rotations import quat_left_matrix, quat_right_matrix
+    from lightcurve_gp.attitude.rotations import quat_left_matrix, quat_right_matrix
 
     g = torch.Generator().manual_seed(11)
     q, p = torch.randn(2, 6, 4, generator=g, dtype=torch.float64)

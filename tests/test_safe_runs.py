@@ -13,9 +13,11 @@ import pytest
 import torch
 import yaml
 
-from lightcurve_gp import cli, estimate, plots, train
-from lightcurve_gp.config import load_config
-from lightcurve_gp.model_store import get_or_train, model_key, open_model, store_folder, training_mismatch
+from lightcurve_gp.commands import common as cli
+from lightcurve_gp.commands import estimate, train
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.evaluation import plots
+from lightcurve_gp.training.store import get_or_train, model_key, open_model, store_folder, training_mismatch
 
 ROOT = Path(__file__).resolve().parents[1]
 BOXWING = str(ROOT / "configs" / "boxwing.yaml")
@@ -223,7 +225,7 @@ def test_an_interrupted_forced_train_keeps_the_old_run(model_file, tmp_path, cap
 
 
 def test_an_interrupt_says_what_was_kept(tmp_path, capsys, monkeypatch):
-    from lightcurve_gp.data import data_cache_key
+    from lightcurve_gp.training.sets import data_cache_key
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt

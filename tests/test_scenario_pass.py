@@ -4,12 +4,12 @@ from pathlib import Path
 
 import torch
 
-from lightcurve_gp.config import load_config
-from lightcurve_gp.dynamics import propagate
-from lightcurve_gp.geometry import pass_geometry
-from lightcurve_gp.render import Scene
-from lightcurve_gp.rotations import quat_mul, quat_normalize
-from lightcurve_gp.scenario import simulate_scenario
+from lightcurve_gp.attitude.dynamics import propagate
+from lightcurve_gp.attitude.rotations import quat_mul, quat_normalize
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.passes.geometry import pass_geometry
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.simulation.scenario import simulate_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -7,8 +7,8 @@ import pytest
 import torch
 import trimesh
 
-from lightcurve_gp.config import load_config
-from lightcurve_gp.shapes import Facets, facets_from_config, facets_from_mesh, load_mesh, tangent_axes
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.photometry.shapes import Facets, facets_from_config, facets_from_mesh, load_mesh, tangent_axes
 
 BOXWING = Path(__file__).resolve().parents[1] / "configs" / "boxwing.yaml"
 

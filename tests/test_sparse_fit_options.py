@@ -8,8 +8,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from lightcurve_gp.config import ConfigError, config_from_dict, config_to_dict, load_config
-from lightcurve_gp.model_store import model_key
+from lightcurve_gp.config.load import ConfigError, config_from_dict, config_to_dict, load_config
 from lightcurve_gp.observation.fitting import (
     fit_hyperparameters,
     gpytorch_sgpr_model,
@@ -21,6 +20,7 @@ from lightcurve_gp.observation.fitting import (
 )
 from lightcurve_gp.observation.gp_base import GPTrainingSet
 from lightcurve_gp.observation.sparse_gp import SparseGP, sgpr_cache
+from lightcurve_gp.training.store import model_key
 
 ROBUST = Path(__file__).resolve().parents[1] / "configs" / "boxwing_robust.yaml"
 F64 = torch.float64

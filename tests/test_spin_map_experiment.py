@@ -4,7 +4,7 @@ import pytest
 
 from experiments import spin_map
 from experiments.spin_unknown import HEADER, ROOT, build_parser, case_overrides
-from lightcurve_gp.config import apply_overrides, load_raw_config
+from lightcurve_gp.config.load import apply_overrides, load_raw_config
 
 
 @pytest.mark.slow
@@ -32,7 +32,7 @@ def test_map_case_is_stored_and_read_back(tmp_path, monkeypatch):
 def test_map_key_ignores_the_rate_process_noise_only():
     """The MAP has no process noise: tuning ``filter.omega_process_noise`` must not recompute it, any key it reads
     (here the measurement noise of its prior) must."""
-    from lightcurve_gp.config import config_from_dict
+    from lightcurve_gp.config.load import config_from_dict
 
     raw = apply_overrides(load_raw_config(ROOT / "configs/boxwing_robust.yaml"), case_overrides(600.0, 0.03))
 

@@ -7,14 +7,14 @@ from pathlib import Path
 import pytest
 import torch
 
-from lightcurve_gp.attitudes import random_attitudes
-from lightcurve_gp.brdf import Surface
-from lightcurve_gp.config import ConfigError, load_config
-from lightcurve_gp.data import model_targets, normalised_targets
+from lightcurve_gp.attitude.rotations import attitude_matrix
+from lightcurve_gp.attitude.sampling import random_attitudes
+from lightcurve_gp.config.load import ConfigError, load_config
 from lightcurve_gp.observation import SurfaceMarginalGP, load_model, save_model
-from lightcurve_gp.render import Scene
-from lightcurve_gp.rotations import attitude_matrix
-from lightcurve_gp.surface_training import (
+from lightcurve_gp.photometry.brdf import Surface
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.training.sets import model_targets, normalised_targets
+from lightcurve_gp.training.surfaces import (
     attitude_spread,
     draw_surfaces,
     equivalent_reflectance,

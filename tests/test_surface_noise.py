@@ -6,12 +6,12 @@ import math
 import pytest
 import torch
 
-from lightcurve_gp.config import ConfigError, config_to_dict, load_config
-from lightcurve_gp.estimation import run_surface_filter, surface_filter_params
-from lightcurve_gp.model_store import model_key
-from lightcurve_gp.render import Scene
-from lightcurve_gp.scenario import simulate_scenario
-from lightcurve_gp.ukf import UsqueParams
+from lightcurve_gp.config.load import ConfigError, config_to_dict, load_config
+from lightcurve_gp.evaluation.estimators import run_surface_filter, surface_filter_params
+from lightcurve_gp.filters.usque import UsqueParams
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.simulation.scenario import simulate_scenario
+from lightcurve_gp.training.store import model_key
 
 ROBUST = "configs/boxwing_robust.yaml"
 SHORT = ["scenario.duration_s=20", "evaluation.rmse_window_s=[10, 20]"]

@@ -6,16 +6,16 @@ from pathlib import Path
 import pytest
 import torch
 
-from lightcurve_gp.attitudes import random_attitudes
-from lightcurve_gp.brdf import Surface
-from lightcurve_gp.config import load_config
+from lightcurve_gp.attitude.sampling import random_attitudes
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.filters.offset import offset_covariance
+from lightcurve_gp.filters.usque import UsqueParams, run_usque
 from lightcurve_gp.observation.base import ObservationModule
 from lightcurve_gp.observation.parametric import Parametric, SurfaceStateRenderer
-from lightcurve_gp.render import Scene
-from lightcurve_gp.surface_state import LOG_LOBE_MAX, surface_from_state, surface_state_prior
-from lightcurve_gp.truths import TruthRanges
-from lightcurve_gp.ukf import UsqueParams, run_usque
-from lightcurve_gp.ukf_offset import offset_covariance
+from lightcurve_gp.observation.surface_state import LOG_LOBE_MAX, surface_from_state, surface_state_prior
+from lightcurve_gp.photometry.brdf import Surface
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.simulation.truths import TruthRanges
 
 from helpers import ToyModel, scenario
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
-from lightcurve_gp.config import ConfigError, apply_overrides, config_from_dict, content_hash
+from lightcurve_gp.config.load import ConfigError, apply_overrides, config_from_dict, content_hash
 from lightcurve_gp.sweep import (
     RESULT_COLUMNS,
     SUMMARY_COLUMNS,

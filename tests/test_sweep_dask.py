@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from lightcurve_gp.config import apply_overrides
+from lightcurve_gp.config.load import apply_overrides
 from lightcurve_gp.sweep import main, run_case, run_sweep
 from lightcurve_gp.sweep.executors import CLUSTER_EXTRA, make_executor
 

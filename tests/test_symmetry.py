@@ -8,13 +8,13 @@ import pytest
 import torch
 import trimesh
 
-from lightcurve_gp.attitudes import random_attitudes
-from lightcurve_gp.config import load_config
-from lightcurve_gp.render import Scene
-from lightcurve_gp.rotations import matrix_to_quat, quat_mul
-from lightcurve_gp.scenario import simulate_scenario
-from lightcurve_gp.shapes import box_wing_mesh, facets_from_config, facets_from_mesh
-from lightcurve_gp.symmetry import cube_rotations, symmetry_quaternions, symmetry_rotations
+from lightcurve_gp.attitude.rotations import matrix_to_quat, quat_mul
+from lightcurve_gp.attitude.sampling import random_attitudes
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.photometry.shapes import box_wing_mesh, facets_from_config, facets_from_mesh
+from lightcurve_gp.photometry.symmetry import cube_rotations, symmetry_quaternions, symmetry_rotations
+from lightcurve_gp.simulation.scenario import simulate_scenario
 
 
 @pytest.fixture(scope="module")
@@ -87,7 +87,7 @@ def test_anisotropic_cube_symmetries_agree_with_the_renderer():
 
 def test_symmetry_quaternions_give_the_rotations(paper_case):
     facets = paper_case[1]
-    from lightcurve_gp.rotations import attitude_matrix
+    from lightcurve_gp.attitude.rotations import attitude_matrix
 
     assert torch.allclose(attitude_matrix(symmetry_quaternions(facets)), symmetry_rotations(facets), atol=1e-15)
 
@@ -114,9 +114,9 @@ def test_mirrored_rate_trajectory_renders_the_same_light_curve_and_scores_zero_m
     see a 180° error."""
     import dataclasses
 
-    from lightcurve_gp.dynamics import propagate
-    from lightcurve_gp.estimation import score_estimator
-    from lightcurve_gp.rotations import attitude_matrix
+    from lightcurve_gp.attitude.dynamics import propagate
+    from lightcurve_gp.attitude.rotations import attitude_matrix
+    from lightcurve_gp.evaluation.estimators import score_estimator
 
     cfg, facets = paper_case
     cfg = dataclasses.replace(cfg, scenario=dataclasses.replace(cfg.scenario, duration_s=60.0),

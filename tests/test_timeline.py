@@ -1,11 +1,11 @@
-"""Increments between irregular sample times from the known spin (lightcurve_gp.timeline)."""
+"""Increments between irregular sample times from the known spin (lightcurve_gp.attitude.timeline)."""
 
 import pytest
 import torch
 
-from lightcurve_gp.dynamics import propagate, quaternion_increments
-from lightcurve_gp.rotations import quat_mul, quat_normalize
-from lightcurve_gp.timeline import spin_increments, sub_steps
+from lightcurve_gp.attitude.dynamics import propagate, quaternion_increments
+from lightcurve_gp.attitude.rotations import quat_mul, quat_normalize
+from lightcurve_gp.attitude.timeline import spin_increments, sub_steps
 
 DT = torch.float64
 OMEGA0 = torch.deg2rad(torch.tensor([0.1, -0.1, -0.25], dtype=DT)) * 20  # 20x the paper's rate: RK4 errors show

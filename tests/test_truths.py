@@ -6,15 +6,15 @@ from pathlib import Path
 import pytest
 import torch
 
-from lightcurve_gp.brdf import Surface, ashikhmin_shirley
-from lightcurve_gp.config import load_config
-from lightcurve_gp.dynamics import propagate
-from lightcurve_gp.map_surface import cumulative_increments
-from lightcurve_gp.render import Scene
-from lightcurve_gp.rotations import attitude_matrix, quat_conj, quat_mul, quat_to_rotvec, rotvec_to_quat
-from lightcurve_gp.scenario import simulate_scenario
-from lightcurve_gp.shapes import box_wing
-from lightcurve_gp.truths import (
+from lightcurve_gp.attitude.dynamics import propagate
+from lightcurve_gp.attitude.rotations import attitude_matrix, quat_conj, quat_mul, quat_to_rotvec, rotvec_to_quat
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.inference.surface import cumulative_increments
+from lightcurve_gp.photometry.brdf import Surface, ashikhmin_shirley
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.photometry.shapes import box_wing
+from lightcurve_gp.simulation.scenario import simulate_scenario
+from lightcurve_gp.simulation.truths import (
     SPECULAR_CLASSES,
     TruthRanges,
     draw_truths,

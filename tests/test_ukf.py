@@ -9,16 +9,16 @@ import pytest
 import torch
 from reference_ukf import sigma_points, ukf_predict, ukf_update, unscented_mean_cov
 
-from lightcurve_gp.config import load_config
-from lightcurve_gp.rotations import (
+from lightcurve_gp.attitude.rotations import (
     euler321_to_quat,
     grp_to_quat,
     quat_conj,
     quat_mul,
     quat_to_grp,
 )
-from lightcurve_gp.ukf import UsqueParams, initial_covariance, run_usque
-from lightcurve_gp.unscented import SqrtFallbackWarning, matrix_sqrt, unscented_weights
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.filters.unscented import SqrtFallbackWarning, matrix_sqrt, unscented_weights
+from lightcurve_gp.filters.usque import UsqueParams, initial_covariance, run_usque
 
 from helpers import DT, ToyModel, err_deg, increment, scenario
 
@@ -404,8 +404,8 @@ def test_bad_shapes_are_reported():
 
 def test_usque_is_consistent_nees_and_nis():
     """Initial errors drawn from P0 and matched noise: mean NEES ≈ 3 and mean NIS ≈ 1 (χ² bands)."""
-    from lightcurve_gp.metrics import attitude_error_vector, chi2_band, nees
-    from lightcurve_gp.rotations import rotvec_to_quat
+    from lightcurve_gp.attitude.metrics import attitude_error_vector, chi2_band, nees
+    from lightcurve_gp.attitude.rotations import rotvec_to_quat
 
     B, T, R = 300, 60, 1e-3
     g = torch.Generator().manual_seed(3)

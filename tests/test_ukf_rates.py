@@ -8,12 +8,12 @@ import pytest
 import torch
 from reference_ukf import sigma_points, unscented_mean_cov
 
-from lightcurve_gp.dynamics import propagate, quaternion_increments, rk4_stepper
-from lightcurve_gp.filter_state import FilterState, StateLayout
-from lightcurve_gp.rotations import euler321_to_quat, grp_to_quat, quat_conj, quat_mul, quat_to_grp
-from lightcurve_gp.ukf import UsqueParams, _run_constants, initial_covariance, run_usque
-from lightcurve_gp.ukf_rates import rate_prior
-from lightcurve_gp.unscented import sqrt_psd_with_zero_rows
+from lightcurve_gp.attitude.dynamics import propagate, quaternion_increments, rk4_stepper
+from lightcurve_gp.attitude.rotations import euler321_to_quat, grp_to_quat, quat_conj, quat_mul, quat_to_grp
+from lightcurve_gp.filters.rates import rate_prior
+from lightcurve_gp.filters.state import FilterState, StateLayout
+from lightcurve_gp.filters.unscented import sqrt_psd_with_zero_rows
+from lightcurve_gp.filters.usque import UsqueParams, _run_constants, initial_covariance, run_usque
 
 from helpers import DT, ToyModel, err_deg
 
@@ -121,7 +121,7 @@ def test_every_sigma_point_moves_as_dynamics_propagate_moves_it():
 
 
 def test_the_stepper_validates_once_and_equals_rk4_step():
-    from lightcurve_gp.dynamics import rk4_step
+    from lightcurve_gp.attitude.dynamics import rk4_step
 
     g = torch.Generator().manual_seed(1)
     q = torch.nn.functional.normalize(torch.randn(4, 5, 4, generator=g, dtype=DT), dim=-1)

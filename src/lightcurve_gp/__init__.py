@@ -4,7 +4,7 @@ Gaussian-process and parametric observation models behind one interface, a torch
 renderer (Ashikhmin–Shirley BRDF), torque-free dynamics and a batched USQUE unscented Kalman filter.
 """
 
-from .config import Config, ConfigError, load_config
+from lightcurve_gp.config.load import Config, ConfigError, load_config
 
 __version__ = "0.1.0"
 

@@ -1,11 +1,11 @@
 """Observation models behind one interface: exact GP, inducing-point GP and the parametric renderer."""
 
-from .base import ObservationModel, ObservationModule, Variance
-from .exact_gp import ExactGP
-from .parametric import Parametric
-from .serialization import ModelFileError, build_model, load_model, save_model
-from .sparse_gp import SparseGP
-from .surface_marginal import SurfaceMarginalGP
+from lightcurve_gp.observation.base import ObservationModel, ObservationModule, Variance
+from lightcurve_gp.observation.exact_gp import ExactGP
+from lightcurve_gp.observation.parametric import Parametric
+from lightcurve_gp.observation.serialization import ModelFileError, build_model, load_model, save_model
+from lightcurve_gp.observation.sparse_gp import SparseGP
+from lightcurve_gp.observation.surface_marginal import SurfaceMarginalGP
 
 __all__ = [
            "ExactGP",

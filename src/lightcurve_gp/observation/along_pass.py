@@ -5,7 +5,8 @@
 :class:`~.body_geometry.GeometryBound`, and a model that knows no geometry (a GP trained under one fixed geometry,
 the paper's assumption) is returned as it is.
 
-:class:`AlongPass` is what the filter gets: :func:`lightcurve_gp.ukf.run_usque` calls its model exactly once per
+:class:`AlongPass` is what the filter gets: :func:`lightcurve_gp.filters.usque.run_usque` calls its model exactly once
+per
 step ``k = 1 … T`` with all filters' sigma points, so call ``j`` of an ``AlongPass(model, geometry, first=1)``
 predicts sample ``k = j + 1``. It is an iterator over the pass and serves one run; a call past the last sample is an
 error, never a silent reuse of a geometry.
@@ -17,9 +18,9 @@ import copy
 
 from torch import Tensor
 
-from .base import ObservationModel, ObservationModule, Prediction, Variance
-from .body_geometry import GeometryBound, bound_geometry, predict_bound
-from .parametric import _RendererModel
+from lightcurve_gp.observation.base import ObservationModel, ObservationModule, Prediction, Variance
+from lightcurve_gp.observation.body_geometry import GeometryBound, bound_geometry, predict_bound
+from lightcurve_gp.observation.parametric import _RendererModel
 
 __all__ = ["bind_geometry", "AlongPass", "pass_models"]
 
@@ -36,7 +37,7 @@ def bind_geometry(model: ObservationModel, *, sun: Tensor, observer: Tensor, ran
 
 
 class AlongPass(ObservationModule):
-    """``model`` at samples ``first, first + 1, …`` of ``geometry`` (a :class:`~lightcurve_gp.geometry.
+    """``model`` at samples ``first, first + 1, …`` of ``geometry`` (a :class:`~lightcurve_gp.passes.geometry.
     PassGeometry`), one sample per call (module docstring)."""
 
     def __init__(self, model: ObservationModel, geometry, *, first: int = 1) -> None:
@@ -81,7 +82,7 @@ class AlongPass(ObservationModule):
 
 def pass_models(model: ObservationModel, geometry) -> tuple[ObservationModel, ObservationModel]:
     """``(model at sample 0, model of steps 1 … T)`` along a pass ``geometry`` (a
-    :class:`~lightcurve_gp.geometry.PassGeometry`): sample 0 bound once (the filter's initial offset), the steps
+    :class:`~lightcurve_gp.passes.geometry.PassGeometry`): sample 0 bound once (the filter's initial offset), the steps
     through :class:`AlongPass`."""
     g = geometry
     return (bind_geometry(model, sun=g.sun[0], observer=g.observer[0], range_m=float(g.range_m[0])),

@@ -81,7 +81,7 @@ def check_inputs(q: Tensor, m_past: Tensor) -> tuple[Tensor, Tensor]:
         raise ValueError(f"q must have shape (..., 4), got {tuple(q.shape)}")
     # hot path: one reduction and one device sync; a non-finite value makes the sum non-finite (a sum of finite
     # values can overflow too, which the exact check below then clears)
-    # (left out inside a compiled step, which checks its posterior instead: lightcurve_gp.usque_compiled)
+    # (left out inside a compiled step, which checks its posterior instead: lightcurve_gp.filters.compiled)
     if not torch.compiler.is_compiling() and not math.isfinite(float(q.sum() + m_past.sum())):
         for name, t in (("q", q), ("m_past", m_past)):
             if not bool(torch.isfinite(t).all()):
@@ -123,7 +123,7 @@ class ObservationModule(nn.Module):
         return self._predict(q, m_past, variance)
 
     def fuses_in_compiled_step(self, variance: Variance) -> bool:
-        """Whether a compiled filter step (:mod:`lightcurve_gp.usque_compiled`) traces this prediction into its graph
+        """Whether a compiled filter step (:mod:`lightcurve_gp.filters.compiled`) traces this prediction into its graph
         (it must read nothing back to Python); ``False``: the step calls it eagerly between two compiled halves."""
         return True
 

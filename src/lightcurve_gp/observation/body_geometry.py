@@ -11,7 +11,7 @@ one, ``s = C e_x`` and ``v = C (cos α, sin α, 0)``, with ``C = [ŝ, ŵ, ŝ × 
 normal to ``s``. So ``[s_b, v_b] = [A(q') e_x, A(q') (cos α, sin α, 0)]`` with ``A(q') = A(q) C``, i.e.
 ``q' = q ⊗ c`` for ``A(c) = C``. The GP is an ordinary :class:`~.gp_base.CachedGP` whose inputs are ``(q', α)``:
 its second input (the ``m_past`` slot of the other input kinds) carries the phase angle in radians. Training
-points are drawn in the canonical frame (:mod:`lightcurve_gp.geometry_training`); :class:`GeometryBound` turns a
+points are drawn in the canonical frame (:mod:`lightcurve_gp.training.geometry`); :class:`GeometryBound` turns a
 filter's ``q`` under a real geometry into ``(q', α)`` and adds the range term.
 """
 
@@ -20,8 +20,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ..rotations import matrix_to_quat, quat_mul
-from .base import ObservationModel, ObservationModule, Prediction, Variance
+from lightcurve_gp.attitude.rotations import matrix_to_quat, quat_mul
+from lightcurve_gp.observation.base import ObservationModel, ObservationModule, Prediction, Variance
 
 __all__ = ["canonical_frame", "GeometryBound", "bound_geometry", "predict_bound"]
 

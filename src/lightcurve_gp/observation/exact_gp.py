@@ -25,12 +25,12 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from ..config import config_to_dict
-from .base import Prediction, Variance
-from .fitting import fit_hyperparameters, seeded_subset
-from .gp_base import CachedGP, GPTrainingSet, cpu64
-from .inputs import InputMap
-from .kernels import (
+from lightcurve_gp.config.load import config_to_dict
+from lightcurve_gp.observation.base import Prediction, Variance
+from lightcurve_gp.observation.fitting import fit_hyperparameters, seeded_subset
+from lightcurve_gp.observation.gp_base import CachedGP, GPTrainingSet, cpu64
+from lightcurve_gp.observation.inputs import InputMap
+from lightcurve_gp.observation.kernels import (
     blocked_kernel_sum,
     cholesky_jittered,
     cholesky_kernel,
@@ -93,7 +93,7 @@ class ExactGP(CachedGP):
                   progress: bool = False) -> ExactGP:
         """Condition the paper's GP on training data ``q (N, 4)``, ``m_past (N,)``, ``y (N,)``.
 
-        ``cfg`` is a :class:`~lightcurve_gp.config.ModelConfig` of kind ``exact``. Hyperparameters start at the
+        ``cfg`` is a :class:`~lightcurve_gp.config.load.ModelConfig` of kind ``exact``. Hyperparameters start at the
         paper's ``(θ1, θ2, σ)`` and are fitted by exact marginal likelihood on ``cfg.exact.fit_subset`` random
         points (seeded) when ``cfg.fit_hyperparameters``. Computation is float64 on ``device`` (default: that of
         ``q``); move the result with ``.to()``. ``fit_history`` holds the fit's log marginal likelihood per point;

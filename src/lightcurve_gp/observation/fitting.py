@@ -23,7 +23,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from .kernels import theta2_to_lengthscale
+from lightcurve_gp.observation.kernels import theta2_to_lengthscale
 
 __all__ = [
     "fit_hyperparameters",

@@ -14,10 +14,10 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from .base import ObservationModule, Prediction, Variance
-from .fitting import hyper_start
-from .inputs import InputMap
-from .kernels import scaled
+from lightcurve_gp.observation.base import ObservationModule, Prediction, Variance
+from lightcurve_gp.observation.fitting import hyper_start
+from lightcurve_gp.observation.inputs import InputMap
+from lightcurve_gp.observation.kernels import scaled
 
 __all__ = ["CachedGP", "GPTrainingSet", "cpu64"]
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from ..rotations import attitude_matrix, quat_normalize
+from lightcurve_gp.attitude.rotations import attitude_matrix, quat_normalize
 
 __all__ = [
     "INPUT_KINDS",

@@ -1,15 +1,15 @@
 """The conventional UKF's observation model: the renderer itself, with assumed surface parameters (paper Eq. (8)) or
-with the surface as an input carried by the filter (:mod:`lightcurve_gp.surface_state`)."""
+with the surface as an input carried by the filter (:mod:`lightcurve_gp.observation.surface_state`)."""
 
 from __future__ import annotations
 
 import torch
 from torch import Tensor
 
-from ..brdf import Surface
-from ..render import Scene
-from ..surface_state import PARAMETERS, surface_from_state
-from .base import ObservationModule, Prediction, Variance, check_inputs, check_variance
+from lightcurve_gp.observation.base import ObservationModule, Prediction, Variance, check_inputs, check_variance
+from lightcurve_gp.observation.surface_state import PARAMETERS, surface_from_state
+from lightcurve_gp.photometry.brdf import Surface
+from lightcurve_gp.photometry.render import Scene
 
 __all__ = ["Parametric", "SurfaceStateRenderer"]
 

@@ -7,7 +7,7 @@ A model file is ``torch.save`` of a plain dict (tensors and python scalars/strin
      "config": {...model config section...}, "inputs": {...input map and normalisation...},
      "state": {...hyperparameters and prediction cache...}, "extra": {...caller's metadata...}}
 
-It is written atomically (:func:`lightcurve_gp.io.save_torch_atomic`). Loading a missing, corrupted or
+It is written atomically (:func:`lightcurve_gp.files.save_torch_atomic`). Loading a missing, corrupted or
 foreign file, or one of another format version, raises :class:`ModelFileError` — never a silently wrong model.
 """
 
@@ -19,13 +19,13 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from ..config import ModelConfig
-from ..io import save_torch_atomic
-from .base import ObservationModel
-from .exact_gp import ExactGP
-from .inputs import InputMap
-from .sparse_gp import SparseGP
-from .surface_marginal import SurfaceMarginalGP
+from lightcurve_gp.config.load import ModelConfig
+from lightcurve_gp.files import save_torch_atomic
+from lightcurve_gp.observation.base import ObservationModel
+from lightcurve_gp.observation.exact_gp import ExactGP
+from lightcurve_gp.observation.inputs import InputMap
+from lightcurve_gp.observation.sparse_gp import SparseGP
+from lightcurve_gp.observation.surface_marginal import SurfaceMarginalGP
 
 __all__ = [
     "FORMAT",

@@ -33,12 +33,12 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from ..config import config_to_dict
-from .base import Prediction, Variance
-from .fitting import fit_hyperparameters, fit_sgpr, seeded_subset
-from .gp_base import CachedGP, GPTrainingSet, cpu64
-from .inputs import InputMap
-from .kernels import (
+from lightcurve_gp.config.load import config_to_dict
+from lightcurve_gp.observation.base import Prediction, Variance
+from lightcurve_gp.observation.fitting import fit_hyperparameters, fit_sgpr, seeded_subset
+from lightcurve_gp.observation.gp_base import CachedGP, GPTrainingSet, cpu64
+from lightcurve_gp.observation.inputs import InputMap
+from lightcurve_gp.observation.kernels import (
     cholesky_jittered,
     cross_kernel_cache,
     exp_neg_sqdist,
@@ -198,7 +198,7 @@ class SparseGP(CachedGP):
                   progress: bool = False) -> SparseGP:
         """Fit the SGPR model to ``q (N, 4)``, ``m_past (N,)``, ``y (N,)`` (float64 on ``device``).
 
-        ``cfg`` is a :class:`~lightcurve_gp.config.ModelConfig` of kind ``sparse``. ``inducing_points`` (mapped
+        ``cfg`` is a :class:`~lightcurve_gp.config.load.ModelConfig` of kind ``sparse``. ``inducing_points`` (mapped
         inputs ``(M, d)``) overrides the ``init`` (``"kmeans"`` or ``"random"``) of ``cfg.sparse.num_inducing``
         points. ``fit_history`` holds the fit's objective per point (the bound, or the subset's evidence) during
         optimisation; ``progress`` shows a bar.

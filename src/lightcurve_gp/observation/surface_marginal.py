@@ -2,14 +2,14 @@
 surface_normalised``).
 
 Trained on surface-normalised magnitudes ``y = m + 2.5 log10(ρ (1 − F0) / (ρ0 (1 − F0,0)))`` of attitudes rendered
-with K random surfaces each (:mod:`lightcurve_gp.surface_training`), it predicts
+with K random surfaces each (:mod:`lightcurve_gp.training.surfaces`), it predicts
 
 * mean: an inducing-point GP (:class:`~.sparse_gp.SparseGP`) on each training attitude's median over its K
   surfaces — a diffuse surface's normalised curve is the reference curve, which a minority of glinting surfaces
   does not move (the filter's offset state absorbs any constant part);
 * variance: that GP's latent variance plus ``s²(q) = exp(g(q))``, where ``g`` is a second SGPR on the
   bias-corrected ``log s²`` of each training attitude's mean square deviation from the median
-  (:func:`~lightcurve_gp.surface_training.attitude_spread`), with its noise the sampling variance
+  (:func:`~lightcurve_gp.training.surfaces.attitude_spread`), with its noise the sampling variance
   ``ψ'((K − 1)/2)`` of a log sample variance. So the filter's ``Pyy`` covers how far an unknown surface's specular
   part can move the magnitude at that attitude, where it can (glint geometries), and not where it cannot.
 
@@ -25,16 +25,16 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from ..config import config_to_dict
-from .base import ObservationModule, Prediction, Variance
-from .inputs import InputMap
-from .sparse_gp import SparseGP
+from lightcurve_gp.config.load import config_to_dict
+from lightcurve_gp.observation.base import ObservationModule, Prediction, Variance
+from lightcurve_gp.observation.inputs import InputMap
+from lightcurve_gp.observation.sparse_gp import SparseGP
 
 __all__ = ["SurfaceMarginalGP", "spread_model_config"]
 
 
 def spread_model_config(cfg: Any, log_s2: Tensor, sampling_var: float, num_inducing: int) -> Any:
-    """The :class:`~lightcurve_gp.config.ModelConfig` of the spread SGPR on targets ``log_s2 (A,)``: the mean's
+    """The :class:`~lightcurve_gp.config.load.ModelConfig` of the spread SGPR on targets ``log_s2 (A,)``: the mean's
     inputs and ``θ2``, ``θ1 = max(var(log_s2) − ψ', ψ'/10)``, noise ``√ψ'``, no fit, ``num_inducing`` points."""
     theta1 = max(float(log_s2.var()) - sampling_var, 0.1 * sampling_var)
     return dataclasses.replace(cfg, theta1=theta1, noise_std=sampling_var**0.5, fit_hyperparameters=False,
@@ -68,7 +68,7 @@ class SurfaceMarginalGP(ObservationModule):
         ``cfg`` is the ``model`` section (kind ``sparse``); ``per_attitude`` is K, ``spread_inducing`` the spread
         model's inducing points.
         """
-        from ..surface_training import attitude_spread
+        from lightcurve_gp.training.surfaces import attitude_spread
 
         q_a, centre, log_s2, sampling_var = attitude_spread(q, y, per_attitude)
         m_a = m_past.reshape(per_attitude, -1)[0]

@@ -2,18 +2,18 @@
 
 A sweep is the cartesian product of its grid axes (any config key, values parsed as YAML; :mod:`.grid`). Each grid
 point is a *case*: one validated config, run with every seed batched in one filter per estimator
-(:func:`~lightcurve_gp.estimation.run_estimators`; :mod:`.runner`). Storage under ``<out>/<name>/``:
+(:func:`~lightcurve_gp.evaluation.estimators.run_estimators`; :mod:`.runner`). Storage under ``<out>/<name>/``:
 
 * ``models/<model-key>/model.pt`` (+ ``metrics.json``, held-out figures): the model store
-  (:mod:`lightcurve_gp.model_store`), one GP per distinct ``geometry``, ``shape``, ``surface``, ``data``, ``model``
+  (:mod:`lightcurve_gp.training.store`), one GP per distinct ``geometry``, ``shape``, ``surface``, ``data``, ``model``
   setting (and dtype), trained once and reused by every case, sweep and rerun that needs it (:mod:`.models`);
-* ``cases/<case-id>.json``: one atomic file per finished case (:class:`~lightcurve_gp.reporting.CaseRecord`),
+* ``cases/<case-id>.json``: one atomic file per finished case (:class:`~lightcurve_gp.evaluation.reporting.CaseRecord`),
   content-addressed — the case id hashes the whole config, the seeds and the estimators — so identical cases are
   shared between sweeps and a rerun skips them (:mod:`.store`). It holds the per-(seed, estimator) rows, the
   estimators' summary and the seed-0 traces for figures. A case that raised is stored with ``status = "failed"``
   and its error; a rerun retries it.
 * ``sweep/<sweep-id>/``: ``sweep.json`` (the definition), ``results.csv`` (one row per case × seed ×
-  estimator, :data:`~lightcurve_gp.reporting.RESULT_COLUMNS` after the grid columns), ``summary.csv`` and
+  estimator, :data:`~lightcurve_gp.evaluation.reporting.RESULT_COLUMNS` after the grid columns), ``summary.csv`` and
   ``summary.json`` (median and IQR per case and estimator; :mod:`.tables`).
 
 Where the trainings and the cases run is the sweep's *executor* (:mod:`.executors`): this process, a local pool of
@@ -26,14 +26,14 @@ case is recorded and the others go on; a case whose worker process died is run a
 Ctrl-C keeps every finished case.
 """
 
-from ..reporting import RESULT_COLUMNS, CaseRecord
-from .cli import build_parser, main
-from .executors import EXECUTORS, Executor, make_executor
-from .grid import MODEL_SECTIONS, Case, expand_grid, make_cases, model_key, parse_grid
-from .models import ensure_models
-from .runner import SweepResult, run_case, run_sweep
-from .store import read_case
-from .tables import SUMMARY_COLUMNS, summarize_rows
+from lightcurve_gp.evaluation.reporting import RESULT_COLUMNS, CaseRecord
+from lightcurve_gp.sweep.cli import build_parser, main
+from lightcurve_gp.sweep.executors import EXECUTORS, Executor, make_executor
+from lightcurve_gp.sweep.grid import MODEL_SECTIONS, Case, expand_grid, make_cases, model_key, parse_grid
+from lightcurve_gp.sweep.models import ensure_models
+from lightcurve_gp.sweep.runner import SweepResult, run_case, run_sweep
+from lightcurve_gp.sweep.store import read_case
+from lightcurve_gp.sweep.tables import SUMMARY_COLUMNS, summarize_rows
 
 __all__ = ["EXECUTORS", "Executor", "make_executor", "RESULT_COLUMNS", "SUMMARY_COLUMNS", "MODEL_SECTIONS", "Case",
            "CaseRecord", "SweepResult", "parse_grid", "expand_grid", "make_cases", "model_key", "ensure_models",

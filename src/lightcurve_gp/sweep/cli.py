@@ -6,13 +6,20 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..cli import Interrupted, UserError, add_common_arguments, apply_threads, progress_enabled, run_command
-from ..config import config_from_dict, load_raw_config
-from ..estimation import DEFAULT_ESTIMATORS, ESTIMATORS
-from .executors import CLUSTER_EXTRA, EXECUTORS
-from .grid import parse_grid
-from .runner import run_sweep
-from .tables import print_summary
+from lightcurve_gp.commands.common import (
+    Interrupted,
+    UserError,
+    add_common_arguments,
+    apply_threads,
+    progress_enabled,
+    run_command,
+)
+from lightcurve_gp.config.load import config_from_dict, load_raw_config
+from lightcurve_gp.evaluation.estimators import DEFAULT_ESTIMATORS, ESTIMATORS
+from lightcurve_gp.sweep.executors import CLUSTER_EXTRA, EXECUTORS
+from lightcurve_gp.sweep.grid import parse_grid
+from lightcurve_gp.sweep.runner import run_sweep
+from lightcurve_gp.sweep.tables import print_summary
 
 __all__ = ["build_parser", "main"]
 

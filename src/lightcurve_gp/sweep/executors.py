@@ -33,7 +33,7 @@ from typing import Any
 
 from tqdm.auto import tqdm
 
-from ..config import ConfigError
+from lightcurve_gp.config.load import ConfigError
 
 __all__ = [
     "CLUSTER_EXTRA",

@@ -9,10 +9,18 @@ from typing import Any, Sequence
 
 import yaml
 
-from ..config import Config, ConfigError, apply_overrides, check_mesh, config_from_dict, config_hash, config_to_dict
-from ..estimation import DEFAULT_ESTIMATORS, ESTIMATORS
-from ..model_store import MODEL_SECTIONS, model_key
-from ..reporting import CASE_FORMAT
+from lightcurve_gp.config.load import (
+    Config,
+    ConfigError,
+    apply_overrides,
+    check_mesh,
+    config_from_dict,
+    config_hash,
+    config_to_dict,
+)
+from lightcurve_gp.evaluation.estimators import DEFAULT_ESTIMATORS, ESTIMATORS
+from lightcurve_gp.evaluation.reporting import CASE_FORMAT
+from lightcurve_gp.training.store import MODEL_SECTIONS, model_key
 
 __all__ = ["MODEL_SECTIONS", "Case", "parse_grid", "expand_grid", "make_cases", "model_key", "value_text"]
 
@@ -69,7 +77,7 @@ def value_text(value: Any) -> str:
 @dataclass
 class Case:
     """One grid point: its values, validated config, content hash and the model-store key
-    (:func:`lightcurve_gp.model_store.model_key`) of the model it needs."""
+    (:func:`lightcurve_gp.training.store.model_key`) of the model it needs."""
 
     values: dict[str, Any]
     config: Config
@@ -86,7 +94,7 @@ def _case_key(cfg: Config, seeds: Sequence[int], estimators: Sequence[str]) -> s
 def make_cases(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Sequence[int],
                estimators: Sequence[str] = DEFAULT_ESTIMATORS) -> list[Case]:
     """Validate every grid point of ``axes`` applied to the raw config mapping ``raw`` (a mesh is checked as
-    :func:`~lightcurve_gp.config.load_config` checks it).
+    :func:`~lightcurve_gp.config.load.load_config` checks it).
 
     Raises:
         ConfigError: an unknown key or invalid value; the message names the key (and the grid point).

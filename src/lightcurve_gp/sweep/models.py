@@ -12,9 +12,9 @@ from typing import Any, Sequence
 
 import torch
 
-from ..config import config_from_dict, config_to_dict
-from .executors import Executor, SerialExecutor
-from .grid import Case
+from lightcurve_gp.config.load import config_from_dict, config_to_dict
+from lightcurve_gp.sweep.executors import Executor, SerialExecutor
+from lightcurve_gp.sweep.grid import Case
 
 __all__ = ["model_path", "train_model", "ensure_models"]
 
@@ -26,13 +26,13 @@ def model_path(root: Path, model_hash: str) -> Path:
 
 def train_model(spec: dict[str, Any]) -> str:
     """Get the model of ``spec["config"]`` (a plain config dict) from the model store ``spec["store"]``, training
-    it when missing (:func:`lightcurve_gp.model_store.get_or_train`, in the config's dtype); returns its file.
+    it when missing (:func:`lightcurve_gp.training.store.get_or_train`, in the config's dtype); returns its file.
 
     The task of one model on an executor, so ``spec`` holds plain values: ``threads`` are the torch threads of the
     worker process (None: leave torch's), ``cache_dir`` the training-data cache, ``progress`` shows training's
     progress.
     """
-    from ..model_store import get_or_train
+    from lightcurve_gp.training.store import get_or_train
 
     if spec.get("threads"):
         torch.set_num_threads(int(spec["threads"]))

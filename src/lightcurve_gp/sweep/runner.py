@@ -12,16 +12,16 @@ from typing import Any, Callable, Sequence
 
 import torch
 
-from ..config import ConfigError, config_from_dict, config_to_dict
-from ..estimation import DEFAULT_ESTIMATORS, ScenarioResult, run_estimators
-from ..io import write_json_atomic
-from ..metrics import attitude_error_vector
-from ..reporting import CaseRecord, seed_rows
-from .executors import Executor, SerialExecutor, make_executor
-from .grid import Case, make_cases
-from .models import ensure_models, model_path
-from .store import case_path, failed_rows, read_case, write_case
-from .tables import summarize_rows, table_rows, write_sweep_tables
+from lightcurve_gp.attitude.metrics import attitude_error_vector
+from lightcurve_gp.config.load import ConfigError, config_from_dict, config_to_dict
+from lightcurve_gp.evaluation.estimators import DEFAULT_ESTIMATORS, ScenarioResult, run_estimators
+from lightcurve_gp.evaluation.reporting import CaseRecord, seed_rows
+from lightcurve_gp.files import write_json_atomic
+from lightcurve_gp.sweep.executors import Executor, SerialExecutor, make_executor
+from lightcurve_gp.sweep.grid import Case, make_cases
+from lightcurve_gp.sweep.models import ensure_models, model_path
+from lightcurve_gp.sweep.store import case_path, failed_rows, read_case, write_case
+from lightcurve_gp.sweep.tables import summarize_rows, table_rows, write_sweep_tables
 
 __all__ = ["SweepResult", "run_case", "run_sweep"]
 
@@ -54,7 +54,7 @@ def run_case(spec: dict[str, Any]) -> CaseRecord:
     ``case_id``, ``seeds``, ``estimators``, ``model_path`` (or None), ``model_error`` (or None), ``threads`` (None:
     leave torch's). The runner stores the record when it arrives.
     """
-    from ..observation.serialization import load_model
+    from lightcurve_gp.observation.serialization import load_model
 
     start = time.perf_counter()
     record = CaseRecord(spec["case_id"], spec["values"], list(spec["seeds"]), list(spec["estimators"]))
@@ -158,9 +158,9 @@ def run_sweep(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Seque
         axes: grid axes ``[(key.path, [values...]), ...]``.
         seeds: noise seeds, all batched in each filter run.
         out: output root; cases and tables go to ``out/<config name>/``, trained models to the model store
-            ``out/models/`` (shared with the experiments, keyed by :func:`~lightcurve_gp.model_store.model_key`).
+            ``out/models/`` (shared with the experiments, keyed by :func:`~lightcurve_gp.training.store.model_key`).
         sweep_id: folder name of this sweep's tables (default: a hash of the definition).
-        estimators: subset of :data:`~lightcurve_gp.estimation.ESTIMATORS`.
+        estimators: subset of :data:`~lightcurve_gp.evaluation.estimators.ESTIMATORS`.
         workers: worker processes of the local pool (1: this process) or of the dask LocalCluster.
         threads: torch threads of each worker process (its trainings and cases); training and the cases run in
             this process use the caller's thread count (the library leaves torch's global settings alone).

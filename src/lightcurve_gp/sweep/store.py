@@ -7,8 +7,8 @@ import json
 from pathlib import Path
 from typing import Sequence
 
-from ..io import write_json_atomic
-from ..reporting import CaseRecord, SeedRow
+from lightcurve_gp.evaluation.reporting import CaseRecord, SeedRow
+from lightcurve_gp.files import write_json_atomic
 
 __all__ = ["case_path", "read_case", "write_case", "failed_rows"]
 

@@ -8,9 +8,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..io import write_json_atomic, write_text_atomic
-from ..reporting import RESULT_COLUMNS, CaseRecord, csv_text, quantiles
-from .grid import Case, value_text
+from lightcurve_gp.evaluation.reporting import RESULT_COLUMNS, CaseRecord, csv_text, quantiles
+from lightcurve_gp.files import write_json_atomic, write_text_atomic
+from lightcurve_gp.sweep.grid import Case, value_text
 
 __all__ = ["SUMMARY_METRICS", "SUMMARY_COLUMNS", "table_rows", "summarize_rows", "write_sweep_tables",
            "print_summary"]
@@ -37,7 +37,7 @@ def table_rows(cases: Sequence[Case], records: dict[str, CaseRecord]) -> list[di
 
 
 def summarize_rows(rows: Sequence[dict[str, Any]], keys: Sequence[str]) -> list[dict[str, Any]]:
-    """Median, 25 % and 75 % quantiles (:func:`~lightcurve_gp.reporting.quantiles`) of each metric per
+    """Median, 25 % and 75 % quantiles (:func:`~lightcurve_gp.evaluation.reporting.quantiles`) of each metric per
     (case, estimator) over the seeds with status ok; mean NEES and the time per step.
 
     ``keys`` are the columns copied from the first row of each group (``case_id`` and the grid columns).

@@ -1,0 +1,181 @@
+"""What every command shares: common options, the thread policy, progress, errors, interrupts and provenance.
+
+Error policy. A user error (a bad config value, a bad model file, an existing output folder, an unwritable
+``--out``...) is one line on stderr, ``error: <key or file>: <what is wrong>``, and exit code 2; it is found by
+the up-front checks before any computation. ``--debug`` shows the traceback instead. Ctrl-C prints one line
+(``interrupted; nothing written`` or what was kept) and exits with 130.
+
+Thread policy (``--threads``, default :data:`DEFAULT_THREADS` = 1). Every command sets torch's intra-op thread
+count once, from this option. One thread is the default because the filter's per-step tensors are small, so a
+second thread adds dispatch and synchronisation and, when the other core is busy (another job, a parallel
+sweep worker), waits for it: ``benchmarks/bench_threads.py`` measures 100 filter steps of the README's library
+snippet with 1 and 2 threads, idle and with one core busy (README, Performance). Pass ``--threads 2`` to speed up
+the one-off exact conditioning of ``train`` on an otherwise idle machine.
+
+Long steps run through :func:`run_interruptible`: the work runs in a daemon worker thread while the main thread
+waits in short slices, so Ctrl-C acts within a fraction of a second even while LAPACK factorises a large matrix,
+and a status line with the elapsed time is shown when progress is on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shlex
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import torch
+from tqdm.auto import tqdm
+
+__all__ = ["DEFAULT_THREADS", "UserError", "Interrupted", "add_common_arguments", "apply_threads",
+           "progress_enabled", "check_output_root", "check_new_folder", "run_interruptible", "run_command",
+           "exit_process", "provenance"]
+
+#: torch intra-op threads of every command unless ``--threads`` says otherwise (see the module docstring)
+DEFAULT_THREADS = 1
+
+
+class UserError(Exception):
+    """A problem with the command's input: reported as one line, exit code 2."""
+
+
+@dataclass
+class Interrupted(Exception):
+    """Ctrl-C, with what the command kept on disk (empty: nothing written)."""
+
+    kept: str = ""
+
+
+def add_common_arguments(parser: argparse.ArgumentParser, *, force: bool = True) -> None:
+    """Add ``--threads``, ``--no-progress``, ``--debug`` and (with ``force``) ``--force`` to ``parser``."""
+    parser.add_argument("--threads", type=int, default=DEFAULT_THREADS,
+                        help=f"torch threads (default {DEFAULT_THREADS}: the filter's small per-step tensors run "
+                             f"fastest on one thread, and one thread stays fast when other jobs share the cores)")
+    parser.add_argument("--no-progress", action="store_true",
+                        help="hide progress bars and status lines (also hidden when stderr is not a terminal)")
+    parser.add_argument("--debug", action="store_true", help="show the traceback of an error instead of one line")
+    if force:
+        parser.add_argument("--force", action="store_true",
+                            help="replace an existing output folder (the old one is removed only when the new one "
+                                 "is complete)")
+
+
+def apply_threads(threads: int) -> int:
+    """Set torch's intra-op thread count (the one thread policy of every command); returns it."""
+    if threads < 1:
+        raise UserError(f"--threads: {threads} must be >= 1")
+    torch.set_num_threads(threads)
+    return threads
+
+
+def progress_enabled(no_progress: bool) -> bool:
+    """Progress output is on unless ``--no-progress`` is given or stderr is not a terminal."""
+    return not no_progress and sys.stderr.isatty()
+
+
+def check_output_root(out: Path) -> None:
+    """``out`` is (or can be created as) a writable folder; raises :class:`UserError` naming ``--out``."""
+    probe = out
+    while not probe.exists():
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if not probe.is_dir():
+        raise UserError(f"--out: {str(probe)!r} is not a folder")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise UserError(f"--out: {str(probe)!r} is not writable")
+
+
+def check_new_folder(folder: Path, force: bool) -> None:
+    """Refuse to write over an existing run folder unless ``force``."""
+    if folder.exists() and not force:
+        raise UserError(f"{folder}: already exists (an earlier run); pass --force to replace it, or choose another "
+                        f"--out or name")
+    if folder.exists() and not folder.is_dir():
+        raise UserError(f"{folder} exists and is not a folder")
+
+
+def run_interruptible(fn: Callable[[], Any], *, status: str = "", progress: bool = False) -> Any:
+    """Run ``fn()`` in a daemon worker thread and return its result (or raise its exception).
+
+    The caller waits in 0.1 s slices, so a ``KeyboardInterrupt`` reaches it at once even while the worker is inside
+    a long LAPACK call; the abandoned worker dies with the process. With ``progress``, a status line
+    ``<status>: <elapsed>`` is shown until ``fn`` returns.
+    """
+    box: dict[str, Any] = {}
+
+    def work() -> None:
+        try:
+            box["value"] = fn()
+        except BaseException as exc:  # handed to the caller's thread unchanged
+            box["error"] = exc
+
+    worker = threading.Thread(target=work, daemon=True, name=status or "lightcurve-gp worker")
+    bar = tqdm(desc=status, bar_format="{desc}: {elapsed}", disable=not progress, leave=False)
+    worker.start()
+    try:
+        while worker.is_alive():
+            worker.join(0.1)
+            bar.refresh()
+    finally:
+        bar.close()
+    if "error" in box:
+        raise box["error"]
+    return box["value"]
+
+
+def run_command(body: Callable[[], int], *, debug: bool) -> int:
+    """Run a command's body with the error policy of the module docstring; returns the exit code."""
+    from lightcurve_gp.config.load import ConfigError
+    from lightcurve_gp.observation.serialization import ModelFileError
+    from lightcurve_gp.observed.lightcurve_file import LightCurveFileError
+
+    try:
+        return body()
+    except (UserError, ConfigError, ModelFileError, LightCurveFileError) as exc:
+        if debug:
+            raise
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        if debug:
+            raise
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, Interrupted) as exc:
+        if debug:
+            raise
+        kept = exc.kept if isinstance(exc, Interrupted) else ""
+        print(f"interrupted; {kept or 'nothing written'}", file=sys.stderr)
+        return 130
+
+
+def exit_process(code: int) -> None:
+    """End a command's process with ``code``. When a worker abandoned by Ctrl-C is still inside torch, the
+    interpreter's normal shutdown would tear torch's thread pool down under it (``terminate called without an
+    active exception``, SIGABRT), so the process then ends at once with ``os._exit`` after flushing the streams;
+    every file was already written atomically or not at all."""
+    if any(t is not threading.main_thread() and t.is_alive() for t in threading.enumerate()):
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)
+
+
+def provenance(cfg, seeds: list[int] | None = None, **extra: Any) -> dict:
+    """What a run's ``results.json`` / ``metrics.json`` records to be repeated: the command line, the exact config
+    (as a dict), the package, torch and Python versions, the thread count, the seeds and ``extra``."""
+    from lightcurve_gp import __version__
+    from lightcurve_gp.config.load import config_to_dict
+
+    return {"command": shlex.join([Path(sys.orig_argv[0]).name, *sys.orig_argv[1:]]),
+            "working_directory": os.getcwd(), "config": config_to_dict(cfg), "package_version": __version__,
+            "torch_version": torch.__version__, "python_version": sys.version.split()[0],
+            "torch_threads": torch.get_num_threads(), "seeds": seeds,
+            "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), **extra}

@@ -1,0 +1,152 @@
+"""``python -m lightcurve_gp.estimate CONFIG --model M --light-curve obs.ecsv``: the GPUKF on a light-curve file.
+
+Writes the new folder ``OUT/<name>/light_curve_<file stem>/`` atomically (an existing one is refused unless
+``--force``): ``attitude_history.ecsv`` (:func:`lightcurve_gp.observed.run.history_table`), ``summary.json`` (the NIS
+against its χ² band, the bank's size, time and best members with their posterior weights, the run's provenance),
+``bank.ecsv`` (every bank member, ranked) when the global start ran, ``light_curve.png`` and ``attitude.png``.
+Without ``--initial-attitude`` the run starts from the global-start bank (``--bank-size`` filters over SO(3); with
+``--bank-prune-after-s`` only the best ``--bank-prune-keep`` run past that time). A file with per-sample geometry or
+a TLE and site runs along its pass (:func:`lightcurve_gp.observed.run.file_geometry`) with a model that takes geometry.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import torch
+
+from lightcurve_gp.commands.common import (
+    UserError,
+    check_new_folder,
+    check_output_root,
+    progress_enabled,
+    provenance,
+    run_interruptible,
+)
+from lightcurve_gp.files import RunFolder, write_json_atomic
+from lightcurve_gp.observed.lightcurve_file import read_light_curve, write_table
+from lightcurve_gp.observed.plots import attitude_with_uncertainty, light_curve_band
+from lightcurve_gp.observed.run import (
+    FileGeometryError,
+    ObservedRun,
+    bank_table,
+    check_model_takes_geometry,
+    estimate_light_curve,
+    file_geometry,
+    history_table,
+    nis_summary,
+)
+
+__all__ = ["add_file_arguments", "parse_quaternion", "run_on_file", "summary"]
+
+
+def add_file_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of a run on a light-curve file."""
+    parser.add_argument("--light-curve", type=Path, default=None,
+                        help="run the GPUKF on this light-curve file (.ecsv, .csv, .fits) instead of simulating")
+    parser.add_argument("--initial-attitude", default=None, metavar="Q1,Q2,Q3,Q4",
+                        help="with --light-curve: start from this quaternion (scalar last) instead of the bank; write "
+                             "--initial-attitude=Q1,... when Q1 is negative")
+    parser.add_argument("--bank-size", type=int, default=1024,
+                        help="with --light-curve and no --initial-attitude: filters in the global-start bank "
+                             "(default 1024)")
+    parser.add_argument("--bank-keep", type=int, default=5,
+                        help="bank members rerun with the config's settings and reported (default 5)")
+    parser.add_argument("--bank-prune-after-s", type=float, default=None, metavar="SECONDS",
+                        help="run every bank member over the first SECONDS of the file, then only the best "
+                             "--bank-prune-keep (default: no pruning)")
+    parser.add_argument("--bank-prune-keep", type=int, default=64,
+                        help="bank members that continue after --bank-prune-after-s (default 64)")
+
+
+def parse_quaternion(text: str) -> torch.Tensor:
+    """``"q1,q2,q3,q4"`` → a float64 tensor ``(4,)``; a :class:`UserError` names ``--initial-attitude``."""
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise UserError(f"--initial-attitude: {text!r} is not four numbers q1,q2,q3,q4") from None
+    q = torch.tensor(values, dtype=torch.float64)
+    if q.numel() != 4 or not bool(torch.isfinite(q).all()) or float(q.norm()) < 1e-6:
+        raise UserError(f"--initial-attitude: {text!r} must be four finite numbers q1,q2,q3,q4 (scalar last), "
+                        f"not all zero")
+    return q
+
+
+def summary(run: ObservedRun, record: dict) -> dict:
+    """``summary.json``: NIS statistics, timing, the bank's best members and the provenance ``record``."""
+    out = {"light_curve": run.lc.source, "samples": int(run.lc.t.size), "span_s": float(run.lc.t[-1]),
+           "per_sample_noise": run.lc.mag_err is not None, "nis": nis_summary(run.history),
+           "geometry": "per-sample columns" if run.lc.geometry is not None else "TLE and site" if run.lc.has_tle
+           else "config (fixed)",
+           "initial_attitude": run.q_est0.tolist(), "seconds": run.seconds,
+           "rejected_updates": int(run.history.rejected.sum()), "sqrt_fallbacks": int(run.history.fallbacks.sum())}
+    if run.bank is not None:
+        b = run.bank
+        best = b.order[:len(b.kept.q_est)]
+        out["bank"] = {"size": int(b.q0.shape[0]), "seconds": b.seconds, "kept_seconds": b.kept_seconds,
+                       "pruned_to": None if b.survivors is None else int(b.survivors.numel()),
+                       "best": [{"member": int(i), "q0": b.q0[i].tolist(),
+                                 "log_likelihood": float(b.log_likelihood[i]), "weight": float(b.weights[i])}
+                                for i in best]}
+    out["run"] = record
+    return out
+
+
+def _check_arguments(args: argparse.Namespace) -> torch.Tensor | None:
+    if args.model is None:
+        raise UserError("--model: --light-curve runs the GPUKF, which needs a trained model file")
+    if args.bank_size < 1 or not 1 <= args.bank_keep <= args.bank_size:
+        raise UserError(f"--bank-size/--bank-keep: need bank size >= 1 and 1 <= keep <= size, got "
+                        f"{args.bank_size} and {args.bank_keep}")
+    if args.bank_prune_after_s is not None and (not args.bank_prune_after_s > 0 or
+                                                 args.bank_prune_keep < args.bank_keep):
+        raise UserError(f"--bank-prune-after-s/--bank-prune-keep: need a time > 0 and at least --bank-keep "
+                        f"({args.bank_keep}) members kept, got {args.bank_prune_after_s:g} and {args.bank_prune_keep}")
+    return None if args.initial_attitude is None else parse_quaternion(args.initial_attitude)
+
+
+def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
+    """The command's body for ``--light-curve`` (module docstring); everything is checked before the filter runs."""
+    q0 = _check_arguments(args)
+    lc = read_light_curve(args.light_curve)
+    try:
+        check_model_takes_geometry(model, lc)
+        file_geometry(lc)
+    except FileGeometryError as exc:
+        raise UserError(str(exc)) from None
+    check_output_root(args.out)
+    folder = args.out / cfg.name / f"light_curve_{args.light_curve.stem}"
+    check_new_folder(folder, args.force)
+    record = provenance(cfg, config_file=str(args.config), light_curve=str(args.light_curve),
+                        initial_attitude=args.initial_attitude, bank_size=None if q0 is not None else args.bank_size,
+                        bank_prune_after_s=None if q0 is not None else args.bank_prune_after_s,
+                        bank_prune_keep=None if q0 is not None or args.bank_prune_after_s is None
+                        else args.bank_prune_keep, **model_info)
+    status = "filter" if q0 is not None else f"bank of {args.bank_size} filters"
+    run = run_interruptible(lambda: estimate_light_curve(cfg, model, lc, initial_attitude=q0,
+                                                         bank_size=args.bank_size, keep=args.bank_keep,
+                                                         prune_after_s=args.bank_prune_after_s,
+                                                         prune_keep=args.bank_prune_keep),
+                            status=f"running the {status}", progress=progress_enabled(args.no_progress))
+    table = history_table(run, cfg.model.rho_reference if cfg.filter.estimate_offset else None)
+    result = summary(run, record)
+    with RunFolder(folder, force=args.force) as tmp:
+        write_table(table, tmp / "attitude_history.ecsv", fmt="ascii.ecsv")
+        if run.bank is not None:
+            write_table(bank_table(run.bank), tmp / "bank.ecsv", fmt="ascii.ecsv")
+        write_json_atomic(result, tmp / "summary.json")
+        title = f"{lc.source}: {status}"
+        light_curve_band(table, tmp / "light_curve.png", title=title)
+        attitude_with_uncertainty(table, tmp / "attitude.png", title=title)
+    nis = result["nis"]
+    print(f"{lc.source}: {result['samples']} samples over {result['span_s']:g} s; mean NIS {nis['mean']:.3f} over "
+          f"{nis['n']} updates, 95 % band {nis['band_95'][0]:.3f}-{nis['band_95'][1]:.3f} "
+          f"({'consistent' if nis['in_band'] else 'outside the band'}); {100 * nis['share_above_3.84']:.1f} % of "
+          f"NIS above 3.84 (5 % expected)")
+    if run.bank is not None:
+        best = result["bank"]["best"][0]
+        print(f"bank: {result['bank']['size']} filters in {run.bank.seconds:.1f} s; best member {best['member']} "
+              f"(weight {best['weight']:.3f}, log-likelihood {best['log_likelihood']:.1f})")
+    print(f"written: {folder}")
+    return 0

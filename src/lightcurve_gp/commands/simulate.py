@@ -1,0 +1,157 @@
+"""``python -m lightcurve_gp.simulate CONFIG --out obs.ecsv``: a synthetic observation in the light-curve file format.
+
+Simulates the config's scenario (``scenario`` section: truth from ``q0`` and ``omega0_deg_s``, magnitudes rendered
+with ``rho_true``, Gaussian noise of ``noise_var`` drawn with ``--seed`` alone — the noisy light curve of that seed in
+:func:`lightcurve_gp.simulation.scenario.simulate_scenario`) and writes it as a light-curve file
+(:mod:`lightcurve_gp.observed.lightcurve_file`: ``time`` from ``--start``, ``mag``, ``mag_err = √noise_var`` unless
+``--no-mag-err``), with the truth in the sidecar ``<stem>.truth.ecsv`` beside it: per sample the true quaternion,
+body rate (rad/s) and noise-free magnitude; in its metadata the seed, ``rho_true``, the config's initial estimate
+``q_est0`` (what ``estimate --initial-attitude`` takes to repeat the simulated run) and the config.
+
+Along a pass (``geometry.kind: orbit``) the file starts at ``geometry.start_utc``, carries the per-sample geometry
+columns (``sun_*``, ``obs_*``: unit vectors object → Sun and object → observer, GCRS; ``range_km``) and holds the
+observable samples only (below the minimum elevation, in the Earth's shadow or with zero flux there is no
+magnitude); the sidecar holds the same samples.
+
+Both files appear together or not at all (temporary files renamed at the end); an existing file is refused unless
+``--force``. Errors are one line and exit code 2, as in every command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from contextlib import ExitStack
+from pathlib import Path
+
+import numpy as np
+from astropy.table import Table
+from astropy.time import Time, TimeDelta
+
+from lightcurve_gp.commands.common import (
+    UserError,
+    add_common_arguments,
+    apply_threads,
+    check_output_root,
+    exit_process,
+    provenance,
+    run_command,
+)
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.files import atomic_path
+from lightcurve_gp.observed.lightcurve_file import (
+    LightCurve,
+    iso_times,
+    light_curve_format,
+    light_curve_table,
+    write_table,
+)
+from lightcurve_gp.simulation.scenario import Scenario, simulate_scenario
+
+__all__ = ["truth_path", "truth_table", "build_parser", "main"]
+
+
+def truth_path(out: Path) -> Path:
+    """The sidecar of ``out``: ``<folder>/<stem>.truth.ecsv``."""
+    return out.with_name(f"{out.stem}.truth.ecsv")
+
+
+def truth_table(sc: Scenario, lc: LightCurve, record: dict, rows: np.ndarray) -> Table:
+    """The truth of one simulated light curve at its samples ``rows`` of the scenario: time (ISO UTC), ``q1…q4``,
+    ``omega_x…z`` (rad/s), ``mag_clean``."""
+    q, w = sc.q_true.cpu().numpy()[rows], sc.omega_true.cpu().numpy()[rows]
+    table = Table({"time": iso_times(lc.times), **{f"q{i + 1}": q[:, i] for i in range(4)},
+                   **{f"omega_{a}": w[:, i] for i, a in enumerate("xyz")},
+                   "mag_clean": sc.m_clean.cpu().numpy()[rows]})
+    table.meta.update({"seed": sc.seeds[0], "rho_true": sc.rho_true, "noise_var": sc.noise_var,
+                       "q_est0": [float(v) for v in sc.q_est0.tolist()],
+                       "simulation": json.dumps(record, default=str)})
+    return table
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m lightcurve_gp.simulate",
+        description="Simulate the config's scenario and write its noisy light curve as a light-curve file "
+                    "(.ecsv, .csv or .fits) with the truth in <stem>.truth.ecsv beside it.")
+    parser.add_argument("config", help="YAML config, e.g. configs/boxwing_robust.yaml")
+    parser.add_argument("--out", required=True, type=Path, help="the light-curve file to write (.ecsv, .csv, .fits)")
+    parser.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    parser.add_argument("--rho-true", type=float, default=None, help="true rho in (0, 1] (default scenario.rho_true)")
+    parser.add_argument("--start", default=None,
+                        help="UTC time of the first sample (ISO; default 2025-01-01T00:00:00; a pass config starts "
+                             "at geometry.start_utc)")
+    parser.add_argument("--time-format", choices=("iso", "mjd", "seconds"), default="iso",
+                        help="how the time column is written (seconds: from --start, given as the epoch metadata)")
+    parser.add_argument("--no-mag-err", action="store_true", help="leave the mag_err column out")
+    parser.add_argument("--band", default=None, help="filter band to record in the metadata")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY.PATH=VALUE",
+                        help="override a config value (repeatable)")
+    add_common_arguments(parser)
+    return parser
+
+
+def _checked_start(text: str | None, cfg) -> Time:
+    if cfg.geometry.kind == "orbit":
+        if text is not None:
+            raise UserError(f"--start: a pass config starts at geometry.start_utc ({cfg.geometry.start_utc}); "
+                            f"leave --start out or change geometry.start_utc")
+        text = cfg.geometry.start_utc
+    try:
+        return Time(text or "2025-01-01T00:00:00", format="isot", scale="utc")
+    except ValueError:
+        raise UserError(f"--start: {text!r} is not an ISO UTC time (e.g. 2025-01-01T00:00:00)") from None
+
+
+def _observed_light_curve(sc: Scenario, start: Time, with_err: bool, meta: dict) -> tuple[LightCurve, np.ndarray]:
+    """The file's light curve (observable samples only, with the pass's geometry columns along a pass) and the
+    scenario rows it holds."""
+    mag = sc.observations[0].cpu().numpy()
+    rows = np.flatnonzero(np.isfinite(mag))
+    if rows.size == 0:
+        raise UserError("the simulated pass has no observable sample (geometry.min_elevation_deg, shadow)")
+    t = sc.times.cpu().numpy().astype(np.float64)[rows]
+    geometry = None
+    if sc.geometry is not None:
+        g = sc.geometry
+        geometry = {"sun": g.sun.numpy()[rows], "obs": g.observer.numpy()[rows],
+                    "range_km": g.range_m.numpy()[rows] / 1e3}
+        start = start + TimeDelta(float(g.times_s[rows[0]]), format="sec")
+    lc = LightCurve(start=start, t=t - t[0], mag=mag[rows],
+                    mag_err=np.full(rows.size, math.sqrt(sc.noise_var)) if with_err else None, geometry=geometry,
+                    meta=meta)
+    return lc, rows
+
+
+def _run(args: argparse.Namespace) -> int:
+    apply_threads(args.threads)
+    cfg = load_config(args.config, args.overrides)
+    if args.rho_true is not None and not 0.0 < args.rho_true <= 1.0:
+        raise UserError(f"--rho-true: {args.rho_true:g} is outside (0, 1]")
+    fmt = light_curve_format(args.out)
+    start = _checked_start(args.start, cfg)
+    sidecar = truth_path(args.out)
+    check_output_root(args.out.parent)
+    for path in (args.out, sidecar):
+        if path.exists() and not args.force:
+            raise UserError(f"{path}: already exists; pass --force to replace it, or choose another --out")
+    sc = simulate_scenario(cfg, seeds=[args.seed], rho_true=args.rho_true)
+    lc, rows = _observed_light_curve(sc, start, not args.no_mag_err, {"band": args.band} if args.band else {})
+    record = provenance(cfg, seeds=[args.seed], config_file=str(args.config), rho_true=sc.rho_true)
+    with ExitStack() as stack:
+        tmp_obs = stack.enter_context(atomic_path(args.out))
+        tmp_truth = stack.enter_context(atomic_path(sidecar))
+        write_table(light_curve_table(lc, args.time_format), tmp_obs, fmt=fmt)
+        write_table(truth_table(sc, lc, record, rows), tmp_truth, fmt="ascii.ecsv")
+    print(f"written: {args.out} ({rows.size} samples, seed {args.seed}, rho_true {sc.rho_true:g}) and {sidecar}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return run_command(lambda: _run(args), debug=args.debug)
+
+
+if __name__ == "__main__":
+    exit_process(main())

@@ -1,0 +1,135 @@
+"""Matplotlib figures in the paper's style; every function writes one PNG atomically and returns its path.
+
+Figures are built with matplotlib's object-oriented API (``matplotlib.figure.Figure``, rendered by the Agg canvas
+when saved): pyplot is never imported and the user's backend is never switched. Magnitude axes point brighter
+(smaller magnitude) up or right, as astronomers plot them, and say so in their labels; legends sit outside the
+axes so that they never hide data.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from lightcurve_gp.files import atomic_path
+
+__all__ = ["prediction_scatter", "residual_histogram", "euler_errors", "light_curves", "rmse_boxplot",
+           "ESTIMATOR_COLORS"]
+
+#: paper colours: GPUKF blue, conventional UKF red, truth black; the extra baselines get their own
+ESTIMATOR_COLORS = {"gpukf": "tab:blue", "ukf": "tab:red", "truth": "black", "matched_ukf": "tab:green",
+                    "no_update": "tab:gray", "joint_ukf": "tab:purple"}
+#: the reference estimators are dashed so that an estimator they coincide with stays visible
+ESTIMATOR_STYLES = {"matched_ukf": "--", "no_update": ":"}
+AXES = ("yaw", "pitch", "roll")
+
+
+def _save(fig: Figure, path: str | Path) -> Path:
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=130, bbox_inches="tight", format="png")
+    return path
+
+
+def _np(x) -> np.ndarray:
+    return x.detach().cpu().numpy() if hasattr(x, "detach") else np.asarray(x)
+
+
+def prediction_scatter(y_true, y_pred, path: str | Path, title: str = "held-out predictions") -> Path:
+    """Predicted vs true magnitude with the identity line; ``y_true``, ``y_pred`` ``(N,)`` in mag."""
+    t, p = _np(y_true), _np(y_pred)
+    fig = Figure(figsize=(4.8, 5.0), layout="constrained")
+    ax = fig.subplots()
+    ax.scatter(t, p, s=4, alpha=0.4, color="tab:blue", linewidths=0, label=f"held-out point ({t.size})")
+    lo, hi = float(min(t.min(), p.min())), float(max(t.max(), p.max()))
+    ax.plot([lo, hi], [lo, hi], color="black", lw=1, label="y = x: perfect prediction")
+    ax.set_xlabel("true $m_{app}$ [mag] (brighter →)")
+    ax.set_ylabel("predicted $m_{app}$ [mag] (brighter ↑)")
+    ax.set_title(title, fontsize=9)
+    ax.invert_xaxis()
+    ax.invert_yaxis()
+    fig.legend(loc="outside lower center", ncols=2, frameon=False, fontsize=8)
+    return _save(fig, path)
+
+
+def residual_histogram(residual, std, path: str | Path) -> Path:
+    """Histograms of residuals (mag) and of residuals standardised by the predictive std, with N(0, 1)."""
+    r, s = _np(residual), _np(std)
+    fig = Figure(figsize=(8.5, 3.5), layout="constrained")
+    a, b = fig.subplots(1, 2)
+    a.hist(r, bins=60, color="tab:blue", alpha=0.8)
+    a.set_xlabel("predicted − true [mag]")
+    a.set_ylabel("count")
+    z = r / s
+    b.hist(z, bins=np.linspace(-5, 5, 61), density=True, color="tab:blue", alpha=0.8, label="held-out")
+    grid = np.linspace(-5, 5, 200)
+    b.plot(grid, np.exp(-0.5 * grid**2) / np.sqrt(2 * np.pi), color="black", lw=1, label="N(0, 1)")
+    b.set_xlabel("residual / predictive std")
+    b.legend(frameon=False, loc="upper left", fontsize=8)
+    return _save(fig, path)
+
+
+def euler_errors(times, errors: Mapping[str, object], path: str | Path, title: str = "",
+                 window: Sequence[float] | None = None) -> Path:
+    """Euler-angle errors (deg) against time, one panel per axis; ``errors[name]`` is ``(T+1, 3)``."""
+    t = _np(times)
+    fig = Figure(figsize=(6.4, 6.4), layout="constrained")
+    axes = fig.subplots(3, 1, sharex=True)
+    for name, err in errors.items():
+        e = _np(err)
+        for i, ax in enumerate(axes):
+            ax.plot(t, e[:, i], color=ESTIMATOR_COLORS.get(name), ls=ESTIMATOR_STYLES.get(name, "-"), lw=1,
+                    label=name)
+    for i, ax in enumerate(axes):
+        ax.set_ylabel(f"{AXES[i]} error [deg]")
+        ax.axhline(0, color="black", lw=0.5)
+        if window is not None:
+            ax.axvspan(window[0], window[1], color="0.9", zorder=0,
+                       label=f"RMSE scoring window ({window[0]:g}-{window[1]:g} s)" if i == 0 else None)
+    axes[-1].set_xlabel("time [s]")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncols=3, frameon=False,
+               fontsize=8)
+    return _save(fig, path)
+
+
+def light_curves(times, observed, predictions: Mapping[str, object], path: str | Path, title: str = "") -> Path:
+    """Noisy observed light curve (black) and each estimator's predicted magnitude, in mag (brighter up)."""
+    t = _np(times)
+    fig = Figure(figsize=(6.4, 4.0), layout="constrained")
+    ax = fig.subplots()
+    ax.plot(t, _np(observed), color="black", lw=0.6, label="observed (simulated, noisy)")
+    for name, pred in predictions.items():
+        ax.plot(t, _np(pred), color=ESTIMATOR_COLORS.get(name), ls=ESTIMATOR_STYLES.get(name, "-"), lw=1,
+                label=name)
+    ax.invert_yaxis()
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("$m_{app}$ [mag] (brighter ↑)")
+    fig.legend(loc="outside lower center", ncols=3, frameon=False, fontsize=8)
+    if title:
+        ax.set_title(title, fontsize=10)
+    return _save(fig, path)
+
+
+def rmse_boxplot(rmse: Mapping[str, object], path: str | Path, title: str = "") -> Path:
+    """Box plots of per-seed RMSE (deg), one panel per axis; ``rmse[name]`` is ``(S, 3)``."""
+    fig = Figure(figsize=(10, 3.8), layout="constrained")
+    axes = fig.subplots(1, 3, sharey=True)
+    names = list(rmse)
+    for i, ax in enumerate(axes):
+        data = [_np(rmse[n])[:, i] for n in names]
+        box = ax.boxplot(data, patch_artist=True, showfliers=True)
+        for patch, n in zip(box["boxes"], names):
+            patch.set_facecolor(ESTIMATOR_COLORS.get(n, "white"))
+            patch.set_alpha(0.6)
+        ax.set_xticks(range(1, len(names) + 1), names, rotation=30, fontsize=8)
+        ax.set_title(AXES[i])
+        ax.set_yscale("log")
+    axes[0].set_ylabel("RMSE over the scoring window [deg], one value per seed")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    return _save(fig, path)

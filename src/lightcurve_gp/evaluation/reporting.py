@@ -1,0 +1,231 @@
+"""The reporting layer: per-seed result rows, per-case records, one quantile summary and one table writer.
+
+Every table the project writes (sweeps, the paper reproduction, the robust experiments) is built from these:
+
+* :class:`SeedRow` — one estimator on one noise seed: RMSE per Euler axis (deg), light-curve RMSE (mag), mean NEES;
+* :class:`CaseRecord` — one sweep case (one config, all seeds batched), stored as JSON by the sweep's case store;
+* :func:`quantiles` — median and interquartile range over seeds (NaN and missing values ignored);
+* :func:`markdown_table`, :func:`csv_text` and :func:`write_table` — a Markdown table and its full-precision CSV.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, NamedTuple, Sequence
+
+import numpy as np
+
+from lightcurve_gp.files import write_text_atomic
+
+if TYPE_CHECKING:
+    from lightcurve_gp.evaluation.estimators import ScenarioResult
+
+__all__ = ["Quantiles", "quantiles", "format_quantiles", "SeedRow", "RESULT_COLUMNS", "CaseRecord", "CASE_FORMAT",
+           "seed_rows", "markdown_table", "csv_text", "write_table", "SUMMARY_HEADER", "summary_row"]
+
+#: version of the stored case-record layout; a record of another version is rerun
+CASE_FORMAT = 1
+
+
+class Quantiles(NamedTuple):
+    """Median and quartiles (numpy's linear interpolation) of a sample; NaN when it has no finite value."""
+
+    median: float
+    q25: float
+    q75: float
+
+
+def quantiles(values: Any) -> Quantiles:
+    """:class:`Quantiles` of the finite entries of ``values`` (a sequence, array or tensor of shape ``(n,)``;
+    ``None`` and NaN are ignored)."""
+    if hasattr(values, "detach"):
+        values = values.detach().cpu().double().numpy()
+    x = np.array([np.nan if v is None else v for v in np.asarray(values, dtype=object).reshape(-1)], dtype=float)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return Quantiles(math.nan, math.nan, math.nan)
+    q25, med, q75 = np.quantile(x, [0.25, 0.5, 0.75])
+    return Quantiles(float(med), float(q25), float(q75))
+
+
+def format_quantiles(q: Quantiles, digits: int = 2) -> str:
+    """``"median [q25, q75]"`` with ``digits`` decimals, ``"n/a"`` when the median is NaN."""
+    if math.isnan(q.median):
+        return "n/a"
+    return f"{q.median:.{digits}f} [{q.q25:.{digits}f}, {q.q75:.{digits}f}]"
+
+
+# ----------------------------------------------------------------------------------------------- records
+
+@dataclass
+class SeedRow:
+    """One estimator on one noise seed. Metrics are ``None`` where undefined (no light curve for ``no_update``,
+    a failed case) — never NaN, so that the JSON and CSV files hold no non-standard values. ``omega_rmse_deg_s``
+    is the RMSE of the body-rate error's norm over the scoring window, ``omega_error_final_deg_s`` that norm at
+    the last sample (deg/s), ``nees_full_mean`` the mean NEES of the whole estimated state ``[δp, ω]`` (the
+    attitude NEES for filters that take ω as known). The ``…_mod_symmetry…`` fields score the estimate against the
+    nearest of the truths the shape's symmetries make indistinguishable by the light curve, ``symmetry`` that
+    truth's index (0: the truth itself); ``None`` in records made before they existed."""
+
+    seed: int
+    estimator: str
+    rmse_yaw_deg: float | None = None
+    rmse_pitch_deg: float | None = None
+    rmse_roll_deg: float | None = None
+    lc_rmse_noisy: float | None = None
+    lc_rmse_clean: float | None = None
+    nees_mean: float | None = None
+    seconds_per_step: float | None = None
+    status: str = "ok"
+    error: str = ""
+    omega_rmse_deg_s: float | None = None
+    omega_error_final_deg_s: float | None = None
+    nees_full_mean: float | None = None
+    rmse_yaw_mod_symmetry_deg: float | None = None
+    rmse_pitch_mod_symmetry_deg: float | None = None
+    rmse_roll_mod_symmetry_deg: float | None = None
+    symmetry: int | None = None
+    omega_error_final_mod_symmetry_deg_s: float | None = None
+    nees_full_mean_mod_symmetry: float | None = None
+
+    def rmse_deg(self) -> tuple[float, float, float]:
+        """RMSE (yaw, pitch, roll) in degrees, NaN where missing."""
+        return tuple(math.nan if v is None else v  # type: ignore[return-value]
+                     for v in (self.rmse_yaw_deg, self.rmse_pitch_deg, self.rmse_roll_deg))
+
+
+#: the columns of a results table, in order (the fields of :class:`SeedRow`)
+RESULT_COLUMNS = tuple(f.name for f in fields(SeedRow))
+
+
+def _finite(x: float) -> float | None:
+    return x if math.isfinite(x) else None
+
+
+def seed_rows(result: ScenarioResult) -> list[SeedRow]:
+    """One :class:`SeedRow` per (estimator, seed) of a scenario result, estimators outermost."""
+    rows = []
+    for name, r in result.results.items():
+        for i, seed in enumerate(result.scenario.seeds):
+            yaw, pitch, roll = (float(v) for v in r.rmse_deg[i])
+            rows.append(SeedRow(int(seed), name, _finite(yaw), _finite(pitch), _finite(roll),
+                                _finite(float(r.lc_rmse_noisy[i])), _finite(float(r.lc_rmse_clean[i])),
+                                _finite(float(r.nees_mean[i])), r.seconds / result.steps,
+                                omega_rmse_deg_s=_finite(float(r.omega_rmse_deg_s[i])),
+                                omega_error_final_deg_s=_finite(float(r.omega_error_final_deg_s[i])),
+                                nees_full_mean=_finite(float(r.nees_full_mean[i])), **_symmetric_cells(r, i)))
+    return rows
+
+
+def _symmetric_cells(r, i: int) -> dict[str, Any]:
+    """The :class:`SeedRow` fields modulo symmetry of seed ``i`` of an estimator result (none when not scored)."""
+    if r.rmse_mod_symmetry_deg is None:
+        return {}
+    yaw, pitch, roll = (_finite(float(v)) for v in r.rmse_mod_symmetry_deg[i])
+    return {"rmse_yaw_mod_symmetry_deg": yaw, "rmse_pitch_mod_symmetry_deg": pitch, "rmse_roll_mod_symmetry_deg": roll,
+            "symmetry": int(r.symmetry_index[i]),
+            "omega_error_final_mod_symmetry_deg_s": _finite(float(r.omega_error_final_mod_symmetry_deg_s[i])),
+            "nees_full_mean_mod_symmetry": None if r.nees_full_mean_mod_symmetry is None
+            else _finite(float(r.nees_full_mean_mod_symmetry[i]))}
+
+
+@dataclass
+class CaseRecord:
+    """One sweep case: its grid values, seeds and estimators, status, per-seed rows, the estimators' summary
+    (:meth:`ScenarioResult.summary`) and the first seed's traces for figures (``times``, ``observed``, ``clean``,
+    ``errors_deg`` and ``y_pred`` per estimator)."""
+
+    case_id: str
+    values: dict[str, Any]
+    seeds: list[int]
+    estimators: list[str]
+    status: str = "ok"
+    error: str = ""
+    rows: list[SeedRow] = field(default_factory=list)
+    summary: dict[str, Any] = field(default_factory=dict)
+    traces: dict[str, Any] = field(default_factory=dict)
+    model_path: str | None = None
+    traceback: str = ""
+    seconds: float = 0.0
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    def estimator_rows(self, estimator: str) -> list[SeedRow]:
+        """The rows of one estimator, in seed order."""
+        return [r for r in self.rows if r.estimator == estimator]
+
+    def rmse_deg(self, estimator: str) -> np.ndarray:
+        """Per-seed RMSE ``(S, 3)`` (deg, yaw/pitch/roll) of one estimator, NaN where a seed failed."""
+        return np.array([r.rmse_deg() for r in self.estimator_rows(estimator)], dtype=float).reshape(-1, 3)
+
+    def metric(self, estimator: str, name: str) -> np.ndarray:
+        """Per-seed values ``(S,)`` of one :class:`SeedRow` metric, NaN where missing."""
+        return np.array([math.nan if getattr(r, name) is None else getattr(r, name)
+                         for r in self.estimator_rows(estimator)], dtype=float)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON layout of the case store (``format`` first)."""
+        return {"format": CASE_FORMAT, **asdict(self)}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> CaseRecord | None:
+        """The record of a stored mapping, or ``None`` when it is of another format or malformed."""
+        if not isinstance(data, dict) or data.get("format") != CASE_FORMAT:
+            return None
+        names = {f.name for f in fields(cls)}
+        try:
+            values = {k: v for k, v in data.items() if k in names}
+            values["rows"] = [SeedRow(**row) for row in data.get("rows", [])]
+            return cls(**values)
+        except TypeError:
+            return None
+
+
+# ----------------------------------------------------------------------------------------------- tables
+
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence[Any]], note: str = "") -> str:
+    """A Markdown table (cells through ``str``) followed by an optional note paragraph."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return "\n".join(lines) + "\n" + (f"\n{note}\n" if note else "")
+
+
+def csv_text(rows: Sequence[dict[str, Any]], columns: Sequence[str] | None = None) -> str:
+    """CSV of ``rows`` with ``columns`` (default: the first row's keys; other keys are dropped), ``None`` → empty;
+    an empty string when there are no rows and no columns."""
+    columns = list(columns if columns is not None else (rows[0] if rows else []))
+    if not columns:
+        return ""
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=columns, extrasaction="ignore", lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: ("" if row.get(k) is None else row[k]) for k in columns})
+    return buf.getvalue()
+
+
+def write_table(folder: Path, stem: str, header: Sequence[str], rows: Sequence[Sequence[Any]],
+                csv_rows: Sequence[dict[str, Any]], note: str = "") -> str:
+    """Write ``<stem>.md`` (:func:`markdown_table`) and ``<stem>.csv`` (full-precision ``csv_rows``) atomically
+    into ``folder``; returns the Markdown."""
+    md = markdown_table(header, rows, note)
+    write_text_atomic(md, Path(folder) / f"{stem}.md")
+    write_text_atomic(csv_text(csv_rows), Path(folder) / f"{stem}.csv")
+    return md
+
+
+#: header of the one-line-per-estimator summary tables (:func:`summary_row`)
+SUMMARY_HEADER = ("estimator", "yaw", "pitch", "roll", "< 10 deg all axes", "mean NEES", "s (all seeds)")
+
+
+def summary_row(name: str, entry: dict[str, Any]) -> list[str]:
+    """Cells of :data:`SUMMARY_HEADER` for one estimator's entry of :meth:`ScenarioResult.summary`."""
+    return [name, *(f"{m:.2f}" for m in entry["rmse_deg_median"]),
+            f"{100 * entry['fraction_all_axes_below_10deg']:.0f} %", f"{entry['nees_mean']:.2f}",
+            f"{entry['seconds']:.1f}"]

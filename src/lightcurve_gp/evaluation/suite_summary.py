@@ -1,0 +1,117 @@
+"""Per-seed rows and grouped summaries of the generalisation suite (:mod:`lightcurve_gp.evaluation.suite`).
+
+A row is one (seed, estimator): its truth (surface, specular share and class, |ω0|, initial error) and its metrics.
+A summary groups rows by estimator and by one of :data:`GROUPINGS` — all seeds, the surface class (specular share of
+the flux along the truth), the |ω0| bin, the initial-error bin — and gives per group: the seed count, the share of
+seeds below 10° on all axes, the median RMSE per axis, the share of seeds whose time-averaged NEES lies in the
+single-run band (:func:`~lightcurve_gp.evaluation.suite.nees_band`) and the mean and median NEES.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+
+from lightcurve_gp.evaluation.suite import Scored
+from lightcurve_gp.simulation.truths import SPECULAR_CLASSES, TruthBatch, specular_class
+
+__all__ = ["OMEGA_BINS", "ERROR_BINS", "GROUPINGS", "SUMMARY_COLUMNS", "seed_rows", "bin_label", "summarize",
+           "whitened_correlation"]
+
+#: |ω0| bins (deg/s): (label, lower, upper)
+OMEGA_BINS = (("<0.15", 0.0, 0.15), ("0.15-0.5", 0.15, 0.5), (">0.5", 0.5, math.inf))
+#: initial-error angle bins (deg)
+ERROR_BINS = (("<10", 0.0, 10.0), ("10-20", 10.0, 20.0), (">20", 20.0, math.inf))
+#: grouping name -> row column holding the group label
+GROUPINGS = {"all": None, "surface class": "surface_class", "|omega0| (deg/s)": "omega_bin",
+             "initial error (deg)": "error_bin"}
+SUMMARY_COLUMNS = ("estimator", "grouping", "group", "seeds", "share_below_10deg", "rmse_yaw_median",
+                   "rmse_pitch_median", "rmse_roll_median", "share_nees_in_band", "nees_mean", "nees_median")
+
+
+def bin_label(value: float, bins: Sequence[tuple[str, float, float]]) -> str:
+    """The label of the bin ``[lower, upper)`` holding ``value``."""
+    for label, lo, hi in bins:
+        if lo <= value < hi:
+            return label
+    raise ValueError(f"{value!r} lies in no bin of {[b[0] for b in bins]}")
+
+
+def _finite(x: float) -> float | None:
+    return x if math.isfinite(x) else None
+
+
+def seed_rows(truths: TruthBatch, results: dict[str, Scored], band: tuple[float, float], *,
+              error_mode: str) -> list[dict[str, Any]]:
+    """One plain-python row per (seed, estimator); ``error_mode`` is ``"random"`` or the fixed angle as text."""
+    d = truths.draw
+    classes = specular_class(truths.specular_share).tolist()
+    omega = torch.rad2deg(torch.linalg.vector_norm(d.omega0, dim=-1)).tolist()
+    error = torch.rad2deg(torch.linalg.vector_norm(d.error, dim=-1)).tolist()
+    rows = []
+    for name, r in results.items():
+        for i, seed in enumerate(d.seeds):
+            rmse = [float(v) for v in r.rmse_deg[i]]
+            nees = float(r.nees_mean[i])
+            rows.append({
+                "seed": seed, "estimator": name, "error_mode": error_mode,
+                "rmse_yaw_deg": _finite(rmse[0]), "rmse_pitch_deg": _finite(rmse[1]), "rmse_roll_deg": _finite(rmse[2]),
+                "below_10deg": bool(all(v < 10.0 for v in rmse)), "nees_mean": _finite(nees),
+                "nees_in_band": bool(band[0] <= nees <= band[1]),
+                "specular_share": float(truths.specular_share[i]), "surface_class": SPECULAR_CLASSES[classes[i]][0],
+                "omega_deg_s": omega[i], "omega_bin": bin_label(omega[i], OMEGA_BINS),
+                "initial_error_deg": error[i], "error_bin": bin_label(error[i], ERROR_BINS),
+                "sigma0_deg": math.degrees(float(d.sigma0[i])),
+                "rho": float(d.surface.rho[i]), "f0": float(d.surface.f0[i]), "n_u": float(d.surface.n_u[i]),
+                "n_v": float(d.surface.n_v[i]),
+                "offset_final": None if r.offset_final is None else _finite(float(r.offset_final[i])),
+                "white_first": [_finite(float(v)) for v in r.white_first[i]],
+                "white_last": [_finite(float(v)) for v in r.white_last[i]],
+                "seconds_batch": r.seconds,
+            })
+    return rows
+
+
+def _group_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    rmse = np.array([[np.nan if r[k] is None else r[k] for k in ("rmse_yaw_deg", "rmse_pitch_deg", "rmse_roll_deg")]
+                     for r in rows], dtype=float)
+    nees = np.array([np.nan if r["nees_mean"] is None else r["nees_mean"] for r in rows], dtype=float)
+    med = np.nanmedian(rmse, axis=0) if len(rows) else [math.nan] * 3
+    return {"seeds": len(rows), "share_below_10deg": float(np.mean([r["below_10deg"] for r in rows])),
+            "rmse_yaw_median": float(med[0]), "rmse_pitch_median": float(med[1]), "rmse_roll_median": float(med[2]),
+            "share_nees_in_band": float(np.mean([r["nees_in_band"] for r in rows])),
+            "nees_mean": float(np.nanmean(nees)) if np.isfinite(nees).any() else math.nan,
+            "nees_median": float(np.nanmedian(nees)) if np.isfinite(nees).any() else math.nan}
+
+
+def summarize(rows: Sequence[dict[str, Any]], groupings: dict[str, str | None] = GROUPINGS) -> list[dict[str, Any]]:
+    """:data:`SUMMARY_COLUMNS` per estimator, grouping and group (groups in the order of the bin tables)."""
+    order = {"surface_class": [c[0] for c in SPECULAR_CLASSES], "omega_bin": [b[0] for b in OMEGA_BINS],
+             "error_bin": [b[0] for b in ERROR_BINS]}
+    estimators = list(dict.fromkeys(r["estimator"] for r in rows))
+    out = []
+    for name in estimators:
+        mine = [r for r in rows if r["estimator"] == name]
+        for grouping, column in groupings.items():
+            labels = ["all"] if column is None else order.get(column) or sorted({str(r[column]) for r in mine})
+            for label in labels:
+                members = mine if column is None else [r for r in mine if str(r[column]) == label]
+                if members:
+                    out.append({"estimator": name, "grouping": grouping, "group": label, **_group_summary(members)})
+    return out
+
+
+def whitened_correlation(rows: Sequence[dict[str, Any]], estimator: str) -> float:
+    """Spearman correlation of the whitened error components at the window's first and last scored sample.
+
+    Pooled over seeds and axes; near 1 means the time-averaged NEES holds about one independent sample.
+    """
+    pairs = [(a, b) for r in rows if r["estimator"] == estimator
+             for a, b in zip(r["white_first"], r["white_last"]) if a is not None and b is not None]
+    if len(pairs) < 3:
+        return math.nan
+    ranks = np.argsort(np.argsort(np.array(pairs, dtype=float), axis=0), axis=0).astype(float)
+    return float(np.corrcoef(ranks[:, 0], ranks[:, 1])[0, 1])

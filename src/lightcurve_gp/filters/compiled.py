@@ -1,0 +1,300 @@
+"""The ω-known USQUE step compiled into fused graphs (``filter.compile: true``, :attr:`UsqueParams.compile`).
+
+One filter's step (B = 1) on the CPU is a few hundred small tensor operations — the sigma points, their propagation,
+the model's prediction, the gain and the reset (:func:`lightcurve_gp.filters.usque.usque_step`) — and eager torch spends
+microseconds of dispatch on each. :func:`compiled_stepper` compiles the very same function with inductor (fixed
+shapes, its C++ wrapper): the step becomes a few generated C++ loops plus the library calls that stay calls (small
+matrix products; the sigma points' Cholesky factor is written out elementwise,
+:func:`~lightcurve_gp.filters.unscented.cholesky_unrolled`, and fused).
+
+Two forms. When the model says its prediction traces (``fuses_in_compiled_step``), the whole step is exported once
+(``torch.export``, non-strict: the same Python runs, ``torch.compiler.is_compiling()`` is true) to one graph of flat
+tensors and compiled by ``torch._inductor.compile``; each step then calls that compiled graph directly, with no
+TorchDynamo frame, guard check or wrapper in between (on this project's 2-core CPU ~50 µs per call of a one-line
+function against 11 µs for the graph called directly; 78–90 µs per GPUKF step and 45–76 µs per UKF step, README:
+Performance). What dynamo's guards did is done once per run instead (:class:`_ExportedStep`): the compiled graph is
+looked up by the model object, a fingerprint of the model's Python state (its plain attributes and the identity and
+version counter of every tensor it holds outside its buffers, such as the renderer's scene: these are constants of
+the graph) and the shapes, strides, dtypes and devices of every input (its buffers and parameters are inputs, read at
+the start of each run), and the run's Python constants (the state layout, ``n + λ``, GRP ``a, f``, ``t_span_past``,
+the variant); any change exports and compiles again (so does a model whose fingerprint moved for a reason its mean
+does not see, e.g. the exact GP's full Cholesky factor computed or dropped). Within a run the compiled graph checks
+every input's size and stride itself and raises on a mismatch. Otherwise (a GP asked for a variance, the sparse GP,
+models without that method) the model is called eagerly between two halves compiled by ``torch.compile``
+(TorchDynamo, with its guards).
+
+What cannot be inside one graph is a host synchronisation: the square root's fallback test, the model's finiteness
+check and the renderer's zero-flux test read values back to Python. Under compilation those read-backs are left out
+(``torch.compiler.is_compiling()`` in :func:`~lightcurve_gp.filters.unscented.sqrt_psd`,
+:func:`~lightcurve_gp.observation.base.check_inputs` and :meth:`~lightcurve_gp.photometry.render.Scene.magnitude`) and
+the
+compiled step returns one flag instead: any square root that fell back, or a posterior that is not finite. A step so
+flagged is done again by the eager :func:`~lightcurve_gp.filters.usque.usque_step`, which applies the fallback, raises
+or warns
+exactly as the uncompiled filter does. The estimates of both paths therefore agree to rounding (the fused loops sum
+in another order). The exact GP's mean is the one model-side change: inside the graph it is written elementwise over
+blocks of training points (:func:`~lightcurve_gp.observation.kernels.blocked_kernel_sum`), so the kernel row, its
+``exp`` and the sum with ``α`` are one loop; eagerly it stays one matrix product.
+
+Costs: the first run of each new shape (``B``, the state layout, the model; with per-filter increments ``(B, T, 4)``
+also each run length ``T``) compiles — seconds to tens of seconds, once per process, less when inductor's on-disk
+cache (``TORCHINDUCTOR_CACHE_DIR``) already holds the graph; every run then pays the model's fingerprint
+(microseconds). A model whose Python state changes when it is called (a call counter, the pass model's sample index)
+would be frozen by one traced graph: such a model says so (``fuses_in_compiled_step`` false, e.g.
+:class:`~lightcurve_gp.observation.along_pass.AlongPass`), and one that does not is refused with a
+:class:`ValueError` when its step is exported (its state moved during the trace). The step's arithmetic is not
+reduced: the exact GP's mean (7 × 19 260 exponentials in float64 in the paper's case, ~2/3 of the GPUKF step) stays,
+and the generated loop's exponential (SLEEF's) is slower than the eager one (MKL's), which is why the GPs with a
+variance and the sparse GP keep their kernel rows eager.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import weakref
+from typing import Any, Callable
+
+import torch
+from torch import Tensor
+
+from lightcurve_gp.filters.state import FilterState, StepRecord
+from lightcurve_gp.filters.update import Prior, RunConstants, SigmaInputs, sigma_inputs, update_with_predictions
+
+__all__ = ["compiled_stepper"]
+
+#: the run's tensors, the state's fields and the step's inputs, in the order the exported graph takes them
+_RUN_TENSORS = ("wm", "wc", "Q", "R")
+_STEP_INPUTS = ("L_k", "G_k", "y_k", "observed_k")
+#: what every nn.Module carries (its buffers and parameters are inputs of the exported graph, not constants)
+_MODULE_INTERNALS = frozenset(vars(torch.nn.Module()))
+#: compiled whole steps per model object (dropped with the model), then by the rest of the key (_ExportedStep)
+_EXPORTED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _redo(new: FilterState, record: StepRecord) -> Tensor:
+    """``()``: whether any filter's square root fell back or its posterior ``q̂``, ``P`` is not finite."""
+    finite = torch.isfinite(new.q_hat).all() & torch.isfinite(new.P).all()
+    return record.fallback.any() | ~finite
+
+
+def _whole_step(run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Tensor, y_k: Tensor,
+                observed_k: Tensor) -> tuple[FilterState, StepRecord, Tensor]:
+    """:func:`lightcurve_gp.filters.usque.usque_step`, the model's prediction included, and :func:`_redo`."""
+    from lightcurve_gp.filters.usque import usque_step
+
+    new, record = usque_step(run, state, L_k=L_k, G_k=G_k, y_k=y_k, observed_k=observed_k)
+    return new, record, _redo(new, record)
+
+
+def _prior_half(run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Tensor) -> tuple[Prior, SigmaInputs]:
+    """Steps 1–5 and the sigma attitudes the model is asked about."""
+    from lightcurve_gp.filters.usque import usque_prior
+
+    prior = usque_prior(run, state, L_k=L_k, G_k=G_k)
+    return prior, sigma_inputs(run, state, prior)
+
+
+def _update_half(run: RunConstants, state: FilterState, prior: Prior, R_qm: Tensor, y_sig: Tensor,
+                 var_sig: Tensor | None, *, y_k: Tensor, observed_k: Tensor) -> tuple[FilterState, StepRecord, Tensor]:
+    """Steps 6–9 from the model's predictions, and :func:`_redo`."""
+    new, record = update_with_predictions(run, state, prior, R_qm, y_sig, var_sig, y_k=y_k, observed_k=observed_k)
+    return new, record, _redo(new, record)
+
+
+@functools.cache
+def _compiled(fn):
+    # not fullgraph: a model that reads a value back, or a process past torch's limit of recompilations per
+    # function (many shapes or models), runs the rest eagerly instead of failing. cpp_wrapper: the graph's calls
+    # (its loops, the library calls that stay) are made from generated C++ rather than Python: the UKF step's CPU
+    # time 238 -> 126 µs (load 4-6), longer compiles
+    return torch.compile(fn, dynamic=False, options={"cpp_wrapper": True})
+
+
+def _halves_step(run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Tensor, y_k: Tensor,
+                 observed_k: Tensor) -> tuple[FilterState, StepRecord]:
+    """The step as two ``torch.compile`` graphs around the model's eager call; a flagged step is done again."""
+    from lightcurve_gp.filters.usque import usque_step
+
+    step = {"L_k": L_k, "G_k": G_k, "y_k": y_k, "observed_k": observed_k}
+    prior, inputs = _compiled(_prior_half)(run, state, L_k=L_k, G_k=G_k)
+    if bool(prior.failed.any()):
+        return usque_step(run, state, **step)
+    y_sig, var_sig = run.model(q=inputs.q, m_past=inputs.m_past, variance=run.variance, **inputs.theta)
+    new, record, redo = _compiled(_update_half)(run, state, prior, inputs.R_qm, y_sig, var_sig, y_k=y_k,
+                                                observed_k=observed_k)
+    return usque_step(run, state, **step) if bool(redo) else (new, record)
+
+
+def compiled_stepper() -> Callable[..., tuple[FilterState, StepRecord]]:
+    """A step function for one run, called like :func:`lightcurve_gp.filters.usque.usque_step` (same arguments and
+    result):
+    its first call picks the form from that call's arguments — the exported whole step when the model's
+    ``fuses_in_compiled_step(variance)`` says so (:class:`_ExportedStep`, looked up or compiled), else the two
+    compiled halves around the model's eager call — and every call runs it; a step whose square root fell back or
+    whose posterior is not finite is done again eagerly (module docstring)."""
+    chosen: Callable[..., tuple[FilterState, StepRecord]] | None = None
+
+    def step(run: RunConstants, state: FilterState, **inputs: Tensor) -> tuple[FilterState, StepRecord]:
+        nonlocal chosen
+        if chosen is None:
+            fuses = getattr(run.model, "fuses_in_compiled_step", None)
+            exported = isinstance(run.model, torch.nn.Module) and fuses is not None and fuses(run.variance)
+            chosen = _ExportedStep.for_run(run, state, inputs) if exported else _halves_step
+        return chosen(run, state, **inputs)
+
+    return step
+
+
+class _FlatStep(torch.nn.Module):
+    """:func:`_whole_step` of flat tensors — the run's :data:`_RUN_TENSORS`, the state's ``fields`` present, the
+    step's :data:`_STEP_INPUTS` — returning the new state's fields (contiguous, as the first step's are), the
+    record's and the redo flag; the model is a submodule, so that export makes its buffers and parameters inputs.
+    ``traced`` receives the model's fingerprint after the traced step (export restores a module's attributes after
+    tracing: a model that changed them when called is seen only there)."""
+
+    def __init__(self, run: RunConstants, fields: tuple[str, ...], traced: Callable[[Any], None]):
+        super().__init__()
+        self.model = run.model
+        self.run, self.fields, self.traced = run, fields, traced
+
+    def forward(self, *flat: Tensor) -> tuple[Tensor, ...]:
+        n, m = len(_RUN_TENSORS), len(self.fields)
+        run = dataclasses.replace(self.run, **dict(zip(_RUN_TENSORS, flat[:n])))
+        state = _state(self.fields, flat[n:n + m])
+        new, record, redo = _whole_step(run, state, **dict(zip(_STEP_INPUTS, flat[n + m:])))
+        self.traced(_fingerprint(self.model, [], set()))
+        return (*(getattr(new, f).contiguous() for f in self.fields), *record, redo)
+
+
+def _state(fields: tuple[str, ...], tensors: Any) -> FilterState:
+    """The :class:`FilterState` with ``fields`` set to ``tensors``, the others ``None``."""
+    return FilterState(**{**dict.fromkeys(FilterState._fields), **dict(zip(fields, tensors))})
+
+
+def _fingerprint(obj: Any, objects: list, seen: set[int], depth: int = 0) -> Any:
+    """A hashable summary of what an exported graph may hold of ``obj`` as constants: plain values by value,
+    tensors by identity and version counter (an in-place change bumps it), other objects by identity and their
+    attributes (an ``nn.Module`` without its buffers, parameters and hooks: those are inputs), recursively.
+    ``objects`` collects what is summarised by identity (the caller checks that they are still the same objects)."""
+    if obj is None or isinstance(obj, (bool, int, float, complex, str, bytes, torch.dtype, torch.device)):
+        return obj
+    if isinstance(obj, Tensor):
+        objects.append(obj)
+        return "tensor", id(obj), obj._version
+    if id(obj) in seen or depth > 8:
+        return "seen", id(obj)
+    seen.add(id(obj))
+    parts = lambda items: tuple((k, _fingerprint(v, objects, seen, depth + 1)) for k, v in items)  # noqa: E731
+    if isinstance(obj, (tuple, list)):
+        return type(obj).__name__, parts(enumerate(obj))
+    if isinstance(obj, dict):
+        return "dict", parts(obj.items())
+    objects.append(obj)
+    attrs = getattr(obj, "__dict__", None)
+    if attrs is None:
+        return "object", id(obj)
+    if isinstance(obj, torch.nn.Module):
+        attrs = {**{k: v for k, v in attrs.items() if k not in _MODULE_INTERNALS}, "_modules": obj._modules}
+    return type(obj).__qualname__, id(obj), parts(sorted(attrs.items()))
+
+
+def _signature(tensors: Any) -> tuple:
+    """Shape, stride, dtype and device of each tensor (what a compiled graph is specialised to)."""
+    return tuple((tuple(t.shape), t.stride(), t.dtype, t.device) for t in tensors)
+
+
+def _weak(obj: Any) -> Callable[[], Any]:
+    """A weak reference to ``obj`` where it takes one, else a strong one (called like a weak reference)."""
+    try:
+        return weakref.ref(obj)
+    except TypeError:
+        return lambda: obj
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class _Compiled:
+    """One exported and compiled whole step: the compiled graph, what feeds each of its inputs before the user's
+    (``("buffer" | "parameter", name)`` in the model, or ``("constant", tensor)``), and references to the objects
+    of the model's fingerprint when it was compiled."""
+
+    fn: Callable[..., list[Tensor]]
+    sources: tuple[tuple[str, Any], ...]
+    refs: tuple[Callable[[], Any], ...]
+
+    def holds(self, objects: list) -> bool:
+        """Whether the fingerprint's objects are still the ones seen at compile time (ids are reused)."""
+        return len(objects) == len(self.refs) and all(r() is o for r, o in zip(self.refs, objects))
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class _ExportedStep:
+    """The whole step of one run as one compiled graph called without TorchDynamo: :meth:`for_run` looks it up or
+    exports and compiles it (module docstring: the key), each call passes the flat tensors and redoes a flagged
+    step eagerly."""
+
+    fn: Callable[..., list[Tensor]]
+    prefix: tuple[Tensor, ...]  # the model's buffers, parameters and the graph's constants
+    fields: tuple[str, ...]  # the state's fields present
+
+    @classmethod
+    def for_run(cls, run: RunConstants, state: FilterState, inputs: dict[str, Tensor]) -> _ExportedStep:
+        """The compiled step for ``run`` (its first step's ``state`` and step ``inputs``), compiled when new."""
+        if state.omega is not None:
+            raise ValueError("the compiled step is the ω-known step: omega must be None")
+        model = run.model
+        fields = tuple(f for f in FilterState._fields if getattr(state, f) is not None)
+        flat = (*(getattr(run, n) for n in _RUN_TENSORS), *(getattr(state, f) for f in fields),
+                *(inputs[n] for n in _STEP_INPUTS))
+        consts = tuple((f.name, getattr(run, f.name)) for f in dataclasses.fields(run)
+                       if f.name not in ("model", *_RUN_TENSORS))
+        shape = (consts, fields, _signature(flat), _signature(t for _, t in model.named_buffers()),
+                 _signature(t for _, t in model.named_parameters()))
+        objects: list = []
+        key = (_fingerprint(model, objects, set()), shape)
+        entries = _EXPORTED.setdefault(model, {})
+        entry = entries.get(key)
+        if entry is None or not entry.holds(objects):
+            entry = _export(run, fields, flat, fingerprint=key[0])
+            entries[key] = entry = dataclasses.replace(entry, refs=tuple(_weak(o) for o in objects))
+        return cls(entry.fn, _prefix(model, entry.sources), fields)
+
+    def __call__(self, run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Tensor, y_k: Tensor,
+                 observed_k: Tensor) -> tuple[FilterState, StepRecord]:
+        from lightcurve_gp.filters.usque import usque_step
+
+        m = len(self.fields)
+        out = self.fn(*self.prefix, run.wm, run.wc, run.Q, run.R, *(getattr(state, f) for f in self.fields),
+                      L_k, G_k, y_k, observed_k)
+        if bool(out[-1]):
+            return usque_step(run, state, L_k=L_k, G_k=G_k, y_k=y_k, observed_k=observed_k)
+        return _state(self.fields, out[:m]), StepRecord(*out[m:-1])
+
+
+def _prefix(model: Any, sources: tuple[tuple[str, Any], ...]) -> tuple[Tensor, ...]:
+    """The tensors that feed the graph's inputs before the user's: the model's buffers and parameters as they are
+    now, and the graph's constants."""
+    getters = {"buffer": model.get_buffer, "parameter": model.get_parameter}
+    return tuple(src if kind == "constant" else getters[kind](src) for kind, src in sources)
+
+
+def _export(run: RunConstants, fields: tuple[str, ...], flat: tuple[Tensor, ...], *, fingerprint: Any) -> _Compiled:
+    """Export :class:`_FlatStep` on the first step's tensors and compile its graph with inductor (C++ wrapper);
+    refuse a model whose fingerprint (before: ``fingerprint``) moved while its step was traced."""
+    traced: list = []
+    program = torch.export.export(_FlatStep(run, fields, traced.append), flat, strict=False)
+    if traced != [fingerprint]:
+        raise ValueError(f"filter.compile: {type(run.model).__name__} changed its Python state when called (a "
+                         "counter, a per-call setting), which one traced graph would freeze; such a model must "
+                         "return False from fuses_in_compiled_step (it is then called eagerly)")
+    kinds = {"PARAMETER": "parameter", "BUFFER": "buffer", "CONSTANT_TENSOR": "constant"}
+    specs = program.graph_signature.input_specs
+    head = specs[:len(specs) - len(flat)]
+    if any(s.kind.name not in kinds for s in head) or any(s.kind.name != "USER_INPUT" for s in specs[len(head):]):
+        raise RuntimeError(f"the exported filter step takes inputs {[s.kind.name for s in specs]}; expected the "
+                           "model's tensors, then the step's")
+    sources = tuple((kinds[s.kind.name], program.constants[s.target] if s.kind.name == "CONSTANT_TENSOR"
+                     else s.target.removeprefix("model.")) for s in head)
+    fn = torch._inductor.compile(program.graph_module, [*_prefix(run.model, sources), *flat],
+                                 options={"cpp_wrapper": True})
+    return _Compiled(fn, sources, ())

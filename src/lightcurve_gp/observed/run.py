@@ -1,0 +1,187 @@
+"""The GPUKF on an observed light curve (a light-curve file): attitude history, innovation statistics, global start.
+
+The filter steps from sample to sample of the file (:mod:`lightcurve_gp.attitude.timeline`: increments from the config's
+known spin, gaps and irregular steps as they are), with the per-sample measurement variance ``mag_err²`` when the
+file gives ``mag_err`` (else ``filter.measurement_noise``). It starts from a given attitude or, without one, from the
+global-start bank (:mod:`lightcurve_gp.filters.bank`). The user has no truth, so the run is judged by its innovations:
+the NIS ``ν²/Pyy`` of a consistent filter is χ²(1), its mean over ``n`` samples lies in :func:`metrics.chi2_band`.
+
+Geometry (:func:`file_geometry`). A file with per-sample geometry columns (``sun_*``, ``obs_*``, ``range_km``) or
+with a TLE and a site gives a :class:`~lightcurve_gp.passes.geometry.PassGeometry` of its samples (the TLE through
+:func:`lightcurve_gp.passes.geometry.orbit_pass`, every sample kept: the file's magnitudes were observed), and every
+filter
+step predicts with its own sample's geometry (:class:`~lightcurve_gp.observation.along_pass.AlongPass`): the
+body-frame Sun and observer directions ``A(q) s_k``, ``A(q) v_k`` and the range ``r_k`` of a ``body_geometry`` GP.
+Such a file needs a model that takes geometry; a GP trained under one fixed geometry is refused
+(:func:`check_model_takes_geometry`) rather than run with a geometry it would ignore. A file without geometry runs
+with the config's fixed Sun and observer.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from astropy.table import Table
+from torch import Tensor
+
+from lightcurve_gp.attitude.metrics import chi2_band
+from lightcurve_gp.attitude.rotations import quat_normalize, quat_to_euler321
+from lightcurve_gp.attitude.timeline import spin_increments
+from lightcurve_gp.config.load import ConfigError
+from lightcurve_gp.config.schema import GeometryConfig, SiteConfig
+from lightcurve_gp.filters.bank import BankResult, bank_attitudes, run_bank, run_filter
+from lightcurve_gp.filters.offset import offset_to_rho
+from lightcurve_gp.filters.usque import FilterHistory
+from lightcurve_gp.observed.lightcurve_file import LightCurve, iso_times
+from lightcurve_gp.passes.geometry import PassGeometry, orbit_pass
+
+__all__ = ["ObservedRun", "FileGeometryError", "file_geometry", "check_model_takes_geometry", "file_inputs",
+           "estimate_light_curve", "history_table", "nis_summary", "bank_table"]
+
+
+class FileGeometryError(ValueError):
+    """The file's geometry cannot be used: a TLE without a site, or a model that takes no geometry."""
+
+
+@dataclass
+class ObservedRun:
+    """One estimate on a file: the reported filter's history (batch 1), its start and the bank when one ran."""
+
+    lc: LightCurve
+    history: FilterHistory
+    q_est0: Tensor
+    bank: BankResult | None
+    seconds: float
+
+
+def file_geometry(lc: LightCurve) -> PassGeometry | None:
+    """The per-sample geometry of a file (module docstring): from its geometry columns, from its TLE and site, or
+    ``None`` when it gives neither."""
+    if lc.geometry is not None:
+        g = lc.geometry
+        try:
+            return PassGeometry.from_columns(times_s=lc.t, sun=g["sun"], observer=g["obs"],
+                                             range_m=g["range_km"] * 1e3, start_utc=lc.start.isot, shadow_model="none")
+        except ValueError as exc:
+            raise FileGeometryError(f"{lc.source}: geometry columns: {exc}") from None
+    if not lc.has_tle:
+        return None
+    if lc.site is None:
+        raise FileGeometryError(f"{lc.source}: metadata site_lat_deg: missing (a file with a TLE needs the observing "
+                                f"site: site_lat_deg, site_lon_deg, site_alt_m)")
+    lat, lon, alt_m = lc.site
+    geo = GeometryConfig(kind="orbit", tle=[lc.meta["tle_line1"], lc.meta["tle_line2"]],
+                         site=SiteConfig(lat_deg=lat, lon_deg=lon, alt_km=alt_m / 1e3), start_utc=lc.start.isot,
+                         min_elevation_deg=-90.0)
+    try:
+        return orbit_pass(geo, np.asarray(lc.t, dtype=np.float64))
+    except ConfigError as exc:
+        raise FileGeometryError(f"{lc.source}: metadata tle_line1/tle_line2 and site: {exc}") from None
+
+
+def check_model_takes_geometry(model, lc: LightCurve) -> None:
+    """Refuse a file with geometry for a model that takes none (module docstring)."""
+    inputs = getattr(model, "config", {}).get("inputs")
+    if (lc.geometry is not None or lc.has_tle) and inputs != "body_geometry":
+        what = "per-sample geometry columns (sun_*, obs_*, range_km)" if lc.geometry is not None else "a TLE and site"
+        raise FileGeometryError(
+            f"{lc.source}: the file gives {what}, but the model (inputs: {inputs}) was trained under one fixed "
+            f"geometry and would ignore it; use a model with model.inputs: body_geometry (e.g. configs/geo_pass.yaml) "
+            f"or remove the geometry from the file to run with the config's fixed Sun and observer")
+
+
+def file_inputs(cfg, lc: LightCurve) -> tuple[Tensor, Tensor, Tensor | None]:
+    """``(observations (T+1,), increments (T, 4), R (T+1,) or None)`` of a file in the config's dtype/device."""
+    dtype, device = cfg.torch_dtype, torch.device(cfg.device)
+    t = torch.as_tensor(lc.t, dtype=dtype, device=device)
+    omega0 = torch.deg2rad(torch.tensor(cfg.scenario.omega0_deg_s, dtype=dtype, device=device))
+    inertia = torch.tensor(cfg.shape.inertia_kg_m2, dtype=dtype, device=device)
+    increments = spin_increments(t, omega0=omega0, inertia=inertia, max_step=float(cfg.scenario.dt_s))
+    y = torch.as_tensor(lc.mag, dtype=dtype, device=device)
+    R = None if lc.mag_err is None else torch.as_tensor(lc.mag_err, dtype=dtype, device=device) ** 2
+    return y, increments, R
+
+
+def estimate_light_curve(cfg, model, lc: LightCurve, *, initial_attitude: Tensor | None = None,
+                         bank_size: int = 1024, keep: int = 5, prune_after_s: float | None = None,
+                         prune_keep: int = 64) -> ObservedRun:
+    """The GPUKF of ``cfg`` on ``lc``: from ``initial_attitude (4,)`` when given, else from the best member of a
+    bank of ``bank_size`` filters (the best ``keep`` are rerun with the config's settings; with ``prune_after_s``
+    only the best ``prune_keep`` run past the samples of the first ``prune_after_s`` seconds)."""
+    import time
+
+    check_model_takes_geometry(model, lc)
+    geometry = file_geometry(lc)
+    y, increments, R = file_inputs(cfg, lc)
+    start = time.perf_counter()
+    if initial_attitude is not None:
+        q0 = quat_normalize(initial_attitude.to(y)).reshape(1, 4)
+        history = run_filter(cfg, model, q_est0=q0, observations=y.unsqueeze(0), increments=increments,
+                             R=None if R is None else R.unsqueeze(0), geometry=geometry)
+        return ObservedRun(lc, history, q0[0], None, time.perf_counter() - start)
+    prune = None if prune_after_s is None else max(1, int(np.searchsorted(lc.t, lc.t[0] + prune_after_s, "right")) - 1)
+    bank = run_bank(cfg, model, observations=y, increments=increments, R=R,
+                    q0=bank_attitudes(bank_size, dtype=y.dtype, device=y.device), keep=keep, geometry=geometry,
+                    prune_after=prune, prune_keep=min(prune_keep, bank_size))
+    best = _select(bank.kept, 0)
+    return ObservedRun(lc, best, bank.q0[bank.order[0]], bank, time.perf_counter() - start)
+
+
+def _select(history: FilterHistory, i: int) -> FilterHistory:
+    """Filter ``i`` of a batched history, as a batch of one."""
+    fields = {k: (v[i:i + 1] if isinstance(v, Tensor) else v) for k, v in vars(history).items()}
+    return FilterHistory(**fields)
+
+
+def history_table(run: ObservedRun, rho_reference: float | None) -> Table:
+    """The attitude history: time (ISO UTC), ``t_s``, ``q1…q4``, yaw/pitch/roll (deg, 3-2-1 of ``A(q)``), the 1σ
+    of the attitude error about x, y, z (deg, from the GRP block of ``P``), the offset and ρ̂ with their 1σ when
+    estimated, the observed and predicted magnitude with its σ (``√Pyy``), the innovation and the NIS."""
+    h = run.history
+    q = h.q_est[0].cpu()
+    euler = torch.rad2deg(quat_to_euler321(q)).numpy()
+    sigma = torch.rad2deg(torch.diagonal(h.P[0], dim1=-2, dim2=-1).clamp_min(0).sqrt()).cpu().numpy()
+    cols = {"time": iso_times(run.lc.times), "t_s": run.lc.t}
+    cols.update({f"q{i + 1}": q[:, i].numpy() for i in range(4)})
+    cols.update({"yaw_deg": euler[:, 0], "pitch_deg": euler[:, 1], "roll_deg": euler[:, 2]})
+    cols.update({f"sigma_{a}_deg": sigma[:, i] for i, a in enumerate("xyz")})
+    if h.offset is not None:
+        cols["offset_mag"] = h.offset[0].cpu().numpy()
+        cols["offset_sigma_mag"] = h.offset_var[0].clamp_min(0).sqrt().cpu().numpy()
+        if rho_reference is not None:
+            cols["rho_hat"] = offset_to_rho(h.offset[0], rho_reference).cpu().numpy()
+    cols.update({"mag_obs": run.lc.mag, "mag_pred": h.y_pred[0].cpu().numpy(),
+                 "mag_pred_sigma": h.y_var[0].clamp_min(0).sqrt().cpu().numpy(),
+                 "innovation": h.innovation[0].cpu().numpy(), "nis": h.nis()[0].cpu().numpy()})
+    return Table(cols)
+
+
+def nis_summary(history: FilterHistory) -> dict:
+    """Mean NIS of the updated steps against the 95 % band of the mean of ``n`` χ²(1) draws, and the share of
+    steps whose NIS exceeds χ²(1)'s 95 % point (3.84; 5 % for a consistent filter)."""
+    nis = history.nis()[0][history.updated[0]].cpu().double()
+    n = int(nis.numel())
+    if n == 0:
+        return {"n": 0, "mean": math.nan, "band_95": [math.nan, math.nan], "in_band": False,
+                "share_above_3.84": math.nan}
+    lo, hi = chi2_band(1, n)
+    mean = float(nis.mean())
+    return {"n": n, "mean": mean, "band_95": [lo, hi], "in_band": bool(lo <= mean <= hi),
+            "share_above_3.84": float((nis > 3.841458820694124).double().mean())}
+
+
+def bank_table(bank: BankResult) -> Table:
+    """Every bank member, best first: rank, index, initial quaternion, log-likelihood (nats), posterior weight and,
+    when the bank was pruned, whether it ran the whole light curve (a pruned member's log-likelihood covers the first
+    stretch only, its weight is 0)."""
+    order = bank.order.cpu()
+    q0 = bank.q0.cpu()[order].numpy()
+    cols = {"rank": np.arange(1, order.numel() + 1), "member": order.numpy(),
+            **{f"q0_{i + 1}": q0[:, i] for i in range(4)},
+            "log_likelihood": bank.log_likelihood.cpu()[order].numpy(), "weight": bank.weights.cpu()[order].numpy()}
+    if bank.survivors is not None:
+        cols["whole_curve"] = np.isin(order.numpy(), bank.survivors.cpu().numpy())
+    return Table(cols)
