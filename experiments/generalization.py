@@ -39,7 +39,7 @@ from tqdm.auto import tqdm
 
 from experiments.robust_gpukf import trained_model
 from lightcurve_gp.config.load import ConfigError, config_hash, config_to_dict, load_config
-from lightcurve_gp.evaluation.plots import _save, rmse_boxplot
+from lightcurve_gp.evaluation.plots import rmse_boxplot, save_figure
 from lightcurve_gp.evaluation.reporting import CaseRecord, SeedRow, csv_text, markdown_table
 from lightcurve_gp.evaluation.suite import SUITE_ESTIMATORS, nees_band, run_suite
 from lightcurve_gp.evaluation.suite_summary import SUMMARY_COLUMNS, seed_rows, summarize, whitened_correlation
@@ -195,7 +195,7 @@ def bar_chart(summary: Sequence[dict[str, Any]], metric: str, ylabel: str, path:
     fig.legend(*axes[0][0].get_legend_handles_labels(), loc="outside lower center", ncols=len(estimators),
                frameon=False, fontsize=8)
     fig.suptitle(title)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def write_figures(rows, summary, out: Path, label: str) -> None:

@@ -41,7 +41,7 @@ from lightcurve_gp.attitude.dynamics import propagate
 from lightcurve_gp.attitude.metrics import chi2_band
 from lightcurve_gp.attitude.rotations import quat_mul, quat_normalize, rotvec_to_quat
 from lightcurve_gp.config.load import apply_overrides, config_from_dict, load_raw_config
-from lightcurve_gp.evaluation.plots import _save
+from lightcurve_gp.evaluation.plots import save_figure
 from lightcurve_gp.evaluation.reporting import markdown_table
 from lightcurve_gp.files import write_json_atomic, write_text_atomic
 from lightcurve_gp.passes.geometry import pass_geometry
@@ -160,7 +160,7 @@ def fixed_vs_orbital(cfg, out: Path) -> dict[str, Any]:
     bottom.set_xlabel("time (min)")
     bottom.set_ylabel("orbital − fixed (mag)")
     out.mkdir(parents=True, exist_ok=True)
-    stats["figure"] = _save(fig, out / f"fixed_vs_orbital_{cfg.name}.png").name
+    stats["figure"] = save_figure(fig, out / f"fixed_vs_orbital_{cfg.name}.png").name
     return stats
 
 

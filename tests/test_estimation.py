@@ -6,10 +6,11 @@ from pathlib import Path
 import pytest
 import torch
 
+from lightcurve_gp.attitude.dynamics import propagate_only
 from lightcurve_gp.attitude.metrics import total_angle_deg
 from lightcurve_gp.attitude.rotations import euler321_to_quat, quat_mul
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.evaluation.estimators import propagate_only, run_estimators
+from lightcurve_gp.evaluation.estimators import run_estimators
 from lightcurve_gp.observation.parametric import Parametric
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario

@@ -8,9 +8,9 @@ import pytest
 import torch
 import yaml
 
+from lightcurve_gp.attitude.dynamics import propagate_only
 from lightcurve_gp.attitude.metrics import total_angle_deg
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.evaluation.estimators import propagate_only
 from lightcurve_gp.evaluation.suite import nees_band, run_suite
 from lightcurve_gp.evaluation.suite_summary import ERROR_BINS, bin_label, seed_rows, summarize, whitened_correlation
 from lightcurve_gp.inference.surface import batch_map

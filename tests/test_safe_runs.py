@@ -288,7 +288,7 @@ def test_figures_explain_reference_lines_and_never_touch_the_backend(tmp_path, m
     matplotlib.use("svg")  # a user's choice, which importing and plotting must keep
     importlib.reload(plots)
     figures = []
-    monkeypatch.setattr(plots, "_save", lambda fig, path: figures.append(fig) or Path(path))
+    monkeypatch.setattr(plots, "save_figure", lambda fig, path: figures.append(fig) or Path(path))
     plots.prediction_scatter(torch.tensor([1.0, 2.0]), torch.tensor([1.1, 2.1]), tmp_path / "s.png")
     plots.euler_errors(torch.arange(3.0), {"ukf": torch.zeros(3, 3)}, tmp_path / "e.png", window=(1, 2))
     labels = [[t.get_text() for t in fig.legends[0].get_texts()] for fig in figures]

@@ -22,9 +22,10 @@ from numbers import Integral, Real
 import torch
 from torch import Tensor
 
-from lightcurve_gp.attitude.rotations import quat_mul
+from lightcurve_gp.attitude.rotations import quat_mul, quat_normalize
 
-__all__ = ["euler_rates", "quaternion_rates", "rk4_step", "rk4_stepper", "propagate", "quaternion_increments"]
+__all__ = ["euler_rates", "quaternion_rates", "rk4_step", "rk4_stepper", "propagate", "quaternion_increments",
+           "propagate_only"]
 
 
 # --------------------------------------------------------------------------------------------- validation
@@ -260,3 +261,12 @@ def propagate(q0: Tensor, omega0: Tensor, inertia, dt: float, n_steps: int) -> t
         qs.append(q)
     q_hist = torch.stack(qs, dim=-2)
     return q_hist, omega_hist.expand(*batch, n_steps + 1, 3)
+
+
+def propagate_only(q_est0: Tensor, increments: Tensor) -> Tensor:
+    """Attitudes moved by known increments alone (the no-update baseline): ``q_{k+1} = normalise(δ_k ⊗ q_k)`` from
+    ``q_est0 (..., 4)`` → ``(..., T+1, 4)``."""
+    out = [q_est0]
+    for delta in increments:
+        out.append(quat_normalize(quat_mul(delta, out[-1])))
+    return torch.stack(out, dim=-2)

@@ -19,7 +19,7 @@ from torch import Tensor
 
 from lightcurve_gp.attitude.rotations import axis_angle_to_quat
 
-__all__ = ["icosphere_axes", "grid_attitudes", "random_attitudes", "sobol_attitudes"]
+__all__ = ["icosphere_axes", "grid_attitudes", "random_attitudes", "sobol_attitudes", "shoemake_quaternions"]
 
 
 def icosphere_axes(subdivisions: int = 3, dtype: torch.dtype | None = None, device=None) -> Tensor:
@@ -76,7 +76,7 @@ def _check_n_seed(n, seed) -> None:
         raise ValueError(f"seed must be an integer, got {seed!r}")
 
 
-def _shoemake(u: Tensor) -> Tensor:
+def shoemake_quaternions(u: Tensor) -> Tensor:
     """Uniform unit quaternions from ``u`` ``(n, 3)`` uniform on ``[0, 1)³`` (Shoemake 1992)."""
     u1, u2, u3 = u.unbind(-1)
     r1, r2 = torch.sqrt(1.0 - u1), torch.sqrt(u1)
@@ -93,7 +93,7 @@ def random_attitudes(n: int, seed: int, dtype: torch.dtype | None = None, device
     _check_n_seed(n, seed)
     gen = torch.Generator(device="cpu").manual_seed(int(seed))
     u = torch.rand(int(n), 3, generator=gen, dtype=torch.float64)
-    return _shoemake(u).to(dtype=dtype or torch.get_default_dtype(), device=device)
+    return shoemake_quaternions(u).to(dtype=dtype or torch.get_default_dtype(), device=device)
 
 
 def sobol_attitudes(n: int, seed: int, dtype: torch.dtype | None = None, device=None) -> Tensor:
@@ -106,4 +106,4 @@ def sobol_attitudes(n: int, seed: int, dtype: torch.dtype | None = None, device=
     _check_n_seed(n, seed)
     engine = torch.quasirandom.SobolEngine(dimension=3, scramble=True, seed=int(seed))
     u = engine.draw(int(n), dtype=torch.float64) if n > 0 else torch.empty(0, 3, dtype=torch.float64)
-    return _shoemake(u).to(dtype=dtype or torch.get_default_dtype(), device=device)
+    return shoemake_quaternions(u).to(dtype=dtype or torch.get_default_dtype(), device=device)

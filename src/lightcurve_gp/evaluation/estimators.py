@@ -35,6 +35,7 @@ from typing import Sequence
 import torch
 from torch import Tensor
 
+from lightcurve_gp.attitude.dynamics import propagate_only
 from lightcurve_gp.attitude.metrics import (
     attitude_error_vector,
     attitude_errors_deg,
@@ -44,7 +45,7 @@ from lightcurve_gp.attitude.metrics import (
     nees,
     rmse_over_window,
 )
-from lightcurve_gp.attitude.rotations import attitude_matrix, quat_mul, quat_normalize
+from lightcurve_gp.attitude.rotations import attitude_matrix, quat_mul
 from lightcurve_gp.config.load import Config
 from lightcurve_gp.evaluation.reporting import quantiles
 from lightcurve_gp.filters.offset import initial_offset, offset_covariance
@@ -58,7 +59,7 @@ from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.photometry.symmetry import symmetry_quaternions
 from lightcurve_gp.simulation.scenario import Scenario, simulate_scenario
 
-__all__ = ["ESTIMATORS", "DEFAULT_ESTIMATORS", "EstimatorResult", "ScenarioResult", "propagate_only",
+__all__ = ["ESTIMATORS", "DEFAULT_ESTIMATORS", "EstimatorResult", "ScenarioResult",
            "prior_covariance", "run_filter", "run_offset_filter", "run_surface_filter", "surface_filter_params",
            "run_estimators", "score_estimator", "first_observation"]
 
@@ -174,12 +175,6 @@ def _nanmean(x: Tensor) -> float:
     return float(torch.nanmean(x)) if x.numel() else float("nan")
 
 
-def propagate_only(q_est0: Tensor, increments: Tensor) -> Tensor:
-    """The no-update baseline: ``q_{k+1} = normalise(δ_k ⊗ q_k)`` from ``q_est0 (..., 4)`` → ``(..., T+1, 4)``."""
-    out = [q_est0]
-    for delta in increments:
-        out.append(quat_normalize(quat_mul(delta, out[-1])))
-    return torch.stack(out, dim=-2)
 
 
 def score_estimator(sc: Scenario, q_est: Tensor, window, history: FilterHistory | None, seconds: float, *,

@@ -16,7 +16,7 @@ from matplotlib.figure import Figure
 
 from lightcurve_gp.files import atomic_path
 
-__all__ = ["prediction_scatter", "residual_histogram", "euler_errors", "light_curves", "rmse_boxplot",
+__all__ = ["save_figure", "prediction_scatter", "residual_histogram", "euler_errors", "light_curves", "rmse_boxplot",
            "ESTIMATOR_COLORS"]
 
 #: paper colours: GPUKF blue, conventional UKF red, truth black; the extra baselines get their own
@@ -27,7 +27,8 @@ ESTIMATOR_STYLES = {"matched_ukf": "--", "no_update": ":"}
 AXES = ("yaw", "pitch", "roll")
 
 
-def _save(fig: Figure, path: str | Path) -> Path:
+def save_figure(fig: Figure, path: str | Path) -> Path:
+    """Write ``fig`` as a PNG at ``path`` atomically (the folder must exist); returns ``path``."""
     path = Path(path)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=130, bbox_inches="tight", format="png")
@@ -52,7 +53,7 @@ def prediction_scatter(y_true, y_pred, path: str | Path, title: str = "held-out 
     ax.invert_xaxis()
     ax.invert_yaxis()
     fig.legend(loc="outside lower center", ncols=2, frameon=False, fontsize=8)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def residual_histogram(residual, std, path: str | Path) -> Path:
@@ -69,7 +70,7 @@ def residual_histogram(residual, std, path: str | Path) -> Path:
     b.plot(grid, np.exp(-0.5 * grid**2) / np.sqrt(2 * np.pi), color="black", lw=1, label="N(0, 1)")
     b.set_xlabel("residual / predictive std")
     b.legend(frameon=False, loc="upper left", fontsize=8)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def euler_errors(times, errors: Mapping[str, object], path: str | Path, title: str = "",
@@ -94,7 +95,7 @@ def euler_errors(times, errors: Mapping[str, object], path: str | Path, title: s
         fig.suptitle(title, fontsize=10)
     fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncols=3, frameon=False,
                fontsize=8)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def light_curves(times, observed, predictions: Mapping[str, object], path: str | Path, title: str = "") -> Path:
@@ -112,7 +113,7 @@ def light_curves(times, observed, predictions: Mapping[str, object], path: str |
     fig.legend(loc="outside lower center", ncols=3, frameon=False, fontsize=8)
     if title:
         ax.set_title(title, fontsize=10)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def rmse_boxplot(rmse: Mapping[str, object], path: str | Path, title: str = "") -> Path:
@@ -132,4 +133,4 @@ def rmse_boxplot(rmse: Mapping[str, object], path: str | Path, title: str = "") 
     axes[0].set_ylabel("RMSE over the scoring window [deg], one value per seed")
     if title:
         fig.suptitle(title, fontsize=10)
-    return _save(fig, path)
+    return save_figure(fig, path)

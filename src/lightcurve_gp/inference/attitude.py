@@ -20,9 +20,9 @@ from typing import Callable, Sequence
 import torch
 from torch import Tensor
 
+from lightcurve_gp.attitude.dynamics import propagate_only
 from lightcurve_gp.attitude.metrics import attitude_errors_deg
 from lightcurve_gp.attitude.rotations import quat_mul, rotvec_to_quat
-from lightcurve_gp.evaluation.estimators import propagate_only
 from lightcurve_gp.observation.base import ObservationModel
 
 __all__ = ["MapPrior", "batch_map", "blockwise_magnitudes", "gauss_newton", "map_attitude", "map_rmse_deg",

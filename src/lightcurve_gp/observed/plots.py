@@ -9,7 +9,7 @@ import numpy as np
 from astropy.table import Table
 from matplotlib.figure import Figure
 
-from lightcurve_gp.evaluation.plots import AXES, _save
+from lightcurve_gp.evaluation.plots import AXES, save_figure
 
 __all__ = ["light_curve_band", "attitude_with_uncertainty"]
 
@@ -30,7 +30,7 @@ def light_curve_band(history: Table, path: str | Path, title: str = "") -> Path:
     fig.legend(loc="outside lower center", ncols=3, frameon=False, fontsize=8)
     if title:
         ax.set_title(title, fontsize=10)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def attitude_with_uncertainty(history: Table, path: str | Path, title: str = "") -> Path:
@@ -50,4 +50,4 @@ def attitude_with_uncertainty(history: Table, path: str | Path, title: str = "")
     axes[3].set_xlabel("time from the first sample [s]")
     if title:
         fig.suptitle(title, fontsize=10)
-    return _save(fig, path)
+    return save_figure(fig, path)

@@ -17,7 +17,7 @@ import math
 import torch
 from torch import Tensor
 
-from lightcurve_gp.attitude.sampling import _shoemake
+from lightcurve_gp.attitude.sampling import shoemake_quaternions
 from lightcurve_gp.config.load import Config
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.photometry.shapes import facets_from_config
@@ -57,7 +57,7 @@ def geometry_training_set(cfg: Config) -> TrainingSet:
     u = engine.draw(int(cfg.data.num_random), dtype=torch.float64)
     lo, hi = _phase_range(cfg)
     dtype = cfg.torch_dtype
-    q = _shoemake(u[:, :3]).to(dtype)
+    q = shoemake_quaternions(u[:, :3]).to(dtype)
     alpha = (lo + (hi - lo) * u[:, 3]).to(dtype)
     rho = torch.tensor(cfg.data.rho_grid, dtype=dtype).unsqueeze(-1)
     return _render(cfg, q, alpha, rho)
@@ -71,5 +71,5 @@ def geometry_heldout_set(cfg: Config) -> TrainingSet:
     u = torch.rand(n, 5, generator=gen, dtype=torch.float64)
     lo, hi = _phase_range(cfg)
     rho_lo, rho_hi = min(cfg.data.rho_grid), max(cfg.data.rho_grid)
-    return _render(cfg, _shoemake(u[:, :3]).to(dtype), (lo + (hi - lo) * u[:, 3]).to(dtype),
+    return _render(cfg, shoemake_quaternions(u[:, :3]).to(dtype), (lo + (hi - lo) * u[:, 3]).to(dtype),
                    (rho_lo + (rho_hi - rho_lo) * u[:, 4]).to(dtype))
