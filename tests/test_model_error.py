@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from lightcurve_gp.commands.train import heldout_metrics
+from lightcurve_gp.training.fit import heldout_metrics
 from lightcurve_gp.config.load import ConfigError, config_to_dict, load_config
 from lightcurve_gp.evaluation.estimators import run_estimators
 from lightcurve_gp.filters.usque import UsqueParams, model_error_variance

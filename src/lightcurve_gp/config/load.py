@@ -7,7 +7,8 @@ metadata states its constraint, and :func:`load_config` reports the first violat
 
 The config layer, one concept per module: :mod:`.schema` (the sections, their constraints and hash rules),
 :mod:`.parsing` (UTC times, TLE lines, mesh files as a user writes them), :mod:`.validate` (a mapping into a
-:class:`Config`), :mod:`.hashing` (the plain dict and the cache keys) and this module (files and overrides). This
+:class:`Config`), :mod:`.hashing` (the plain dict and the cache keys), :mod:`.devices` (the named device on this
+machine) and this module (files and overrides). This
 module re-exports the public names of all of them, so ``from lightcurve_gp.config.load import ...`` reaches the
 whole layer.
 
@@ -27,6 +28,7 @@ from typing import Any
 import yaml
 
 from lightcurve_gp.config import schema as config_schema
+from lightcurve_gp.config.devices import check_device
 from lightcurve_gp.config.hashing import config_hash, config_to_dict, content_dict, content_hash
 from lightcurve_gp.config.parsing import check_mesh
 from lightcurve_gp.config.schema import *  # noqa: F403 (the typed sections are importable from here)
@@ -43,6 +45,7 @@ __all__ = [
     "content_dict",
     "content_hash",
     "check_mesh",
+    "check_device",
     "apply_overrides",
     "parse_override",
 ]
@@ -85,17 +88,20 @@ def load_config(path: str | Path, overrides: list[str] | None = None) -> Config:
 
     A relative ``shape.mesh_path`` written in the file resolves against the file's folder, one given in
     ``overrides`` against the working directory; the mesh must exist, be readable by trimesh and hold triangles.
+    The ``device`` must be there on this machine (:func:`~lightcurve_gp.config.devices.check_device`).
 
     Args:
         path: YAML file.
         overrides: ``["section.key=value", ...]``; values are parsed as YAML.
 
     Raises:
-        ConfigError: missing file, invalid YAML, unknown key, wrong type or out-of-range value, a bad mesh.
+        ConfigError: missing file, invalid YAML, unknown key, wrong type or out-of-range value, a bad mesh, a
+            device this machine does not have.
     """
     cfg = config_from_dict(load_raw_config(path, overrides))
     if cfg.shape.mesh_path:
         check_mesh(cfg.shape.mesh_path)
+    check_device(cfg.device)
     return cfg
 
 

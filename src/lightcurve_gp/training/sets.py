@@ -23,6 +23,7 @@ from lightcurve_gp.training.geometry import geometry_heldout_set, geometry_train
 from lightcurve_gp.training.surfaces import generate_surface_heldout_set, generate_surface_training_set
 from lightcurve_gp.training.windows import (
     TrainingSet,
+    attitude_count,
     drop_duplicate_attitudes,
     initial_attitudes,
     training_rates,
@@ -35,7 +36,7 @@ from lightcurve_gp.training.windows import (
 __all__ = ["TrainingSet", "initial_attitudes", "training_scene", "drop_duplicate_attitudes", "training_rates",
            "window_samples",
            "generate_training_set", "generate_heldout_set", "load_or_generate", "normalised_targets",
-           "model_targets", "data_cache_key", "DATA_FORMAT_VERSION"]
+           "model_targets", "data_cache_key", "DATA_FORMAT_VERSION", "training_set_size"]
 
 DATA_FORMAT_VERSION = 1
 
@@ -60,6 +61,21 @@ def generate_heldout_set(cfg: Config) -> TrainingSet:
     if cfg.model.inputs == "body_geometry":
         return geometry_heldout_set(cfg)
     return window_heldout_set(cfg)
+
+
+def training_set_size(cfg: Config) -> tuple[int, int]:
+    """``(points of the training set, points the model is conditioned on)`` of ``cfg``, from the config alone,
+    before anything is allocated; upper bounds (duplicates and zero-flux windows are dropped later). The
+    surface-marginal GP is conditioned on each attitude once (its K surfaces summarised), a ``body_geometry`` GP on
+    ``data.num_random`` geometries × ρ, the paper's on attitudes × ρ (twice with ``quaternion_sign: both``)."""
+    rhos = len(cfg.data.rho_grid)
+    if cfg.data.surfaces is not None:
+        attitudes = attitude_count(cfg.data)
+        return cfg.data.surfaces.per_attitude * attitudes, attitudes
+    if cfg.model.inputs == "body_geometry":
+        return cfg.data.num_random * rhos, cfg.data.num_random * rhos
+    points = attitude_count(cfg.data) * rhos * (2 if cfg.data.quaternion_sign == "both" else 1)
+    return points, points
 
 
 def normalised_targets(m: Tensor, rho: Tensor, rho_reference: float) -> Tensor:

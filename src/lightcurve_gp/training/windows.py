@@ -19,6 +19,7 @@ pieces: :class:`TrainingSet`, :func:`initial_attitudes`, :func:`training_rates`,
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from dataclasses import replace as _replace
 
@@ -33,7 +34,8 @@ from lightcurve_gp.config.schema import Config, DataConfig, SpinRangeConfig
 from lightcurve_gp.photometry.render import Scene
 
 __all__ = ["TrainingSet", "initial_attitudes", "drop_duplicate_attitudes", "training_rates", "window_samples",
-           "window_steps", "training_scene", "shape_inertia", "window_training_set", "window_heldout_set"]
+           "window_steps", "training_scene", "shape_inertia", "window_training_set", "window_heldout_set",
+           "attitude_count"]
 
 
 @dataclass
@@ -105,6 +107,15 @@ def initial_attitudes(data: DataConfig, dtype=torch.float64, device=None) -> Ten
     if data.drop_duplicates:
         q = drop_duplicate_attitudes(q)
     return q
+
+
+def attitude_count(data: DataConfig) -> int:
+    """How many attitudes :func:`initial_attitudes` gives, from the config alone (before any is made): ``(10 · 4^s +
+    2)`` icosphere axes × ``⌈360° / step⌉`` angles for ``grid``, ``num_random`` otherwise; with
+    ``drop_duplicates`` an upper bound."""
+    if data.sampling == "grid":
+        return (10 * 4**data.icosphere_subdivisions + 2) * math.ceil(360.0 / data.phi_step_deg - 1e-9)
+    return data.num_random
 
 
 def training_rates(data: DataConfig, count: int, *, dtype=None, device=None) -> Tensor:
