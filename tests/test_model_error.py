@@ -7,13 +7,13 @@ import math
 import pytest
 import torch
 
-from lightcurve_gp.commands.train import heldout_metrics
 from lightcurve_gp.config.load import ConfigError, config_to_dict, load_config
 from lightcurve_gp.evaluation.estimators import run_estimators
 from lightcurve_gp.filters.usque import UsqueParams, model_error_variance
 from lightcurve_gp.observation.parametric import Parametric
 from lightcurve_gp.observation.serialization import load_model
 from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.training.fit import heldout_metrics
 from lightcurve_gp.training.store import model_key
 
 from helpers import tiny_training, train_tiny

@@ -40,7 +40,7 @@ def estimated(tmp_path, model_file, obs, *extra):
     out = tmp_path / "out"
     code = estimate.main([ROBUST, "--model", str(model_file), "--light-curve", str(obs), "--out", str(out),
                           "--no-progress", *SETS, *extra])
-    return code, out / "tiny_robust" / f"light_curve_{obs.stem}"
+    return code, out / "estimates" / "tiny_robust" / f"light_curve_{obs.stem}"
 
 
 def test_round_trip_reproduces_the_in_memory_run_exactly(tmp_path, model_file):

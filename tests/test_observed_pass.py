@@ -69,7 +69,7 @@ def test_file_along_a_pass_reproduces_the_in_memory_run_exactly(tmp_path, model_
     q_est0 = Table.read(tmp_path / "obs.truth.ecsv").meta["q_est0"]
     code, out = estimated(tmp_path, model_file, obs, "--initial-attitude=" + ",".join(repr(v) for v in q_est0))
     assert code == 0
-    folder = out / "tiny_geo" / "light_curve_obs"
+    folder = out / "estimates" / "tiny_geo" / "light_curve_obs"
     cfg = load_config(GEO, TINY)
     memory = run_estimators(cfg, open_model(model_file), seeds=[2], estimators=["gpukf"])
     h = memory.results["gpukf"].history
@@ -91,7 +91,7 @@ def test_the_geometry_changes_the_prediction(tmp_path, model_file):
     frozen = write_light_curve(lc, tmp_path / "frozen.ecsv")
     assert estimated(tmp_path, model_file, obs, start)[0] == 0
     assert estimated(tmp_path, model_file, frozen, start)[0] == 0
-    tables = [Table.read(tmp_path / "out" / "tiny_geo" / f"light_curve_{n}" / "attitude_history.ecsv")
+    tables = [Table.read(tmp_path / "out" / "estimates" / "tiny_geo" / f"light_curve_{n}" / "attitude_history.ecsv")
               for n in ("obs", "frozen")]
     assert tables[0]["offset_mag"][0] == tables[1]["offset_mag"][0]  # b0: sample 0's geometry in both ...
     assert float(np.abs(tables[0]["mag_pred"][1:] - tables[1]["mag_pred"][1:]).min()) > 1e-6  # ... each step its own
@@ -102,7 +102,7 @@ def test_the_bank_runs_along_the_pass_with_pruning(tmp_path, model_file):
     code, out = estimated(tmp_path, model_file, obs, "--bank-size", "16", "--bank-keep", "2",
                           "--bank-prune-after-s", "20", "--bank-prune-keep", "4")
     assert code == 0
-    folder = out / "tiny_geo" / "light_curve_obs"
+    folder = out / "estimates" / "tiny_geo" / "light_curve_obs"
     summary = json.loads((folder / "summary.json").read_text())
     assert summary["bank"]["pruned_to"] == 4 and summary["bank"]["size"] == 16
     bank = Table.read(folder / "bank.ecsv")

@@ -164,9 +164,9 @@ def test_cli_ctrl_c_is_one_line_exit_130_and_keeps_finished_cases(tmp_path, caps
                  "--estimators", "ukf", "--no-progress"])
     assert code == 130
     err = capsys.readouterr().err
-    assert err == (f"interrupted; finished cases are stored in {tmp_path / 'tiny' / 'cases'}; rerun the same "
-                   f"command to resume\n")
-    assert [p.stem for p in (tmp_path / "tiny" / "cases").glob("*.json")] == seen
+    cases = tmp_path / "sweeps" / "tiny" / "cases"  # beside the training runs, not in OUT/tiny/
+    assert err == f"interrupted; finished cases are stored in {cases}; rerun the same command to resume\n"
+    assert [p.stem for p in cases.glob("*.json")] == seen and not (tmp_path / "tiny").exists()
 
 
 # ----------------------------------------------------------------------------------------------- tables

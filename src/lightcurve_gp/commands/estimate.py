@@ -5,7 +5,8 @@ With ``--light-curve FILE`` it runs the GPUKF on a light-curve file instead
 
 Runs the GPUKF (trained model), the conventional UKF (renderer with ``filter.rho_assumed``), the matched-ρ UKF
 (an oracle knowing ``rho_true``) and the no-update baseline over ``--seeds`` noise realisations, prints median
-and inter-quartile RMSE per axis, and writes to ``<out>/<name>/estimate_rho<rho>/``: ``results.json``,
+and inter-quartile RMSE per axis, and writes to ``OUT/estimates/<name>/rho<rho>/`` (beside the training run
+``OUT/<name>/``, never inside it: :mod:`lightcurve_gp.commands.layout`): ``results.json``,
 ``euler_errors.png`` and ``light_curves.png`` (seed 0, paper style: GPUKF blue, UKF red, observations black) and
 ``rmse_boxplot.png`` (all seeds).
 
@@ -37,6 +38,7 @@ from lightcurve_gp.commands.common import (
     run_interruptible,
 )
 from lightcurve_gp.commands.estimate_file import add_file_arguments, run_on_file
+from lightcurve_gp.commands.layout import estimate_folder
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.evaluation.estimators import DEFAULT_ESTIMATORS, ESTIMATORS, ScenarioResult, run_estimators
 from lightcurve_gp.evaluation.plots import euler_errors, light_curves, rmse_boxplot
@@ -116,8 +118,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Estimate the attitude of the config's simulated scenario with the GPUKF (a trained model file), "
                     "the conventional UKF (renderer with filter.rho_assumed), a matched-rho UKF and the no-update "
                     "baseline, over many noise seeds batched in one filter run each. Writes the new folder "
-                    "OUT/<name>/estimate_rho<rho>/ (results.json, three figures) atomically; an existing one is "
-                    "refused unless --force.",
+                    "OUT/estimates/<name>/rho<rho>/ (results.json, three figures) atomically, beside the training "
+                    "run OUT/<name>/ (never inside it); an existing one is refused unless --force. With "
+                    "--light-curve: OUT/estimates/<name>/light_curve_<file stem>/.",
     )
     parser.add_argument("config", help="YAML config, e.g. configs/boxwing.yaml")
     parser.add_argument("--model", type=Path, help="trained model file (runs/<name>/model.pt); required by the "
@@ -198,7 +201,7 @@ def _run(args: argparse.Namespace) -> int:
     model, model_info = _load_checked_model(args, cfg)
     check_output_root(args.out)
     rho = args.rho_true if args.rho_true is not None else cfg.scenario.rho_true
-    folder = args.out / cfg.name / f"estimate_rho{rho:g}"
+    folder = estimate_folder(args.out, cfg.name, rho)
     check_new_folder(folder, args.force)
     seeds = list(range(args.seeds if args.seeds is not None else cfg.scenario.seeds))
     record = provenance(cfg, seeds=seeds, config_file=str(args.config), estimators=estimators, rho_true=rho,

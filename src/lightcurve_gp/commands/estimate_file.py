@@ -1,6 +1,6 @@
 """``python -m lightcurve_gp.estimate CONFIG --model M --light-curve obs.ecsv``: the GPUKF on a light-curve file.
 
-Writes the new folder ``OUT/<name>/light_curve_<file stem>/`` atomically (an existing one is refused unless
+Writes the new folder ``OUT/estimates/<name>/light_curve_<file stem>/`` atomically (an existing one is refused unless
 ``--force``): ``attitude_history.ecsv`` (:func:`lightcurve_gp.observed.run.history_table`), ``summary.json`` (the NIS
 against its χ² band, the bank's size, time and best members with their posterior weights, the run's provenance),
 ``bank.ecsv`` (every bank member, ranked) when the global start ran, ``light_curve.png`` and ``attitude.png``.
@@ -24,6 +24,7 @@ from lightcurve_gp.commands.common import (
     provenance,
     run_interruptible,
 )
+from lightcurve_gp.commands.layout import light_curve_folder
 from lightcurve_gp.files import RunFolder, write_json_atomic
 from lightcurve_gp.observed.lightcurve_file import read_light_curve, write_table
 from lightcurve_gp.observed.plots import attitude_with_uncertainty, light_curve_band
@@ -44,7 +45,8 @@ __all__ = ["add_file_arguments", "parse_quaternion", "run_on_file", "summary"]
 def add_file_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of a run on a light-curve file."""
     parser.add_argument("--light-curve", type=Path, default=None,
-                        help="run the GPUKF on this light-curve file (.ecsv, .csv, .fits) instead of simulating")
+                        help="run the GPUKF on this light-curve file (.ecsv, .csv, .fits) instead of simulating; "
+                             "writes OUT/estimates/<name>/light_curve_<file stem>/")
     parser.add_argument("--initial-attitude", default=None, metavar="Q1,Q2,Q3,Q4",
                         help="with --light-curve: start from this quaternion (scalar last) instead of the bank; write "
                              "--initial-attitude=Q1,... when Q1 is negative")
@@ -116,7 +118,7 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
     except FileGeometryError as exc:
         raise UserError(str(exc)) from None
     check_output_root(args.out)
-    folder = args.out / cfg.name / f"light_curve_{args.light_curve.stem}"
+    folder = light_curve_folder(args.out, cfg.name, args.light_curve)
     check_new_folder(folder, args.force)
     record = provenance(cfg, config_file=str(args.config), light_curve=str(args.light_curve),
                         initial_attitude=args.initial_attitude, bank_size=None if q0 is not None else args.bank_size,

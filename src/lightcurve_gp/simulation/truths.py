@@ -32,6 +32,7 @@ from torch import Tensor
 from lightcurve_gp.attitude.dynamics import propagate, quaternion_increments
 from lightcurve_gp.attitude.rotations import euler321_to_quat, quat_mul, quat_normalize, quat_to_rotvec, rotvec_to_quat
 from lightcurve_gp.config.load import Config
+from lightcurve_gp.observation.surface_state import SURFACE_RANGES
 from lightcurve_gp.photometry.brdf import Surface
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import noisy_observations
@@ -47,12 +48,13 @@ SPECULAR_CLASSES = (("<1 %", 0.0, 0.01), ("1-30 %", 0.01, 0.30), (">30 %", 0.30,
 
 @dataclass(frozen=True)
 class TruthRanges:
-    """Ranges of the random truths (see the module docstring)."""
+    """Ranges of the random truths (see the module docstring); the surfaces' are those the surface-state prior
+    expects (:data:`~lightcurve_gp.observation.surface_state.SURFACE_RANGES`)."""
 
     omega_deg_s: tuple[float, float] = (0.05, 1.5)
-    rho: tuple[float, float] = (0.1, 0.9)
-    f0: tuple[float, float] = (0.05, 0.95)
-    lobe_exponent: tuple[float, float] = (10.0, 1.0e4)
+    rho: tuple[float, float] = SURFACE_RANGES.rho
+    f0: tuple[float, float] = SURFACE_RANGES.f0
+    lobe_exponent: tuple[float, float] = SURFACE_RANGES.lobe_exponent
     typical_error_deg: tuple[float, float] = (5.0, 20.0)
 
 

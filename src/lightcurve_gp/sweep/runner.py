@@ -17,6 +17,7 @@ from lightcurve_gp.config.load import ConfigError, config_from_dict, config_to_d
 from lightcurve_gp.evaluation.estimators import DEFAULT_ESTIMATORS, ScenarioResult, run_estimators
 from lightcurve_gp.evaluation.reporting import CaseRecord, seed_rows
 from lightcurve_gp.files import write_json_atomic
+from lightcurve_gp.observation.serialization import load_model
 from lightcurve_gp.sweep.executors import Executor, SerialExecutor, make_executor
 from lightcurve_gp.sweep.grid import Case, make_cases
 from lightcurve_gp.sweep.models import ensure_models, model_path
@@ -54,8 +55,6 @@ def run_case(spec: dict[str, Any]) -> CaseRecord:
     ``case_id``, ``seeds``, ``estimators``, ``model_path`` (or None), ``model_error`` (or None), ``threads`` (None:
     leave torch's). The runner stores the record when it arrives.
     """
-    from lightcurve_gp.observation.serialization import load_model
-
     start = time.perf_counter()
     record = CaseRecord(spec["case_id"], spec["values"], list(spec["seeds"]), list(spec["estimators"]))
     try:
@@ -127,15 +126,15 @@ def _pending(cases: Sequence[Case], root: Path, rerun_failed: bool) -> tuple[dic
 
 
 def _run_pending(pending: Sequence[Case], root: Path, executor: Executor, records: dict[str, CaseRecord], *,
-                 models_root: Path, seeds: list[int], estimators: Sequence[str], threads: int | None, cache_dir: Path,
+                 store: Path, seeds: list[int], estimators: Sequence[str], threads: int | None, cache_dir: Path,
                  total: int, progress: bool, case_runner) -> None:
-    """Train the models the pending cases need into ``models_root/models`` (the model store shared with the
-    experiments), then run the cases on ``executor``, storing each record atomically into the case store of
-    ``root`` and into ``records`` the moment it arrives (in completion order)."""
-    model_errors = ensure_models(pending, models_root, cache_dir, executor, progress, threads)
+    """Get the models the pending cases need from the model store ``store`` (shared with ``train`` and the
+    experiments; trained into it when missing), then run the cases on ``executor``, storing each record atomically
+    into the case store of ``root`` and into ``records`` the moment it arrives (in completion order)."""
+    model_errors = ensure_models(pending, store, cache_dir, executor, progress, threads)
     specs = {c.case_id: {"config": config_to_dict(c.config), "values": c.values, "case_id": c.case_id,
                          "seeds": seeds, "estimators": list(estimators), "threads": threads,
-                         "model_path": str(model_path(models_root, c.model_hash)) if c.model_hash else None,
+                         "model_path": str(model_path(store, c.model_hash)) if c.model_hash else None,
                          "model_error": model_errors.get(c.model_hash) if c.model_hash else None}
              for c in pending}
     for outcome in executor.run(case_runner, specs, desc="cases", total=total, initial=total - len(specs),
@@ -146,7 +145,8 @@ def _run_pending(pending: Sequence[Case], root: Path, executor: Executor, record
 
 
 def run_sweep(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Sequence[int], *,
-              out: str | Path = "runs", sweep_id: str | None = None, estimators: Sequence[str] = DEFAULT_ESTIMATORS,
+              out: str | Path = "runs", store: str | Path | None = None, sweep_id: str | None = None,
+              estimators: Sequence[str] = DEFAULT_ESTIMATORS,
               workers: int = 1, threads: int = 1, cache_dir: str | Path | None = None,
               progress: bool = True, rerun_failed: bool = True, executor: str | Executor = "local",
               scheduler: str | None = None, retries: int = 2,
@@ -157,8 +157,9 @@ def run_sweep(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Seque
         raw: the base config as a plain mapping (YAML as read, base overrides applied).
         axes: grid axes ``[(key.path, [values...]), ...]``.
         seeds: noise seeds, all batched in each filter run.
-        out: output root; cases and tables go to ``out/<config name>/``, trained models to the model store
-            ``out/models/`` (shared with the experiments, keyed by :func:`~lightcurve_gp.training.store.model_key`).
+        out: output root; cases and tables go to ``out/<config name>/``.
+        store: the model store (default ``out/models``, shared with ``train`` and the experiments, keyed by
+            :func:`~lightcurve_gp.training.keys.model_key`).
         sweep_id: folder name of this sweep's tables (default: a hash of the definition).
         estimators: subset of :data:`~lightcurve_gp.evaluation.estimators.ESTIMATORS`.
         workers: worker processes of the local pool (1: this process) or of the dask LocalCluster.
@@ -176,11 +177,7 @@ def run_sweep(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Seque
     Raises:
         ConfigError: an invalid grid key or value, or an executor that cannot start, before any work is done.
     """
-    seeds = [int(s) for s in seeds]
-    if not seeds:
-        raise ConfigError("seeds: at least one seed is needed")
-    if workers < 1:
-        raise ConfigError(f"workers: {workers} must be >= 1")
+    seeds = _checked(seeds, workers)
     cases = make_cases(raw, axes, seeds, estimators)
     out = Path(out)
     root = out / cases[0].config.name
@@ -188,14 +185,12 @@ def run_sweep(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Seque
     folder = root / "sweep" / sweep_id
     owned = isinstance(executor, str)
     ex = make_executor(executor, workers=workers, address=scheduler, retries=retries) if owned else executor
-    write_json_atomic({"config": raw, "axes": [[k, list(v)] for k, v in axes], "seeds": seeds,
-                       "estimators": list(estimators),
-                       "cases": [{"case_id": c.case_id, "values": c.values, "model_hash": c.model_hash}
-                                 for c in cases]}, folder / "sweep.json")
+    _write_definition(folder, raw, axes, seeds, estimators, cases)
     records, pending = _pending(cases, root, rerun_failed)
     interrupted = False
     try:
-        _run_pending(pending, root, ex, records, models_root=out, seeds=seeds, estimators=estimators,
+        _run_pending(pending, root, ex, records, store=Path(store) if store else out / "models", seeds=seeds,
+                     estimators=estimators,
                      threads=None if isinstance(ex, SerialExecutor) else threads,
                      cache_dir=Path(cache_dir) if cache_dir else out / "cache", total=len(cases), progress=progress,
                      case_runner=case_runner)
@@ -206,10 +201,35 @@ def run_sweep(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Seque
             ex.close()
     pending_ids = {c.case_id for c in pending}
     ran = [cid for cid in records if cid in pending_ids]  # in completion order
+    rows, summary = _write_tables(folder, sweep_id, axes, cases, records)
+    return SweepResult(folder, cases, records, rows, summary, ran, interrupted)
 
+
+def _checked(seeds: Sequence[int], workers: int) -> list[int]:
+    """The seeds as a list of ints; at least one seed and one worker, else :class:`ConfigError`."""
+    seeds = [int(s) for s in seeds]
+    if not seeds:
+        raise ConfigError("seeds: at least one seed is needed")
+    if workers < 1:
+        raise ConfigError(f"workers: {workers} must be >= 1")
+    return seeds
+
+
+def _write_definition(folder: Path, raw: dict, axes, seeds: list[int], estimators: Sequence[str],
+                      cases: Sequence[Case]) -> None:
+    """``sweep.json``: the base config, the axes, the seeds, the estimators and each case's id, values and model."""
+    write_json_atomic({"config": raw, "axes": [[k, list(v)] for k, v in axes], "seeds": seeds,
+                       "estimators": list(estimators),
+                       "cases": [{"case_id": c.case_id, "values": c.values, "model_hash": c.model_hash}
+                                 for c in cases]}, folder / "sweep.json")
+
+
+def _write_tables(folder: Path, sweep_id: str, axes, cases: Sequence[Case],
+                  records: dict[str, CaseRecord]) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """Write the sweep's tables (:func:`~lightcurve_gp.sweep.tables.write_sweep_tables`); its rows and summary."""
     keys = ["case_id", *(k for k, _ in axes)]
     rows = table_rows(cases, records)
     summary = summarize_rows(rows, keys)
     failed = [cid for cid, r in records.items() if not r.ok]
     write_sweep_tables(folder, sweep_id, keys, rows, summary, len(records) == len({c.case_id for c in cases}), failed)
-    return SweepResult(folder, cases, records, rows, summary, ran, interrupted)
+    return rows, summary
