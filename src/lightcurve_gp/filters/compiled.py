@@ -1,7 +1,7 @@
 """The ω-known USQUE step compiled into fused graphs (``filter.compile: true``, :attr:`UsqueParams.compile`).
 
 One filter's step (B = 1) on the CPU is a few hundred small tensor operations — the sigma points, their propagation,
-the model's prediction, the gain and the reset (:func:`lightcurve_gp.filters.usque.usque_step`) — and eager torch spends
+the model's prediction, the gain and the reset (:func:`lightcurve_gp.filters.step.usque_step`) — and eager torch spends
 microseconds of dispatch on each. :func:`compiled_stepper` compiles the very same function with inductor (fixed
 shapes, its C++ wrapper): the step becomes a few generated C++ loops plus the library calls that stay calls (small
 matrix products; the sigma points' Cholesky factor is written out elementwise,
@@ -29,7 +29,7 @@ check and the renderer's zero-flux test read values back to Python. Under compil
 :func:`~lightcurve_gp.observation.base.check_inputs` and :meth:`~lightcurve_gp.photometry.render.Scene.magnitude`) and
 the
 compiled step returns one flag instead: any square root that fell back, or a posterior that is not finite. A step so
-flagged is done again by the eager :func:`~lightcurve_gp.filters.usque.usque_step`, which applies the fallback, raises
+flagged is done again by the eager :func:`~lightcurve_gp.filters.step.usque_step`, which applies the fallback, raises
 or warns
 exactly as the uncompiled filter does. The estimates of both paths therefore agree to rounding (the fused loops sum
 in another order). The exact GP's mean is the one model-side change: inside the graph it is written elementwise over
@@ -59,6 +59,7 @@ import torch
 from torch import Tensor
 
 from lightcurve_gp.filters.state import FilterState, StepRecord
+from lightcurve_gp.filters.step import usque_prior, usque_step
 from lightcurve_gp.filters.update import Prior, RunConstants, SigmaInputs, sigma_inputs, update_with_predictions
 
 __all__ = ["compiled_stepper"]
@@ -80,17 +81,13 @@ def _redo(new: FilterState, record: StepRecord) -> Tensor:
 
 def _whole_step(run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Tensor, y_k: Tensor,
                 observed_k: Tensor) -> tuple[FilterState, StepRecord, Tensor]:
-    """:func:`lightcurve_gp.filters.usque.usque_step`, the model's prediction included, and :func:`_redo`."""
-    from lightcurve_gp.filters.usque import usque_step
-
+    """:func:`lightcurve_gp.filters.step.usque_step`, the model's prediction included, and :func:`_redo`."""
     new, record = usque_step(run, state, L_k=L_k, G_k=G_k, y_k=y_k, observed_k=observed_k)
     return new, record, _redo(new, record)
 
 
 def _prior_half(run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Tensor) -> tuple[Prior, SigmaInputs]:
     """Steps 1–5 and the sigma attitudes the model is asked about."""
-    from lightcurve_gp.filters.usque import usque_prior
-
     prior = usque_prior(run, state, L_k=L_k, G_k=G_k)
     return prior, sigma_inputs(run, state, prior)
 
@@ -114,8 +111,6 @@ def _compiled(fn):
 def _halves_step(run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Tensor, y_k: Tensor,
                  observed_k: Tensor) -> tuple[FilterState, StepRecord]:
     """The step as two ``torch.compile`` graphs around the model's eager call; a flagged step is done again."""
-    from lightcurve_gp.filters.usque import usque_step
-
     step = {"L_k": L_k, "G_k": G_k, "y_k": y_k, "observed_k": observed_k}
     prior, inputs = _compiled(_prior_half)(run, state, L_k=L_k, G_k=G_k)
     if bool(prior.failed.any()):
@@ -127,7 +122,7 @@ def _halves_step(run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Ten
 
 
 def compiled_stepper() -> Callable[..., tuple[FilterState, StepRecord]]:
-    """A step function for one run, called like :func:`lightcurve_gp.filters.usque.usque_step` (same arguments and
+    """A step function for one run, called like :func:`lightcurve_gp.filters.step.usque_step` (same arguments and
     result):
     its first call picks the form from that call's arguments — the exported whole step when the model's
     ``fuses_in_compiled_step(variance)`` says so (:class:`_ExportedStep`, looked up or compiled), else the two
@@ -261,8 +256,6 @@ class _ExportedStep:
 
     def __call__(self, run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Tensor, y_k: Tensor,
                  observed_k: Tensor) -> tuple[FilterState, StepRecord]:
-        from lightcurve_gp.filters.usque import usque_step
-
         m = len(self.fields)
         out = self.fn(*self.prefix, run.wm, run.wc, run.Q, run.R, *(getattr(state, f) for f in self.fields),
                       L_k, G_k, y_k, observed_k)
