@@ -102,9 +102,16 @@ def build_case(spec: dict):
     return run, (lambda n: peer(n, 0)) if B == 1 else None
 
 
-def per_step(fn, steps: int, repeats: int) -> float:
-    """Median seconds per step of ``repeats`` calls ``fn(steps)``."""
-    return statistics.median(C.timed(lambda: fn(steps))[1] / steps for _ in range(repeats))
+def per_step(fn, steps: int, repeats: int) -> tuple[float, float]:
+    """Median wall and median CPU seconds per step of ``repeats`` calls ``fn(steps)`` (the step runs on one thread:
+    its CPU time is what it takes on a core of its own, whatever the machine's load)."""
+    wall, cpu = [], []
+    for _ in range(repeats):
+        t0, c0 = time.perf_counter(), time.process_time()
+        fn(steps)
+        wall.append((time.perf_counter() - t0) / steps)
+        cpu.append((time.process_time() - c0) / steps)
+    return statistics.median(wall), statistics.median(cpu)
 
 
 def child(spec: dict) -> dict:
@@ -115,17 +122,17 @@ def child(spec: dict) -> dict:
     steps, repeats, out = spec["steps"], spec["repeats"], {}
     if spec["eager"]:
         run(2, False)  # first-call allocations
-        out["eager_s"] = per_step(lambda n: run(n, False), steps, repeats)
+        out["eager_s"], out["eager_cpu_s"] = per_step(lambda n: run(n, False), steps, repeats)
     t0, c0 = time.perf_counter(), cpu_seconds()
     run(2, True)
     out["first_wall_s"], out["first_cpu_s"] = time.perf_counter() - t0, cpu_seconds() - c0
-    out["compiled_s"] = per_step(lambda n: run(n, True), steps, repeats)
+    out["compiled_s"], out["compiled_cpu_s"] = per_step(lambda n: run(n, True), steps, repeats)
     if spec["eager"]:
         a, b = run(steps, False), run(steps, True)
-        out["max_diff"] = max(float((a.q_est - b.q_est).abs().max()), float((a.P - b.P).abs().max()))
+        out["max_diff"] = float((a.q_est - b.q_est).abs().max())
         if peer is not None:
             peer(2)
-            out["peer_s"] = per_step(peer, steps, max(1, repeats // 2))
+            out["peer_s"], out["peer_cpu_s"] = per_step(peer, steps, max(1, repeats // 2))
     return out
 
 
@@ -141,29 +148,35 @@ def spawn(spec: dict, cache: str) -> dict:
 
 
 def measure(model: str, B: int, args: argparse.Namespace, scratch: str) -> dict:
-    """The cold and the warm process of one case; compile seconds less the two compiled steps of the first run."""
+    """The cold and the warm process of one case; compile seconds (wall and CPU) less the two compiled steps of the
+    first run, compiled step times the median of both processes'."""
     spec = {"model": model, "B": B, "steps": args.steps, "repeats": args.repeats, "threads": args.threads,
             "full": args.full, "cache_dir": args.cache_dir}
     cache = tempfile.mkdtemp(prefix=f"inductor-{model}-{B}-", dir=scratch)
     cold = spawn({**spec, "eager": True}, cache)
     warm = spawn({**spec, "eager": False, "repeats": max(1, args.repeats // 2)}, cache)
-    compiled = statistics.median([cold["compiled_s"], warm["compiled_s"]])
-    return {**cold, "compiled_s": compiled, "warm_wall_s": warm["first_wall_s"], "warm_cpu_s": warm["first_cpu_s"],
-            "cold_s": cold["first_wall_s"] - 2 * compiled, "warm_s": warm["first_wall_s"] - 2 * compiled}
+    out = dict(cold)
+    for unit in ("", "_cpu"):
+        step = out[f"compiled{unit}_s"] = statistics.median([cold[f"compiled{unit}_s"], warm[f"compiled{unit}_s"]])
+        out[f"cold{unit}_s"] = cold[f"first{'_cpu' if unit else '_wall'}_s"] - 2 * step
+        out[f"warm{unit}_s"] = warm[f"first{'_cpu' if unit else '_wall'}_s"] - 2 * step
+        saved = out[f"eager{unit}_s"] - step
+        for k in ("cold", "warm"):
+            out[f"break_even_{k}{unit}_steps"] = out[f"{k}{unit}_s"] / saved if saved > 0 else float("inf")
+    return out
 
 
-def row(model: str, B: int, m: dict) -> tuple[list, dict]:
-    saved = m["eager_s"] - m["compiled_s"]
-    even = {k: (m[f"{k}_s"] / saved if saved > 0 else float("inf")) for k in ("cold", "warm")}
-    paper_eager, paper_compiled = PAPER_STEPS * m["eager_s"], PAPER_STEPS * m["compiled_s"] + m["warm_s"]
+def row(model: str, B: int, m: dict) -> list:
+    """The table's cells of one case: seconds as wall (CPU), break-even and speed-up by CPU time."""
+    both = lambda k: f"{C.fmt_seconds(m[f'{k}_s'])} ({C.fmt_seconds(m[f'{k}_cpu_s'])})"  # noqa: E731
     steps = lambda s: "never" if s == float("inf") else f"{s:,.0f}"  # noqa: E731
-    cells = [LABELS[model], B, f"{C.fmt_seconds(m['cold_s'])} ({C.fmt_seconds(m['first_cpu_s'])} CPU)",
-             f"{C.fmt_seconds(m['warm_s'])} ({C.fmt_seconds(m['warm_cpu_s'])} CPU)", C.fmt_seconds(m["eager_s"]),
-             C.fmt_seconds(m["compiled_s"]), f"{m['eager_s'] / m['compiled_s']:.2g}x", steps(even["cold"]),
-             steps(even["warm"]), f"{C.fmt_seconds(paper_eager)} / {C.fmt_seconds(paper_compiled)}",
-             C.fmt_seconds(m.get("peer_s")), f"{m['max_diff']:.1g}"]
-    return cells, {"model": model, "B": B, **m, "break_even_cold_steps": even["cold"],
-                   "break_even_warm_steps": even["warm"]}
+    paper = {unit: (PAPER_STEPS * m[f"eager{unit}_s"], PAPER_STEPS * m[f"compiled{unit}_s"] + m[f"warm{unit}_s"])
+             for unit in ("", "_cpu")}
+    return [LABELS[model], B, both("cold"), both("warm"), both("eager"), both("compiled"),
+            f"{m['eager_cpu_s'] / m['compiled_cpu_s']:.2g}x", steps(m["break_even_cold_cpu_steps"]),
+            steps(m["break_even_warm_cpu_steps"]),
+            " / ".join(f"{C.fmt_seconds(a)} ({C.fmt_seconds(b)})" for a, b in zip(paper[""], paper["_cpu"])),
+            both("peer") if "peer_s" in m else "", f"{m['max_diff']:.1g}"]
 
 
 def main() -> None:
@@ -185,15 +198,18 @@ def main() -> None:
     table = C.Table(f"filter.compile: compile time, step time and break-even (one thread, paper scenario, float64; "
                     f"exact GP N = {n_train})",
                     ["filter", "B", "compile cold", "compile warm", "eager step", "compiled step", "speed-up",
-                     "break-even cold (steps)", "break-even warm (steps)", "600-step run eager / compiled+warm",
-                     "peer step (B = 1)", "max |Δ|"])
+                     "break-even cold (steps)", "break-even warm (steps)", "600-step run: eager / compiled + warm",
+                     "peer step (B = 1)", "max Δq̂ eager vs compiled"])
     with tempfile.TemporaryDirectory(prefix="bench-compile-") as scratch:
         for model in models:
             for B in batches:
                 print(f"  {LABELS[model]}, B = {B}: cold and warm processes ...", flush=True)
-                table.add(*row(model, B, measure(model, B, args, scratch)))
-    table.note("compile: first compiled run of 2 steps less 2 compiled steps; cold: empty inductor cache, warm: a "
-               "second process on the filled cache; CPU includes the compiler processes")
+                m = measure(model, B, args, scratch)
+                table.add(row(model, B, m), {"model": model, "B": B, **m})
+    table.note("seconds as wall (CPU); speed-up and break-even (compile / (eager − compiled step)) by CPU time, "
+               "which the machine's load does not inflate; compile: the first compiled run of 2 steps less 2 "
+               "compiled steps, cold: empty inductor cache, warm: a second process on the filled cache (CPU includes "
+               "the compiler processes)")
     table.note("peer: numpy GPUKF on the same GP (exact rows), filterpy UKF on the same renderer (renderer rows)")
     table.note(f"load average at the end {C.load_average()} (at the start: the first line)")
     table.print()

@@ -132,7 +132,8 @@ class UsqueParams:
             propagated ones (Crassidis & Markley).
         q_placement: one of :data:`Q_PLACEMENTS`.
         compile: with ω known, run each step as compiled graphs (:mod:`lightcurve_gp.filters.compiled`): the same
-            estimates to rounding, a fraction of the per-step dispatch; the first step of each shape compiles.
+            estimates to rounding, a fraction of the per-step dispatch; the first step of each shape compiles
+            (seconds: off by default, it pays from thousands of steps on, ``benchmarks/bench_compile.py``).
     """
 
     alpha: float = 1e-4
