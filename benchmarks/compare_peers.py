@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import statistics
 import time
 
@@ -84,26 +83,6 @@ def library_runner(model, params, sc, P0):
         return hist.q_est[0].numpy()
 
     return run
-
-
-def numpy_runner(setup, exact, sc, P0):
-    from _peers import numpy_gpukf
-
-    gp = {"xs": exact.xs_train.numpy(), "inv_scale": 1.0 / (exact.lengthscale.numpy() * math.sqrt(2.0)),
-          "alpha": exact.alpha.numpy(), "theta1": float(exact.outputscale), "y_mean": float(exact.y_mean)}
-    obs, inc, q0, p0 = sc.observations.numpy(), sc.increments.numpy(), sc.q_est0.reshape(4).numpy(), P0.numpy()
-    return lambda n, seed: numpy_gpukf(setup, gp, q0=q0, P0=p0, obs=obs[seed, :n + 1], increments=inc[:n])
-
-
-def filterpy_runner(setup, scene, rho, sc, P0):
-    import torch
-    from _peers import filterpy_usque
-
-    def render(q: np.ndarray) -> float:
-        return float(scene.magnitude(torch.from_numpy(q).unsqueeze(0), rho=rho)[0])
-
-    obs, inc, q0, p0 = sc.observations.numpy(), sc.increments.numpy(), sc.q_est0.reshape(4).numpy(), P0.numpy()
-    return lambda n, seed: filterpy_usque(setup, render, q0=q0, P0=p0, obs=obs[seed, :n + 1], increments=inc[:n])
 
 
 def max_angle_deg(q1: np.ndarray, q2: np.ndarray) -> float:
@@ -202,32 +181,13 @@ def build_tables(cases, gpytorch_solve_s, batch_row, sc, info_start) -> list:
     return [tab]
 
 
-def main() -> None:
-    args = parse_args()
+def build_cases(args, exact, data, scene, rho: float, sc, P0, params) -> tuple[list[Case], float | None]:
+    """The cases of the one-filter table (module docstring) and GPyTorch's first-call solve time (s, or ``None``)."""
+    from _peers import GPyTorchMean, UsqueSetup, filterpy_runner, numpy_runner
 
-    import torch
-    from _peers import GPyTorchMean, UsqueSetup
-
-    from lightcurve_gp.filters.usque import UsqueParams, initial_covariance
     from lightcurve_gp.observation.parametric import Parametric
-    from lightcurve_gp.photometry.render import Scene
-    from lightcurve_gp.simulation.scenario import simulate_scenario
-    from lightcurve_gp.training.sets import load_or_generate
 
-    C.set_threads(args.threads)
-    cfg = C.load_cfg(C.quick_overrides(args.quick))
-    info = C.machine_info(cfg.torch_dtype, cfg.device)
-    print(C.machine_line(info), flush=True)
-    data, _, _ = load_or_generate(cfg, C.ROOT / "runs" / "cache", progress=False)
-    exact, _, _ = C.cached_gp(cfg, data, "exact", cache_dir=args.cache_dir)
-    scene = Scene.from_config(cfg)
-    sc = simulate_scenario(cfg, seeds=range(max(args.repeats, args.run_repeats, 20)), scene=scene)
-    P0 = initial_covariance(cfg.filter.p0_deg, dtype=torch.float64)
-    params = UsqueParams.from_config(cfg)
-    mean_only = dataclasses.replace(params, variance="none")
-    setup = UsqueSetup(params)
-    rho = cfg.filter.rho_assumed
-
+    setup, mean_only = UsqueSetup(params), dataclasses.replace(params, variance="none")
     compiled = dataclasses.replace(mean_only, compile=True)
     cases = [Case("lightcurve-gp (ExactGP, mean)", "GPUKF", library_runner(exact, mean_only, sc, P0))]
     if not args.skip_compiled:
@@ -251,12 +211,38 @@ def main() -> None:
                           library_runner(Parametric(scene, rho), dataclasses.replace(params, compile=True), sc, P0)))
     cases.append(Case("filterpy UnscentedKalmanFilter + the renderer", "UKF",
                       filterpy_runner(setup, scene, rho, sc, P0)))
+    return cases, gpytorch_solve_s
+
+
+def main() -> None:
+    args = parse_args()
+
+    import torch
+
+    from lightcurve_gp.filters.usque import UsqueParams, initial_covariance
+    from lightcurve_gp.photometry.render import Scene
+    from lightcurve_gp.simulation.scenario import simulate_scenario
+    from lightcurve_gp.training.sets import load_or_generate
+
+    C.set_threads(args.threads)
+    cfg = C.load_cfg(C.quick_overrides(args.quick))
+    info = C.machine_info(cfg.torch_dtype, cfg.device)
+    print(C.machine_line(info), flush=True)
+    data, _, _ = load_or_generate(cfg, C.ROOT / "runs" / "cache", progress=False)
+    exact, _, _ = C.cached_gp(cfg, data, "exact", cache_dir=args.cache_dir)
+    scene = Scene.from_config(cfg)
+    sc = simulate_scenario(cfg, seeds=range(max(args.repeats, args.run_repeats, 20)), scene=scene)
+    P0 = initial_covariance(cfg.filter.p0_deg, dtype=torch.float64)
+    params = UsqueParams.from_config(cfg)
+    mean_only = dataclasses.replace(params, variance="none")
+    cases, gpytorch_solve_s = build_cases(args, exact, data, scene, cfg.filter.rho_assumed, sc, P0, params)
     time_round_robin(cases, steps=args.steps, repeats=args.repeats, run_repeats=args.run_repeats,
                      T=sc.increments.shape[0])
     batch_row = None
     if args.batch:
         sparse, _, _ = C.cached_gp(cfg, data, "sparse", num_inducing=512, cache_dir=args.cache_dir)
-        variants = [("", mean_only)] + ([] if args.skip_compiled else [(", filter.compile", compiled)])
+        variants = [("", mean_only)] + ([] if args.skip_compiled else [(", filter.compile",
+                                                                       dataclasses.replace(mean_only, compile=True))])
         batch_row = [(label, (args.batch, time_batch(sparse, p, sc, P0, args.batch, steps=10, repeats=3)))
                      for label, p in variants]
     tables = build_tables(cases, gpytorch_solve_s, batch_row, sc, info)

@@ -56,11 +56,6 @@ class AlongPass(ObservationModule):
             return self._bound_model()(q=q, m_past=m_past, variance=variance, **inputs)
         return super().forward(q=q, m_past=m_past, variance=variance)
 
-    def fuses_in_compiled_step(self, variance: Variance) -> bool:
-        """Never: every call predicts the next sample (a Python counter), which a graph traced once would freeze; a
-        compiled filter step calls it eagerly between its two compiled halves."""
-        return False
-
     def _advance(self) -> int:
         k = self.next_sample
         if k >= len(self.geometry):

@@ -132,10 +132,6 @@ class ExactGP(CachedGP):
     def _reference_count(self) -> int:
         return self.x_train.shape[0]
 
-    def fuses_in_compiled_step(self, variance: Variance) -> bool:
-        """The mean alone traces into a compiled filter step (its variances read values back)."""
-        return variance == "none"
-
     def _predict_sets(self, xs_sets: Tensor, variance: Variance) -> Prediction:
         """Mean ``k*ᵀα + μ`` (paper Eq. (25)) and the chosen variance of scaled test sets ``(C, S, d)``.
 
