@@ -2,7 +2,7 @@
 
 A sweep is the cartesian product of its grid axes (any config key, values parsed as YAML; :mod:`.grid`). Each grid
 point is a *case*: one validated config, run with every seed batched in one filter per estimator
-(:func:`~lightcurve_gp.evaluation.estimators.run_estimators`; :mod:`.runner`). Storage under ``<out>/<name>/``:
+(:func:`~lightcurve_gp.evaluation.harness.run_estimators`; :mod:`.runner`). Storage under ``<out>/<name>/``:
 
 * ``models/<model-key>/model.pt`` (+ ``metrics.json``, held-out figures): the model store
   (:mod:`lightcurve_gp.training.store`), one GP per distinct ``geometry``, ``shape``, ``surface``, ``data``, ``model``

@@ -15,6 +15,7 @@ import torch
 from lightcurve_gp.config.load import config_from_dict, config_to_dict
 from lightcurve_gp.sweep.executors import Executor, SerialExecutor
 from lightcurve_gp.sweep.grid import Case
+from lightcurve_gp.training.store import get_or_train
 
 __all__ = ["model_path", "train_model", "ensure_models"]
 
@@ -32,8 +33,6 @@ def train_model(spec: dict[str, Any]) -> str:
     worker process (None: leave torch's), ``cache_dir`` the training-data cache, ``progress`` shows training's
     progress.
     """
-    from lightcurve_gp.training.store import get_or_train
-
     if spec.get("threads"):
         torch.set_num_threads(int(spec["threads"]))
     _, path = get_or_train(config_from_dict(spec["config"]), spec["store"], cache_dir=spec["cache_dir"],
