@@ -139,7 +139,7 @@ def numpy_runner(setup: UsqueSetup, exact, sc, P0: torch.Tensor):
     ``exact`` on one filter of scenario ``sc`` (its observations of noise seed ``seed``)."""
     gp = {"xs": exact.xs_train.numpy(), "inv_scale": 1.0 / (exact.lengthscale.numpy() * math.sqrt(2.0)),
           "alpha": exact.alpha.numpy(), "theta1": float(exact.outputscale), "y_mean": float(exact.y_mean)}
-    obs, inc, q0, p0 = sc.observations.numpy(), sc.increments.numpy(), sc.q_est0.reshape(4).numpy(), P0.numpy()
+    obs, inc, q0, p0 = sc.observations.numpy(), sc.increments[0].numpy(), sc.q_est0[0].numpy(), P0.numpy()
     return lambda n, seed: numpy_gpukf(setup, gp, q0=q0, P0=p0, obs=obs[seed, :n + 1], increments=inc[:n])
 
 
@@ -150,7 +150,7 @@ def filterpy_runner(setup: UsqueSetup, scene, rho: float, sc, P0: torch.Tensor):
     def render(q: np.ndarray) -> float:
         return float(scene.magnitude(torch.from_numpy(q).unsqueeze(0), rho=rho)[0])
 
-    obs, inc, q0, p0 = sc.observations.numpy(), sc.increments.numpy(), sc.q_est0.reshape(4).numpy(), P0.numpy()
+    obs, inc, q0, p0 = sc.observations.numpy(), sc.increments[0].numpy(), sc.q_est0[0].numpy(), P0.numpy()
     return lambda n, seed: filterpy_usque(setup, render, q0=q0, P0=p0, obs=obs[seed, :n + 1], increments=inc[:n])
 
 

@@ -95,8 +95,8 @@ def build_case(spec: dict):
     obs = sc.observations[torch.arange(B) % sc.observations.shape[0]]
 
     def run(n: int, compile_: bool):
-        return run_usque(model=model, q_est0=sc.q_est0.reshape(1, 4).expand(B, 4), P0=P0,
-                         observations=obs[:, :n + 1], m_past0=obs[:, 0], increments=sc.increments[:n],
+        return run_usque(model=model, q_est0=sc.q_est0[:1].expand(B, 4), P0=P0,
+                         observations=obs[:, :n + 1], m_past0=obs[:, 0], increments=sc.increments[0, :n],
                          params=dataclasses.replace(params, compile=compile_))
 
     return run, (lambda n: peer(n, 0)) if B == 1 else None

@@ -78,8 +78,8 @@ def library_runner(model, params, sc, P0):
 
     def run(n_steps: int, seed: int) -> np.ndarray:
         obs = sc.observations[seed:seed + 1, :n_steps + 1]
-        hist = run_usque(model=model, q_est0=sc.q_est0.reshape(1, 4), P0=P0, observations=obs,
-                         m_past0=obs[:, 0], increments=sc.increments[:n_steps], params=params)
+        hist = run_usque(model=model, q_est0=sc.q_est0[:1], P0=P0, observations=obs,
+                         m_past0=obs[:, 0], increments=sc.increments[0, :n_steps], params=params)
         return hist.q_est[0].numpy()
 
     return run
@@ -131,8 +131,8 @@ def time_batch(model, params, sc, P0, B: int, steps: int, repeats: int) -> float
 
     rows = np.arange(B) % sc.observations.shape[0]
     obs = sc.observations[rows, :steps + 1]
-    go = lambda n: run_usque(model=model, q_est0=sc.q_est0.reshape(1, 4).expand(B, 4), P0=P0,  # noqa: E731
-                             observations=obs[:, :n + 1], m_past0=obs[:, 0], increments=sc.increments[:n],
+    go = lambda n: run_usque(model=model, q_est0=sc.q_est0[:1].expand(B, 4), P0=P0,  # noqa: E731
+                             observations=obs[:, :n + 1], m_past0=obs[:, 0], increments=sc.increments[0, :n],
                              params=params)
     go(1)
     return statistics.median(C.timed(lambda: go(steps))[1] / steps for _ in range(repeats))
@@ -156,7 +156,7 @@ def build_tables(cases, gpytorch_solve_s, batch_row, sc, info_start) -> list:
                 {"family": c.family, "label": c.label, "s_per_step": step, "s_per_run": run, "projected": c.projected,
                  "per_step_all": c.per_step, "per_run_all": c.per_run, "step_ratio": step / ref_step,
                  "run_ratio": run / ref_run, "max_angle_deg": max_angle_deg(c.estimates, ref.estimates)})
-    T = sc.increments.shape[0]
+    T = sc.steps
     for family, (lo, hi) in (("GPUKF", PAPER_GPUKF_S), ("UKF", PAPER_UKF_S)):
         ref_step = statistics.median(ours[family].per_step)
         tab.add([family, "paper, Sec. 4 (quoted, not measured)", f"{lo:g}–{hi:g} s", f"{lo * T:.3g}–{hi * T:.3g} s",
@@ -199,7 +199,7 @@ def build_cases(args, exact, data, scene, rho: float, sc, P0, params) -> tuple[l
         gdefault = GPyTorchMean(exact, data.y)
         gmean = gdefault.skipping_variances()
         print("GPyTorch: first call (its mean solve over all N points) ...", flush=True)
-        _, gpytorch_solve_s = C.timed(lambda: gmean(q=sc.q_est0.reshape(1, 4), m_past=sc.observations[0, :1]))
+        _, gpytorch_solve_s = C.timed(lambda: gmean(q=sc.q_est0[:1], m_past=sc.observations[0, :1]))
         cases.append(Case("GPyTorch likelihood(model(x)).mean in this USQUE, default settings", "GPUKF",
                           library_runner(gdefault, mean_only, sc, P0), steps=args.gpytorch_steps, repeats=1,
                           projected=True))
@@ -237,7 +237,7 @@ def main() -> None:
     mean_only = dataclasses.replace(params, variance="none")
     cases, gpytorch_solve_s = build_cases(args, exact, data, scene, cfg.filter.rho_assumed, sc, P0, params)
     time_round_robin(cases, steps=args.steps, repeats=args.repeats, run_repeats=args.run_repeats,
-                     T=sc.increments.shape[0])
+                     T=sc.steps)
     batch_row = None
     if args.batch:
         sparse, _, _ = C.cached_gp(cfg, data, "sparse", num_inducing=512, cache_dir=args.cache_dir)

@@ -76,8 +76,8 @@ def main() -> None:
     obs = sc.observations[:, :args.steps + 1]
 
     def run():
-        return run_usque(model=model, q_est0=sc.q_est0.reshape(1, 4), P0=P0, observations=obs, m_past0=obs[:, 0],
-                         increments=sc.increments[:args.steps], params=params)
+        return run_usque(model=model, q_est0=sc.q_est0[:1], P0=P0, observations=obs, m_past0=obs[:, 0],
+                         increments=sc.increments[0, :args.steps], params=params)
 
     first = time.perf_counter()
     run()

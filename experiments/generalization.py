@@ -5,8 +5,10 @@ Seeds come in two blocks: the tuning block (default 1000-1099) may inform choice
 0-199, ``--paper-rho`` 0.7) is the paper's case: every seed the config's truth, the seeds differing by noise alone
 (:func:`lightcurve_gp.simulation.truths.paper_case_draw`). ``--error-angles`` adds the initial-error table:
 the same truths of ``--error-seeds`` (default 2000-2099) with a fixed initial-error angle (5, 10, 20, 30 deg, random
-axis, P0 matched). Truths: :mod:`lightcurve_gp.simulation.truths`; estimators and metrics:
-:mod:`lightcurve_gp.evaluation.suite`.
+axis, P0 matched). Truths: :mod:`lightcurve_gp.simulation.truths` (simulated by
+:func:`lightcurve_gp.simulation.scenario.simulate_truths`); estimators: :mod:`lightcurve_gp.evaluation.registry`
+(``robust_gpukf`` in these tables is the registry's ``gpukf`` of the robust config, the offset in its state);
+rows and summaries: :mod:`lightcurve_gp.evaluation.suite_summary`.
 
 Resumable: seeds run in blocks of ``--block-size``; each (block, estimator) is one case of the sweep's case store
 (:mod:`lightcurve_gp.sweep.store`), ``<runs>/generalization/cases/<case-id>.json``: a
@@ -39,18 +41,36 @@ from tqdm.auto import tqdm
 
 from experiments.robust_gpukf import trained_model
 from lightcurve_gp.config.load import ConfigError, config_hash, config_to_dict, load_config
+from lightcurve_gp.evaluation.harness import run_estimators
 from lightcurve_gp.evaluation.plots import rmse_boxplot, save_figure
 from lightcurve_gp.evaluation.reporting import CaseRecord, SeedRow, csv_text, markdown_table
-from lightcurve_gp.evaluation.suite import SUITE_ESTIMATORS, nees_band, run_suite
-from lightcurve_gp.evaluation.suite_summary import SUMMARY_COLUMNS, seed_rows, summarize, whitened_correlation
+from lightcurve_gp.evaluation.scoring import nees_band
+from lightcurve_gp.evaluation.suite_summary import SUMMARY_COLUMNS, suite_rows, summarize, whitened_correlation
 from lightcurve_gp.files import write_json_atomic, write_text_atomic
 from lightcurve_gp.photometry.render import Scene
-from lightcurve_gp.simulation.truths import draw_truths, paper_case_draw, simulate_truths
+from lightcurve_gp.simulation.scenario import Scenario, simulate_truths
+from lightcurve_gp.simulation.truths import draw_truths, paper_case_draw
 from lightcurve_gp.sweep.store import read_case, write_case
 from lightcurve_gp.training.store import model_key
 
 ROOT = Path(__file__).resolve().parents[1]
 SUITE_FORMAT = 1
+#: the suite's estimators by their table names (``robust_gpukf``: the registry's ``gpukf``, see the docstring)
+SUITE_ESTIMATORS = ("robust_gpukf", "matched_ukf", "joint_ukf", "surface_ukf", "surface_ukf_select", "map_surface",
+                    "map_offset", "no_update")
+
+
+def registry_name(name: str) -> str:
+    """The registry's name of a suite estimator."""
+    return "gpukf" if name == "robust_gpukf" else name
+
+
+def suite_estimator_rows(cfg, truths: Scenario, name: str, *, model, scene, map_every: float,
+                         error_mode: str) -> list[dict[str, Any]]:
+    """The suite's per-seed rows of estimator ``name`` (a table name) on the drawn truths."""
+    result = run_estimators(cfg, truths, estimators=[registry_name(name)], model=model, scene=scene,
+                            map_every_s=map_every)
+    return [{**row, "estimator": name} for row in suite_rows(result, nees_band(), error_mode=error_mode)]
 
 
 def seed_range(text: str) -> range:
@@ -118,11 +138,10 @@ def run_block(cfg, model, scene, seeds: Sequence[int], error_deg, estimators: Se
         if record is None or not record.ok:
             start = time.perf_counter()
             truths = truths or simulate_truths(cfg, truth_draw(cfg, seeds, error_deg), scene)
-            results = run_suite(cfg, truths, gp_model=model, estimators=[name], map_every_s=map_every, scene=scene)
-            block_rows = seed_rows(truths, results, nees_band(),
-                                   error_mode=truth_mode_label(error_deg))
+            block_rows = suite_estimator_rows(cfg, truths, name, model=model, scene=scene, map_every=map_every,
+                                              error_mode=truth_mode_label(error_deg))
             record = case_record(path.stem, seeds, error_deg, name, block_rows, time.perf_counter() - start,
-                                 truths.increments.shape[1])
+                                 truths.steps)
             write_case(record, path)
             ran += 1
         rows += record.summary["per_seed"]
@@ -251,6 +270,9 @@ def main(argv=None) -> int:
         if any(b not in ("tuning", "heldout", "paper") for b in blocks) or not (blocks or angles):
             raise ConfigError(f"--blocks: {args.blocks!r} must name tuning, heldout and/or paper (or give "
                               "--error-angles)")
+        if "robust_gpukf" in estimators + error_estimators and not cfg.filter.estimate_offset:
+            raise ConfigError(f"{args.model_config}: filter.estimate_offset: robust_gpukf needs the offset state "
+                              f"(true)")
     except (ConfigError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

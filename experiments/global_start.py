@@ -44,7 +44,9 @@ from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.config.load import ConfigError, config_hash, load_config
 from lightcurve_gp.evaluation.reporting import CaseRecord, csv_text, markdown_table, quantiles
 from lightcurve_gp.files import write_json_atomic, write_text_atomic
-from lightcurve_gp.filters.bank import bank_attitudes, innovation_log_likelihood, run_bank, run_filter
+from lightcurve_gp.filters.bank import bank_attitudes, run_bank
+from lightcurve_gp.filters.selection import innovation_log_likelihood, innovation_log_terms
+from lightcurve_gp.filters.setup import run_filter
 from lightcurve_gp.observed.run import nis_summary
 from lightcurve_gp.photometry.shapes import facets_from_config
 from lightcurve_gp.photometry.symmetry import symmetry_quaternions
@@ -83,9 +85,7 @@ def symmetric_scores(q_true: torch.Tensor, q_est: torch.Tensor, times: torch.Ten
 def prune_study(bank, dt: float) -> dict:
     """For every pruning of the grid: whether its top-1 and its top five are the unpruned bank's (module docstring).
     Keys ``"<S>s_<K>"``."""
-    terms = torch.where(bank.bank_history.updated, -0.5 * (bank.bank_history.innovation ** 2 / bank.bank_history.y_var
-                                                          + torch.log(2 * torch.pi * bank.bank_history.y_var)), 0.0)
-    partial = terms.cumsum(-1)  # (N, T+1)
+    partial = innovation_log_terms(bank.bank_history).cumsum(-1)  # (N, T+1)
     out = {}
     for seconds in PRUNE_GRID_S:
         step = int(round(seconds / dt))
@@ -102,19 +102,20 @@ def run_seed(cfg_path: str, seed: int, model, args) -> dict:
     q0, rho = seed_truth(seed)
     cfg = load_config(cfg_path, [f"scenario.q0={q0}", f"device={args.device}"])
     sc = simulate_scenario(cfg, seeds=[seed], rho_true=rho)
+    q_true = sc.q_true[0]  # (T+1, 4): the one seed's truth
     prune = None if args.prune_after_s is None else int(round(args.prune_after_s / cfg.scenario.dt_s))
-    bank = run_bank(cfg, model, observations=sc.observations[0], increments=sc.increments,
+    bank = run_bank(cfg, model, observations=sc.observations[0], increments=sc.increments[0],
                     q0=bank_attitudes(args.bank_size, device=sc.observations.device), keep=args.keep,
                     prune_after=prune, prune_keep=args.prune_keep)
     window = cfg.evaluation.rmse_window_s
-    scores = window_scores(sc.q_true, bank.kept.q_est, sc.times, window)
+    scores = window_scores(q_true, bank.kept.q_est, sc.times, window)
     within = (scores["median_abs"] < 10).all(-1)
-    sym = symmetric_scores(sc.q_true, bank.kept.q_est, sc.times, window, symmetry_quaternions(facets_from_config(cfg)))
+    sym = symmetric_scores(q_true, bank.kept.q_est, sc.times, window, symmetry_quaternions(facets_from_config(cfg)))
     within_sym = (sym["median_abs"] < 10).all(-1)
     inside = (sc.times >= window[0]) & (sc.times <= window[1])
-    err = attitude_error_vector(sc.q_true, bank.kept.q_est[0], kind="grp")
+    err = attitude_error_vector(q_true, bank.kept.q_est[0], kind="grp")
     err_sym = attitude_error_vector(sym["truths"][sym["symmetry"][0]], bank.kept.q_est[0], kind="grp")
-    nearest = int(torch.argmin(attitude_errors_deg(sc.q_true[0].expand_as(bank.q0), bank.q0).norm(dim=-1)))
+    nearest = int(torch.argmin(attitude_errors_deg(q_true[0].expand_as(bank.q0), bank.q0).norm(dim=-1)))
     rank_of_nearest = int((bank.order == nearest).nonzero()[0, 0]) + 1
     row = {"seed": seed, "rho_true": rho, "q0_true": q0,
            "top1_within_10deg": bool(within[0]), "top5_within_10deg": bool(within[:5].any()),
@@ -132,9 +133,9 @@ def run_seed(cfg_path: str, seed: int, model, args) -> dict:
            "device": args.device}
     if args.prune_study:
         row["prune_study"] = prune_study(bank, cfg.scenario.dt_s)
-    guided = run_filter(cfg, model, q_est0=sc.q_est0[None], observations=sc.observations, increments=sc.increments)
+    guided = run_filter(cfg, model, q_est0=sc.q_est0, observations=sc.observations, increments=sc.increments[0])
     row["from_config_error_within_10deg"] = bool(
-        (window_scores(sc.q_true, guided.q_est, sc.times, window)["median_abs"][0] < 10).all())
+        (window_scores(q_true, guided.q_est, sc.times, window)["median_abs"][0] < 10).all())
     row.update(truth_start_scores(cfg, model, sc, bank, window))
     return row
 
@@ -143,13 +144,13 @@ def truth_start_scores(cfg, model, sc, bank, window) -> dict:
     """A bank member started at the true initial attitude (the bank's settings): its log-likelihood against the
     top-ranked member's, and whether it ends within 10°. Where the top-ranked member's ℓ is the higher, a wrong
     attitude explains the light curve better than the truth, and no ranking by likelihood can find the truth."""
-    truth = run_filter(cfg, model, q_est0=sc.q_true[:1], observations=sc.observations, increments=sc.increments,
+    truth = run_filter(cfg, model, q_est0=sc.q_true[:, 0], observations=sc.observations, increments=sc.increments[0],
                        variance="none")
     truth_ll, top_ll = float(innovation_log_likelihood(truth)[0]), float(bank.log_likelihood[bank.order[0]])
     return {"truth_start_log_likelihood": truth_ll, "top1_log_likelihood": top_ll,
             "top1_ll_above_truth_start": top_ll > truth_ll,
             "truth_start_within_10deg": bool(
-                (window_scores(sc.q_true, truth.q_est, sc.times, window)["median_abs"][0] < 10).all())}
+                (window_scores(sc.q_true[0], truth.q_est, sc.times, window)["median_abs"][0] < 10).all())}
 
 
 def case_path(args, cfg, seed: int) -> Path:

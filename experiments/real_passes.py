@@ -135,8 +135,8 @@ def truth_curves(cfg) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     first sample (the paper's fixed-position assumption); the truth of ``cfg.scenario`` at ``rho_true``."""
     sc = simulate_scenario(cfg, seeds=[0])
     scene = Scene.from_config(cfg, rho=sc.rho_true)
-    m_orbital = scene.magnitude(sc.q_true)
-    m_fixed = scene.sample(0).magnitude(sc.q_true)
+    m_orbital = scene.magnitude(sc.q_true[0])
+    m_fixed = scene.sample(0).magnitude(sc.q_true[0])
     return sc.times.numpy(), m_orbital.numpy(), m_fixed.numpy()
 
 
@@ -175,7 +175,7 @@ def jacobian_singular_values(cfg) -> list[float]:
     index = torch.round(sc.times / s.dt_s).long()
     omega0 = torch.deg2rad(torch.tensor(s.omega0_deg_s, dtype=f64))
     inertia = torch.tensor(cfg.shape.inertia_kg_m2, dtype=f64)
-    seen = torch.isfinite(sc.m_clean)
+    seen = torch.isfinite(sc.m_clean[0])
 
     def curve(rotvec: torch.Tensor) -> torch.Tensor:
         q, _ = propagate(quat_mul(rotvec_to_quat(rotvec), q0), omega0, inertia, s.dt_s, int(index[-1]))

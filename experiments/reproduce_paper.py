@@ -33,8 +33,8 @@ from experiments._cli import sweep_arguments
 from experiments.reproduction_tables import cost_table, estimator_table, models_table, robustness_tables, variance_table
 from lightcurve_gp.commands.common import UserError, apply_threads
 from lightcurve_gp.config.load import ConfigError, apply_overrides, config_from_dict, load_raw_config
-from lightcurve_gp.evaluation.estimators import DEFAULT_ESTIMATORS
 from lightcurve_gp.evaluation.plots import euler_errors, light_curves, rmse_boxplot
+from lightcurve_gp.evaluation.registry import DEFAULT_ESTIMATORS
 from lightcurve_gp.evaluation.reporting import CaseRecord
 from lightcurve_gp.files import write_json_atomic, write_text_atomic
 from lightcurve_gp.sweep import Executor, SweepResult, make_executor, run_sweep

@@ -8,8 +8,8 @@ import math
 from pathlib import Path
 from typing import Any, Sequence
 
-from lightcurve_gp.evaluation.estimators import DEFAULT_ESTIMATORS
-from lightcurve_gp.evaluation.reporting import CaseRecord, Quantiles, format_quantiles, quantiles, write_table
+from lightcurve_gp.evaluation.registry import DEFAULT_ESTIMATORS
+from lightcurve_gp.evaluation.reporting import CaseRecord, Quantiles, format_quantiles, quantiles, write_report_table
 from lightcurve_gp.sweep import SweepResult
 
 AXES_NAMES = ("yaw", "pitch", "roll")
@@ -87,7 +87,7 @@ def variance_table(res: SweepResult, results: Path) -> tuple[str, dict]:
                 "seconds_per_step_on": on.summary["estimators"]["gpukf"]["seconds_per_step"],
                 "seconds_per_step_off": off.summary["estimators"]["gpukf"]["seconds_per_step"]}
     seeds = len(on.seeds) if on else 0
-    md = write_table(results, "variance_check", header, rows, csv_rows,
+    md = write_report_table(results, "variance_check", header, rows, csv_rows,
                       note=f"GPUKF at t_span_past = 20 s, rho_true = 0.5, {seeds} seeds; RMSE over the scoring "
                            f"window, median [q25, q75] in deg.")
     return md, info
@@ -112,7 +112,7 @@ def estimator_table(records: dict[Any, CaseRecord], label: str, stem: str, resul
             csv_rows.append({label: key, "estimator": est, **_axes_columns("rmse_", st),
                              **_columns("lc_rmse_noisy", lcn), **_columns("lc_rmse_clean", lcc), "nees_mean": nees,
                              "fraction_all_axes_below_10deg": summary["fraction_all_axes_below_10deg"]})
-    return write_table(results, stem, header, rows, csv_rows, note)
+    return write_report_table(results, stem, header, rows, csv_rows, note)
 
 
 def robustness_tables(recs: dict[float, CaseRecord], results: Path, seeds: int) -> str:
@@ -133,7 +133,7 @@ def robustness_tables(recs: dict[float, CaseRecord], results: Path, seeds: int) 
     note = (f"Attitude RMSE over 400-600 s (deg): ours median [q25, q75] over {seeds} noise seeds; the paper gives "
             f"one run per case. t_span_past = 20 s, rho_ukf = 0.5; matched_ukf knows rho_true, no_update never "
             f"uses an observation.")
-    md = "### Attitude RMSE (paper Table 6)\n\n" + write_table(
+    md = "### Attitude RMSE (paper Table 6)\n\n" + write_report_table(
         results, "robustness_attitude", header, rows, csv_rows, note)
 
     header = ["rho_true", "estimator", "LC RMSE vs noisy: ours", "paper", "LC RMSE vs noise-free: ours"]
@@ -149,7 +149,7 @@ def robustness_tables(recs: dict[float, CaseRecord], results: Path, seeds: int) 
     note = ("Light-curve RMSE over 400-600 s (mag) of the predicted magnitude against the noisy observations "
             "(noise std 0.707 mag, so about 0.71 is the floor) and against the noise-free curve; no_update predicts "
             "no light curve.")
-    md += "\n### Light-curve RMSE (paper Table 7)\n\n" + write_table(
+    md += "\n### Light-curve RMSE (paper Table 7)\n\n" + write_report_table(
         results, "robustness_lightcurve", header, rows, csv_rows, note)
     return md
 
@@ -180,7 +180,7 @@ def cost_table(recs: dict[float, CaseRecord], results: Path, variance: dict, ste
                  f"{variance['seconds_per_step_on']:.4g} s per step vs {variance['seconds_per_step_off']:.4g} s "
                  f"without, on the variance_check batch.")
     note += " The paper's times are for one filter (MATLAB, its own machine)."
-    return write_table(results, "cost", header, rows, csv_rows, note)
+    return write_report_table(results, "cost", header, rows, csv_rows, note)
 
 
 def models_table(sweeps: dict[str, SweepResult], models_root: Path, results: Path) -> str:
@@ -202,5 +202,5 @@ def models_table(sweeps: dict[str, SweepResult], models_root: Path, results: Pat
     csv_rows = [{"t_span_past": m["t_span_past"], "train_points": m["train_points"],
                  "heldout_rmse": m["heldout"]["rmse"], "heldout_within_2sigma": m["heldout"]["within_2sigma"],
                  "fit_s": m["timings_s"]["fit_s"], "data_s": m["timings_s"]["data_s"]} for m in ordered]
-    return write_table(results, "models", header, rows, csv_rows,
+    return write_report_table(results, "models", header, rows, csv_rows,
                        "Times were measured in the run that trained the model (a rerun reuses it).")

@@ -29,9 +29,9 @@ from experiments._cli import ROOT, robust_arguments
 from experiments._models import trained_model
 from lightcurve_gp.attitude.metrics import model_error_on_trajectory
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.evaluation.estimators import ScenarioResult, run_estimators
+from lightcurve_gp.evaluation.harness import ScenarioResult, run_estimators
 from lightcurve_gp.evaluation.plots import rmse_boxplot
-from lightcurve_gp.evaluation.reporting import SUMMARY_HEADER, markdown_table, summary_row
+from lightcurve_gp.evaluation.reporting import SUMMARY_HEADER, markdown_table, scenario_summary, summary_row
 from lightcurve_gp.files import write_json_atomic, write_text_atomic
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario
@@ -67,7 +67,7 @@ def goal_check(summary: dict) -> dict:
 def gp_error_on_trajectory(cfg, model, scene: Scene) -> dict:
     """The GP's error against the renderer along the scenario's true trajectory (ρ0, noise-free), in mag."""
     sc = simulate_scenario(cfg, seeds=[0], rho_true=cfg.model.rho_reference, scene=scene)
-    return model_error_on_trajectory(model, q=sc.q_true, m_true=sc.m_clean, m_past=sc.m_clean,
+    return model_error_on_trajectory(model, q=sc.q_true[0], m_true=sc.m_clean[0], m_past=sc.m_clean[0],
                                      variance=cfg.model.variance)
 
 
@@ -82,12 +82,12 @@ def _goal_line(goal: dict) -> str:
 def rho_case(rho: float, cfg, paper, models: tuple, seeds: range, scene: Scene, args) -> tuple[dict, dict, list]:
     """Every estimator at one ``rho_true``: its summary with the goal check, the per-seed RMSE and table lines."""
     model, paper_model = models
-    robust = run_estimators(cfg, model, seeds=seeds, rho_true=rho, scene=scene,
-                            estimators=("gpukf", "joint_ukf", "matched_ukf", "no_update"))
-    ref = run_estimators(paper, paper_model, seeds=seeds, rho_true=rho, scene=scene,
-                         estimators=("gpukf", "ukf", "matched_ukf"))
+    robust = run_estimators(cfg, simulate_scenario(cfg, seeds=seeds, rho_true=rho, scene=scene), model=model,
+                            scene=scene, estimators=("gpukf", "joint_ukf", "matched_ukf", "no_update"))
+    ref = run_estimators(paper, simulate_scenario(paper, seeds=seeds, rho_true=rho, scene=scene), model=paper_model,
+                         scene=scene, estimators=("gpukf", "ukf", "matched_ukf"))
     res = merged(robust, ref)
-    s = res.summary()
+    s = scenario_summary(res)
     s["goal"] = goal_check(s)
     s["offset_final_median"] = {n: float(res.results[n].history.offset[:, -1].median()) for n in ("gpukf", "joint_ukf")}
     lo, hi = s["nees_band_95"]
@@ -117,8 +117,9 @@ def ablation(args, model, fixed_model, scene: Scene) -> list[str]:
     rows = []
     for label, overrides, est, gp in steps:
         c = load_config(args.config, overrides)
-        r = run_estimators(c, gp, seeds=seeds, rho_true=args.ablation_rho, estimators=(est,), scene=scene)
-        rows.append(summary_row(label, r.summary()["estimators"][est]))
+        sc = simulate_scenario(c, seeds=seeds, rho_true=args.ablation_rho, scene=scene)
+        r = run_estimators(c, sc, estimators=(est,), model=gp, scene=scene)
+        rows.append(summary_row(label, scenario_summary(r)["estimators"][est]))
     return [f"\n### Ablation at rho_true = {args.ablation_rho:g}, {args.ablation_seeds} seeds from {seeds.start}\n",
             markdown_table(SUMMARY_HEADER, rows).rstrip("\n")]
 

@@ -30,8 +30,8 @@ import torch
 
 from experiments._cli import ROOT, robust_arguments
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.evaluation.estimators import run_estimators
-from lightcurve_gp.evaluation.reporting import markdown_table
+from lightcurve_gp.evaluation.harness import run_estimators
+from lightcurve_gp.evaluation.reporting import markdown_table, scenario_summary
 from lightcurve_gp.files import write_json_atomic, write_text_atomic
 from lightcurve_gp.observation.fitting import (
     gpytorch_exact_model,
@@ -43,6 +43,7 @@ from lightcurve_gp.observation.fitting import (
 )
 from lightcurve_gp.observation.gp_base import GPTrainingSet
 from lightcurve_gp.observation.sparse_gp import kmeans
+from lightcurve_gp.simulation.scenario import simulate_scenario
 from lightcurve_gp.training.sets import load_or_generate, model_targets
 from lightcurve_gp.training.store import get_or_train, model_key
 
@@ -119,7 +120,8 @@ def _bound(cfg, model, runs: Path) -> float:
 def _filter(cfg, model, seeds: range, rho: float) -> dict:
     """The robust GPUKF's summary on ``seeds`` at ``rho_true = rho``."""
     t0 = time.perf_counter()
-    s = run_estimators(cfg, model, seeds=seeds, rho_true=rho, estimators=("gpukf",)).summary()
+    sc = simulate_scenario(cfg, seeds=seeds, rho_true=rho)
+    s = scenario_summary(run_estimators(cfg, sc, estimators=("gpukf",), model=model))
     g = s["estimators"]["gpukf"]
     return {"rmse_deg_median": g["rmse_deg_median"], "fraction_below_10deg": g["fraction_all_axes_below_10deg"],
             "nees_mean": g["nees_mean"], "nees_band_95": s["nees_band_95"], "seconds": time.perf_counter() - t0}

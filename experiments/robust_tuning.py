@@ -14,10 +14,11 @@ import sys
 from experiments._cli import robust_arguments
 from experiments._models import trained_model
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.evaluation.estimators import run_estimators
-from lightcurve_gp.evaluation.reporting import SUMMARY_HEADER, markdown_table, summary_row
+from lightcurve_gp.evaluation.harness import run_estimators
+from lightcurve_gp.evaluation.reporting import SUMMARY_HEADER, markdown_table, scenario_summary, summary_row
 from lightcurve_gp.files import write_text_atomic
 from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.simulation.scenario import simulate_scenario
 
 
 def main(argv=None) -> int:
@@ -32,7 +33,8 @@ def main(argv=None) -> int:
     rows, nees = [], {}
     for value in args.process_noise.split(","):
         c = load_config(args.config, [f"filter.process_noise={value}"])
-        s = run_estimators(c, model, seeds=seeds, rho_true=args.rho_true, estimators=("gpukf",), scene=scene).summary()
+        sc = simulate_scenario(c, seeds=seeds, rho_true=args.rho_true, scene=scene)
+        s = scenario_summary(run_estimators(c, sc, estimators=("gpukf",), model=model, scene=scene))
         nees[value] = s["estimators"]["gpukf"]["nees_mean"]
         rows.append(summary_row(f"process noise {value}", s["estimators"]["gpukf"]))
         print("| " + " | ".join(rows[-1]) + " |", flush=True)

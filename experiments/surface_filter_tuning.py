@@ -23,12 +23,13 @@ from pathlib import Path
 import torch
 
 from experiments._models import trained_model
-from experiments.generalization import seed_range, truth_draw
+from experiments.generalization import SUITE_ESTIMATORS, registry_name, seed_range, truth_draw
 from lightcurve_gp.config.load import ConfigError, load_config
+from lightcurve_gp.evaluation.harness import run_estimators
 from lightcurve_gp.evaluation.reporting import markdown_table
-from lightcurve_gp.evaluation.suite import SUITE_ESTIMATORS, nees_band, run_suite
+from lightcurve_gp.evaluation.scoring import nees_band
 from lightcurve_gp.photometry.render import Scene
-from lightcurve_gp.simulation.truths import simulate_truths
+from lightcurve_gp.simulation.scenario import simulate_truths
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -79,7 +80,8 @@ def main(argv=None) -> int:
         truths = simulate_truths(base, truth_draw(base, list(block), mode), scene)
         for text, name, _ in candidates:
             t0 = time.perf_counter()
-            scored = run_suite(configs[text], truths, gp_model=model, estimators=[name], scene=scene)[name]
+            scored = run_estimators(configs[text], truths, estimators=[registry_name(name)], model=model,
+                                    scene=scene).results[registry_name(name)]
             row = candidate_row(scored, band)
             pooled[text].append(row)
             cells.append(_cells(f"{block.start}-{block.stop - 1}", text, [row], time.perf_counter() - t0))

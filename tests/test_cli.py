@@ -98,7 +98,8 @@ def test_estimate_errors_are_clear(tmp_path, capsys):
     assert estimate.main([BOXWING, "--estimators", "ukf,kalman", "--seeds", "1", "--out", str(tmp_path),
                           *sets(TINY)]) == 2
     assert capsys.readouterr().err == ("error: --estimators: unknown estimator 'kalman'; choose from gpukf, ukf, "
-                                       "matched_ukf, joint_ukf, surface_ukf, surface_ukf_select, no_update\n")
+                                       "matched_ukf, joint_ukf, surface_ukf, surface_ukf_select, map_surface, "
+                                       "map_offset, no_update\n")
     assert list(tmp_path.iterdir()) == [bad]
 
 

@@ -54,8 +54,8 @@ def _both(model, params, truth, *, B=2, P0=None):
     """The eager and the compiled run of ``B`` filters over :data:`STEPS` steps."""
     obs = truth.observations[:B, :STEPS + 1]
     P0 = initial_covariance(10.0, dtype=torch.float64) if P0 is None else P0
-    runs = [run_usque(model=model, q_est0=truth.q_est0.expand(B, 4), P0=P0, observations=obs, m_past0=obs[:, 0],
-                      increments=truth.increments[:STEPS], params=dataclasses.replace(params, compile=c))
+    runs = [run_usque(model=model, q_est0=truth.q_est0[:1].expand(B, 4), P0=P0, observations=obs, m_past0=obs[:, 0],
+                      increments=truth.increments[0, :STEPS], params=dataclasses.replace(params, compile=c))
             for c in (False, True)]
     return runs
 

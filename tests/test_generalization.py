@@ -11,12 +11,14 @@ import yaml
 from lightcurve_gp.attitude.dynamics import propagate_only
 from lightcurve_gp.attitude.metrics import total_angle_deg
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.evaluation.suite import nees_band, run_suite
-from lightcurve_gp.evaluation.suite_summary import ERROR_BINS, bin_label, seed_rows, summarize, whitened_correlation
+from lightcurve_gp.evaluation.harness import run_estimators
+from lightcurve_gp.evaluation.scoring import nees_band
+from lightcurve_gp.evaluation.suite_summary import ERROR_BINS, bin_label, suite_rows, summarize, whitened_correlation
 from lightcurve_gp.inference.surface import batch_map
 from lightcurve_gp.photometry.brdf import Surface
 from lightcurve_gp.photometry.render import Scene
-from lightcurve_gp.simulation.truths import TruthDraw, draw_truths, simulate_truths
+from lightcurve_gp.simulation.scenario import simulate_truths
+from lightcurve_gp.simulation.truths import TruthDraw, draw_truths
 
 DT = torch.float64
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "boxwing_robust.yaml"
@@ -38,15 +40,14 @@ def truths(cfg, scene):
     return simulate_truths(cfg, draw_truths([21, 22, 23]), scene)
 
 
+def run_suite(cfg, truths, *, estimators, scene):
+    return run_estimators(cfg, truths, estimators=estimators, scene=scene).results
+
+
 def _subset(truths, i):
-    d = truths.draw
-    draw = dataclasses.replace(d, seeds=[d.seeds[i]], q0=d.q0[i:i + 1], omega0=d.omega0[i:i + 1],
-                               surface=d.surface.index(slice(i, i + 1)), error=d.error[i:i + 1],
-                               sigma0=d.sigma0[i:i + 1])
-    return dataclasses.replace(truths, draw=draw, q_true=truths.q_true[i:i + 1],
-                               increments=truths.increments[i:i + 1], m_clean=truths.m_clean[i:i + 1],
-                               observations=truths.observations[i:i + 1],
-                               specular_share=truths.specular_share[i:i + 1])
+    per_seed = {f.name: getattr(truths, f.name)[i:i + 1] for f in dataclasses.fields(truths)
+                if f.name not in ("times", "noise_var", "rho_true", "geometry", "unobservable", "surface")}
+    return dataclasses.replace(truths, **per_seed, surface=truths.surface.index(slice(i, i + 1)))
 
 
 def test_filters_with_per_seed_increments_and_surfaces_equal_one_seed_at_a_time(cfg, scene, truths):
@@ -55,6 +56,7 @@ def test_filters_with_per_seed_increments_and_surfaces_equal_one_seed_at_a_time(
     assert not torch.equal(truths.increments[0], truths.increments[1])
     for i in range(3):
         alone = run_suite(cfg, _subset(truths, i), estimators=estimators, scene=scene)
+        assert alone[estimators[0]].rmse_deg.shape == (1, 3)
         for name in estimators:
             assert torch.allclose(batched[name].rmse_deg[i], alone[name].rmse_deg[0], rtol=1e-9, atol=1e-10)
             assert torch.allclose(batched[name].nees_mean[i], alone[name].nees_mean[0], rtol=1e-9)
@@ -64,8 +66,8 @@ def test_no_update_nees_is_the_initial_error_against_p0(cfg, scene, truths):
     # the error keeps its angle while both turn with the known spin; P0 is isotropic, so the NEES of the GRP error
     # (a = 1, f = 4: |p| = 4 tan(angle / 4)) is constant in time
     r = run_suite(cfg, truths, estimators=("no_update",), scene=scene)["no_update"]
-    angle = truths.draw.error.norm(dim=-1)
-    expected = (4.0 * torch.tan(angle / 4.0)) ** 2 / truths.draw.sigma0 ** 2
+    angle = truths.error.norm(dim=-1)
+    expected = (4.0 * torch.tan(angle / 4.0)) ** 2 / truths.sigma0 ** 2
     assert torch.allclose(r.nees_mean, expected, rtol=1e-9)
     assert torch.allclose(r.white_first.norm(dim=-1), r.white_last.norm(dim=-1), rtol=1e-9)
 
@@ -103,8 +105,9 @@ def test_bins_are_half_open_and_complete():
 
 
 def test_summaries_count_every_seed_once_per_grouping(cfg, scene, truths):
-    results = run_suite(cfg, truths, estimators=("no_update",), scene=scene)
-    rows = seed_rows(truths, results, nees_band(), error_mode="random")
+    result = run_estimators(cfg, truths, estimators=("no_update",), scene=scene)
+    results = result.results
+    rows = suite_rows(result, nees_band(), error_mode="random")
     summary = summarize(rows)
     for grouping in ("all", "surface class", "|omega0| (deg/s)", "initial error (deg)"):
         assert sum(e["seeds"] for e in summary if e["grouping"] == grouping) == 3
@@ -133,7 +136,7 @@ def test_experiment_resumes_from_its_stored_blocks(tmp_path, monkeypatch):
     def refuse(*args, **kwargs):
         raise AssertionError("a stored block was run again")
 
-    monkeypatch.setattr(gen, "run_suite", refuse)
+    monkeypatch.setattr(gen, "run_estimators", refuse)
     assert gen.main(argv) == 0
     assert (tmp_path / "out" / "initial_error.csv").read_text() == first
     assert gen.main(["--model-config", str(config), "--estimators", "nope"]) == 2

@@ -12,13 +12,12 @@ from astropy.table import Table
 
 from lightcurve_gp.commands import estimate, simulate
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.evaluation.estimators import run_estimators
 from lightcurve_gp.observed.lightcurve_file import read_light_curve, write_light_curve
 from lightcurve_gp.observed.run import file_geometry
 from lightcurve_gp.passes.geometry import pass_geometry
 from lightcurve_gp.training.store import open_model
 
-from helpers import as_sets, simulate_file, tiny_training, train_tiny
+from helpers import as_sets, estimate_scenario, simulate_file, tiny_training, train_tiny
 
 ROOT = Path(__file__).resolve().parents[1]
 GEO = str(ROOT / "configs" / "geo_pass.yaml")
@@ -71,7 +70,7 @@ def test_file_along_a_pass_reproduces_the_in_memory_run_exactly(tmp_path, model_
     assert code == 0
     folder = out / "estimates" / "tiny_geo" / "light_curve_obs"
     cfg = load_config(GEO, TINY)
-    memory = run_estimators(cfg, open_model(model_file), seeds=[2], estimators=["gpukf"])
+    memory = estimate_scenario(cfg, open_model(model_file), seeds=[2], estimators=["gpukf"])
     h = memory.results["gpukf"].history
     table = Table.read(folder / "attitude_history.ecsv")
     np.testing.assert_array_equal(np.stack([table[f"q{i}"] for i in range(1, 5)], -1), h.q_est[0].numpy())

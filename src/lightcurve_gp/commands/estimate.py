@@ -40,10 +40,13 @@ from lightcurve_gp.commands.common import (
 from lightcurve_gp.commands.estimate_file import add_file_arguments, run_on_file
 from lightcurve_gp.commands.layout import estimate_folder
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.evaluation.estimators import DEFAULT_ESTIMATORS, ESTIMATORS, ScenarioResult, run_estimators
+from lightcurve_gp.evaluation.harness import ScenarioResult, check_estimators, run_estimators
 from lightcurve_gp.evaluation.plots import euler_errors, light_curves, rmse_boxplot
+from lightcurve_gp.evaluation.registry import DEFAULT_ESTIMATORS, ESTIMATORS
+from lightcurve_gp.evaluation.reporting import scenario_summary
 from lightcurve_gp.files import RunFolder, write_json_atomic
 from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.simulation.scenario import simulate_scenario
 from lightcurve_gp.training.store import check_model_matches, model_file_record, open_model, training_mismatch
 
 __all__ = ["format_table", "write_outputs", "main"]
@@ -97,14 +100,14 @@ def write_outputs(result: ScenarioResult, folder: Path, title: str = "", record:
     ``record`` (the run's provenance: command line, config, model file and its hash...) is stored under ``"run"``.
     """
     sc = result.scenario
-    summary = result.summary()
+    summary = scenario_summary(result)
     summary["seed_values"] = list(sc.seeds)
     summary["per_seed_rmse_deg"] = {n: r.rmse_deg.tolist() for n, r in result.results.items()}
     summary["columns"] = list(COLUMN_NOTES)
     summary["run"] = record or {}
     write_json_atomic(summary, folder / "results.json")
     first = ", ".join(filter(None, (title, f"noise seed {sc.seeds[0]}")))
-    errors = {n: r.errors_deg[0] for n, r in result.results.items()}
+    errors = {n: r.errors_deg[0] for n, r in result.results.items() if r.trajectory}  # not the MAP's checkpoints
     euler_errors(sc.times, errors, folder / "euler_errors.png", title=first, window=result.window)
     predictions = {n: r.history.y_pred[0] for n, r in result.results.items() if r.history is not None}
     light_curves(sc.times, sc.observations[0], predictions, folder / "light_curves.png", title=first)
@@ -175,13 +178,15 @@ def _load_checked_model(args: argparse.Namespace, cfg) -> tuple[object | None, d
 
 
 def _run_all(cfg, model, estimators: list[str], args: argparse.Namespace, progress: bool) -> ScenarioResult:
-    """Each estimator in turn (a progress bar over them), interruptible, merged into one result."""
+    """The scenario, then each estimator in turn (a progress bar over them), interruptible, merged into one
+    result."""
     seeds = None if args.seeds is None else range(args.seeds)
     scene = Scene.from_config(cfg)
+    sc = simulate_scenario(cfg, seeds=seeds, rho_true=args.rho_true, scene=scene)
+    check_estimators(cfg, estimators, model, along_pass=sc.geometry is not None)
     merged: ScenarioResult | None = None
     for name in tqdm(estimators, desc="estimators", unit="filter", disable=not progress):
-        part = run_interruptible(lambda n=name: run_estimators(cfg, model, seeds=seeds, rho_true=args.rho_true,
-                                                                  estimators=[n], scene=scene),
+        part = run_interruptible(lambda n=name: run_estimators(cfg, sc, estimators=[n], model=model, scene=scene),
                                  status=f"running {name}", progress=progress)
         merged = part if merged is None else merged
         merged.results.update(part.results)

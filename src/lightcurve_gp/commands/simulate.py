@@ -60,12 +60,12 @@ def truth_path(out: Path) -> Path:
 def truth_table(sc: Scenario, lc: LightCurve, record: dict, rows: np.ndarray) -> Table:
     """The truth of one simulated light curve at its samples ``rows`` of the scenario: time (ISO UTC), ``q1…q4``,
     ``omega_x…z`` (rad/s), ``mag_clean``."""
-    q, w = sc.q_true.cpu().numpy()[rows], sc.omega_true.cpu().numpy()[rows]
+    q, w = sc.q_true[0].cpu().numpy()[rows], sc.omega_true[0].cpu().numpy()[rows]
     table = Table({"time": iso_times(lc.times), **{f"q{i + 1}": q[:, i] for i in range(4)},
                    **{f"omega_{a}": w[:, i] for i, a in enumerate("xyz")},
-                   "mag_clean": sc.m_clean.cpu().numpy()[rows]})
+                   "mag_clean": sc.m_clean[0].cpu().numpy()[rows]})
     table.meta.update({"seed": sc.seeds[0], "rho_true": sc.rho_true, "noise_var": sc.noise_var,
-                       "q_est0": [float(v) for v in sc.q_est0.tolist()],
+                       "q_est0": [float(v) for v in sc.q_est0[0].tolist()],
                        "simulation": json.dumps(record, default=str)})
     return table
 

@@ -32,8 +32,9 @@ from lightcurve_gp.attitude.rotations import quat_normalize, quat_to_euler321
 from lightcurve_gp.attitude.timeline import spin_increments
 from lightcurve_gp.config.load import ConfigError
 from lightcurve_gp.config.schema import GeometryConfig, SiteConfig
-from lightcurve_gp.filters.bank import BankResult, bank_attitudes, run_bank, run_filter
+from lightcurve_gp.filters.bank import BankResult, bank_attitudes, run_bank
 from lightcurve_gp.filters.offset import offset_to_rho
+from lightcurve_gp.filters.setup import run_filter
 from lightcurve_gp.filters.usque import FilterHistory
 from lightcurve_gp.observed.lightcurve_file import LightCurve, iso_times
 from lightcurve_gp.passes.geometry import PassGeometry, orbit_pass

@@ -2,7 +2,7 @@
 
 A sweep is the cartesian product of its grid axes (any config key, values parsed as YAML; :mod:`.grid`). Each grid
 point is a *case*: one validated config, run with every seed batched in one filter per estimator
-(:func:`~lightcurve_gp.evaluation.estimators.run_estimators`; :mod:`.runner`). Storage (the command's ``--out``
+(:func:`~lightcurve_gp.evaluation.harness.run_estimators`; :mod:`.runner`). Storage (the command's ``--out``
 ``OUT`` gives ``out = OUT/sweeps`` and ``store = OUT/models``, :mod:`lightcurve_gp.commands.layout`):
 
 * ``<store>/<model-key>/model.pt`` (+ ``metrics.json``): the model store (:mod:`lightcurve_gp.training.store`,

@@ -16,7 +16,7 @@ from lightcurve_gp.commands.common import (
 )
 from lightcurve_gp.commands.layout import data_cache, model_store, sweeps_root
 from lightcurve_gp.config.load import config_from_dict, load_raw_config
-from lightcurve_gp.evaluation.estimators import DEFAULT_ESTIMATORS, ESTIMATORS
+from lightcurve_gp.evaluation.registry import DEFAULT_ESTIMATORS, ESTIMATORS
 from lightcurve_gp.sweep.executors import CLUSTER_EXTRA, EXECUTORS
 from lightcurve_gp.sweep.grid import parse_grid
 from lightcurve_gp.sweep.runner import run_sweep

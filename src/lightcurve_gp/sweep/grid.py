@@ -19,7 +19,7 @@ from lightcurve_gp.config.load import (
     config_hash,
     config_to_dict,
 )
-from lightcurve_gp.evaluation.estimators import DEFAULT_ESTIMATORS, ESTIMATORS
+from lightcurve_gp.evaluation.registry import DEFAULT_ESTIMATORS, ESTIMATORS
 from lightcurve_gp.evaluation.reporting import CASE_FORMAT
 from lightcurve_gp.training.store import MODEL_SECTIONS, model_key
 

@@ -14,10 +14,12 @@ import torch
 
 from lightcurve_gp.attitude.metrics import attitude_error_vector
 from lightcurve_gp.config.load import ConfigError, config_from_dict, config_to_dict
-from lightcurve_gp.evaluation.estimators import DEFAULT_ESTIMATORS, ScenarioResult, run_estimators
-from lightcurve_gp.evaluation.reporting import CaseRecord, seed_rows
+from lightcurve_gp.evaluation.harness import ScenarioResult, run_estimators
+from lightcurve_gp.evaluation.registry import DEFAULT_ESTIMATORS
+from lightcurve_gp.evaluation.reporting import CaseRecord, scenario_summary, seed_rows
 from lightcurve_gp.files import write_json_atomic
 from lightcurve_gp.observation.serialization import load_model
+from lightcurve_gp.simulation.scenario import simulate_scenario
 from lightcurve_gp.sweep.executors import Executor, SerialExecutor, make_executor
 from lightcurve_gp.sweep.grid import Case, make_cases
 from lightcurve_gp.sweep.models import ensure_models, model_path
@@ -32,14 +34,15 @@ def _traces(result: ScenarioResult) -> dict[str, Any]:
     each filter its GRP attitude error and ±1σ (deg, ≈ rotation vector) and its body-rate error and ±1σ (deg/s)."""
     sc = result.scenario
     filters = {n: r for n, r in result.results.items() if r.history is not None}
-    err = {n: torch.rad2deg(attitude_error_vector(sc.q_true, r.q_est[0], kind="grp")) for n, r in filters.items()}
-    rate = {n: torch.rad2deg(sc.omega_true - (sc.omega_assumed if r.history.omega is None else r.history.omega[0]))
+    err = {n: torch.rad2deg(attitude_error_vector(sc.q_true[0], r.q_est[0], kind="grp")) for n, r in filters.items()}
+    rate = {n: torch.rad2deg(sc.omega_true[0] - (sc.omega_assumed[0] if r.history.omega is None
+                                                 else r.history.omega[0]))
             for n, r in filters.items()}
     std = {n: torch.rad2deg(r.history.P_full[0].diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt())
            for n, r in filters.items()}
     return {"seed": int(sc.seeds[0]), "times": sc.times.tolist(), "observed": sc.observations[0].tolist(),
-            "clean": sc.m_clean.tolist(),
-            "errors_deg": {n: r.errors_deg[0].tolist() for n, r in result.results.items()},
+            "clean": sc.m_clean[0].tolist(),
+            "errors_deg": {n: r.errors_deg[0].tolist() for n, r in result.results.items() if r.trajectory},
             "y_pred": {n: r.history.y_pred[0].tolist() for n, r in filters.items()},
             "attitude_error_deg": {n: e.tolist() for n, e in err.items()},
             "attitude_sigma_deg": {n: sd[:, :3].tolist() for n, sd in std.items()},
@@ -64,8 +67,9 @@ def run_case(spec: dict[str, Any]) -> CaseRecord:
             raise RuntimeError(spec["model_error"])
         cfg = config_from_dict(spec["config"])
         model = load_model(spec["model_path"]) if spec.get("model_path") else None
-        result = run_estimators(cfg, model, seeds=spec["seeds"], estimators=spec["estimators"])
-        record.rows, record.summary, record.traces = seed_rows(result), result.summary(), _traces(result)
+        result = run_estimators(cfg, simulate_scenario(cfg, seeds=spec["seeds"]), estimators=spec["estimators"],
+                                model=model)
+        record.rows, record.summary, record.traces = seed_rows(result), scenario_summary(result), _traces(result)
         record.model_path = spec.get("model_path")
     except Exception as exc:
         record.status, record.error = "failed", f"{type(exc).__name__}: {exc}"
@@ -161,7 +165,7 @@ def run_sweep(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Seque
         store: the model store (default ``out/models``, shared with ``train`` and the experiments, keyed by
             :func:`~lightcurve_gp.training.keys.model_key`).
         sweep_id: folder name of this sweep's tables (default: a hash of the definition).
-        estimators: subset of :data:`~lightcurve_gp.evaluation.estimators.ESTIMATORS`.
+        estimators: subset of :data:`~lightcurve_gp.evaluation.registry.ESTIMATORS`.
         workers: worker processes of the local pool (1: this process) or of the dask LocalCluster.
         threads: torch threads of each worker process (its trainings and cases); training and the cases run in
             this process use the caller's thread count (the library leaves torch's global settings alone).
