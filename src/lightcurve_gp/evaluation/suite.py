@@ -15,7 +15,7 @@ Every filter uses the tuning of the config's ``filter`` section and starts from 
 * ``surface_ukf_select`` — the surface-state filter run with the paper's ``λ = 0`` and with Julier's
   ``λ = 3 − n``, each seed's run of higher innovation likelihood kept
   (:func:`~.estimation.run_surface_filter_selected`);
-* ``map_surface`` — the batch MAP reference with attitude, ρ, F0, n_u, n_v unknown (:mod:`~.map_surface`);
+* ``map_surface`` — the batch MAP reference with attitude, ρ, F0, n_u, n_v unknown (:mod:`~.inference.surface`);
 * ``map_offset`` — the batch MAP with attitude and offset on the reference surface (the joint UKF's model);
 * ``no_update`` — the initial estimate propagated with the known ω (its covariance stays ``P0``).
 
@@ -40,7 +40,7 @@ from lightcurve_gp.config.load import Config
 from lightcurve_gp.evaluation.estimators import run_surface_filter, run_surface_filter_selected
 from lightcurve_gp.filters.offset import initial_offset
 from lightcurve_gp.filters.usque import UsqueParams, run_usque
-from lightcurve_gp.inference.surface import batch_map, cumulative_increments
+from lightcurve_gp.inference.surface import cumulative_increments, map_with_surface
 from lightcurve_gp.observation.parametric import Parametric
 from lightcurve_gp.observation.surface_state import reference_surface
 from lightcurve_gp.photometry.render import Scene
@@ -141,10 +141,10 @@ def _run_map(name: str, cfg: Config, truths: TruthBatch, scene: Scene, every_s: 
     checkpoints = [int(round((lo + i * every_s) / dt)) for i in range(count + 1)]
     reference = reference_surface(cfg)
     start = time.perf_counter()
-    est = batch_map(scene, q_est0=truths.draw.q_est0, sigma0=truths.draw.sigma0, observations=truths.observations,
-                    increments=truths.increments, checkpoints=checkpoints,
-                    measurement_noise=cfg.filter.measurement_noise, reference=reference,
-                    offset_std=cfg.filter.offset_prior_std, surface=name == "map_surface")
+    est = map_with_surface(scene, q_est0=truths.draw.q_est0, sigma0=truths.draw.sigma0,
+                           observations=truths.observations, increments=truths.increments, checkpoints=checkpoints,
+                           measurement_noise=cfg.filter.measurement_noise, reference=reference,
+                           offset_std=cfg.filter.offset_prior_std, surface=name == "map_surface")
     seconds = time.perf_counter() - start
     offset = None if name == "map_surface" else est.x[:, -1, 3]
     return score(truths.q_true[:, checkpoints], est.q_est, est.P, seconds, offset, grp_a=cfg.filter.grp_a,

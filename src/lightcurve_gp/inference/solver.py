@@ -45,10 +45,13 @@ class GaussianPrior:
     Attributes:
         mean: ``(B, n)`` per problem or ``(n,)`` shared (units of ``x``).
         precision: the information matrix ``Λ``, ``(B, n, n)`` per problem or ``(n, n)`` shared (inverse units²).
+        diagonal: ``Λ``'s diagonal, shaped like ``mean``, when ``Λ`` is diagonal (:meth:`independent`): the prior's
+            terms are then formed elementwise.
     """
 
     mean: Tensor
     precision: Tensor
+    diagonal: Tensor | None = None
 
     def __post_init__(self) -> None:
         n = self.mean.shape[-1]
@@ -58,9 +61,11 @@ class GaussianPrior:
                              "be (n,) and (n, n), or (B, n) and (B, n, n)")
 
     @classmethod
-    def diagonal(cls, mean: Tensor, precision: Tensor) -> "GaussianPrior":
-        """Independent coordinates: ``precision`` the diagonal of ``Λ``, ``(B, n)`` or ``(n,)`` like ``mean``."""
-        return cls(mean, torch.diag_embed(precision.expand_as(mean)))
+    def independent(cls, mean: Tensor, precision: Tensor) -> "GaussianPrior":
+        """Independent coordinates: ``precision`` the diagonal of ``Λ``, ``(B, n)`` or ``(n,)`` (broadcast against
+        ``mean``)."""
+        diagonal = precision.expand_as(mean)
+        return cls(mean, torch.diag_embed(diagonal), diagonal)
 
     @classmethod
     def from_sqrt_information(cls, mean: Tensor, root: Tensor) -> "GaussianPrior":
@@ -68,12 +73,28 @@ class GaussianPrior:
         prior's whitened residual is ``R (x − mean)``."""
         return cls(mean, root.mT @ root)
 
-    def rows(self, rows: Tensor) -> tuple[Tensor, Tensor]:
-        """Mean ``(A, n)`` and precision ``(A, n, n)`` of the problems ``rows (A,)``."""
-        A = rows.shape[0]
-        if self.mean.ndim == 1:
-            return self.mean.expand(A, -1), self.precision.expand(A, -1, -1)
-        return self.mean[rows], self.precision[rows]
+    def _rows(self, value: Tensor, rows: Tensor, per_problem_ndim: int) -> Tensor:
+        if value.ndim == per_problem_ndim:
+            return value[rows]
+        return value.expand(rows.shape[0], *value.shape)
+
+    def information(self, rows: Tensor) -> Tensor:
+        """``Λ`` of the problems ``rows (A,)``: ``(A, n, n)``."""
+        return self._rows(self.precision, rows, 3)
+
+    def gradient(self, x: Tensor, rows: Tensor) -> Tensor:
+        """``Λ (x − μ)`` ``(A, n)`` of states ``x (A, n)`` of the problems ``rows``."""
+        delta = x - self._rows(self.mean, rows, 2)
+        if self.diagonal is not None:
+            return delta * self._rows(self.diagonal, rows, 2)
+        return (self.information(rows) @ delta.unsqueeze(-1)).squeeze(-1)
+
+    def quadratic(self, x: Tensor, rows: Tensor) -> Tensor:
+        """``(x − μ)ᵀ Λ (x − μ)`` ``(A,)`` of states ``x (A, n)`` of the problems ``rows``."""
+        delta = x - self._rows(self.mean, rows, 2)
+        if self.diagonal is not None:
+            return (delta.pow(2) * self._rows(self.diagonal, rows, 2)).sum(-1)
+        return (delta * (self.information(rows) @ delta.unsqueeze(-1)).squeeze(-1)).sum(-1)
 
 
 @dataclass(frozen=True)
@@ -93,6 +114,11 @@ class LeastSquaresOptions:
         covariance: ``"solution"``: ``(JᵀJ + Λ)⁻¹`` linearised at the returned state (one more Jacobian);
             ``"last_linearization"``: at the state of each problem's last iteration (before its last step, no extra
             evaluation); ``"none"``.
+        stop_together: every problem iterates until all stop in the same iteration (one batched solve without the
+            active mask, as the first batch MAP did); the default stops each problem on its own.
+        first_column: residual columns before this one are computed but are not data (e.g. the prediction of a
+            sample that sets a prior only); they are dropped after differencing. With finite differences the
+            products then see the memory layout the first batch MAP had, which reproduces its numbers bit for bit.
     """
 
     method: Literal["gauss_newton", "levenberg_marquardt"] = "levenberg_marquardt"
@@ -107,6 +133,8 @@ class LeastSquaresOptions:
     damping_max: float = 1e6
     invalid_residual: float | None = None
     covariance: Literal["solution", "last_linearization", "none"] = "solution"
+    stop_together: bool = False
+    first_column: int = 0
 
     def __post_init__(self) -> None:
         if self.method not in ("gauss_newton", "levenberg_marquardt"):
@@ -139,52 +167,57 @@ class LeastSquaresResult:
     covariance: Tensor | None
 
 
-def least_squares_cost(r: Tensor, x: Tensor, prior: tuple[Tensor, Tensor] | None, *,
-                       invalid_residual: float | None = None) -> Tensor:
-    """``½ Σ r² + ½ (x − μ)ᵀ Λ (x − μ)`` ``(A,)`` of residuals ``r (A, m)`` at states ``x (A, n)``, ``prior`` the
-    mean ``(A, n)`` and precision ``(A, n, n)`` of those rows (or ``None``); non-finite residuals as the module
-    docstring says."""
+def _per_row(variance: float | Tensor, rows: Tensor) -> float | Tensor:
+    """The residual variance of the problems ``rows``: a number as given, ``(B,)`` → ``(A, 1)``."""
+    return variance[rows].unsqueeze(-1) if isinstance(variance, Tensor) else variance
+
+
+def least_squares_cost(r: Tensor, x: Tensor, rows: Tensor, *, prior: GaussianPrior | None = None,
+                       variance: float | Tensor = 1.0, invalid_residual: float | None = None) -> Tensor:
+    """``½ (Σ r² / v + (x − μ)ᵀ Λ (x − μ))`` ``(A,)`` of residuals ``r (A, m)`` at states ``x (A, n)`` of the
+    problems ``rows (A,)``; ``v`` the residual variance (:func:`batch_least_squares`), non-finite residuals as the
+    module docstring says."""
     fill = 0.0 if invalid_residual is None else float(invalid_residual)
     r = torch.where(torch.isfinite(r), r, torch.full_like(r, fill))
-    total = (r * r).sum(-1)
+    total = ((r * r) / _per_row(variance, rows)).sum(-1) if isinstance(variance, Tensor) else \
+        (r * r).sum(-1) / variance
     if prior is not None:
-        delta = x - prior[0]
-        total = total + (delta * (prior[1] @ delta.unsqueeze(-1)).squeeze(-1)).sum(-1)
+        total = total + prior.quadratic(x, rows)
     return 0.5 * total
 
 
-def _normal_equations(r: Tensor, J: Tensor, x: Tensor, prior: tuple[Tensor, Tensor] | None) -> tuple[Tensor, Tensor]:
-    """``JᵀJ + Λ`` ``(A, n, n)`` and ``−(Jᵀr + Λ(x − μ))`` ``(A, n)``, non-finite residual rows left out."""
+def _normal_equations(r: Tensor, J: Tensor, x: Tensor, rows: Tensor, prior: GaussianPrior | None,
+                      variance: float | Tensor, first: int = 0) -> tuple[Tensor, Tensor]:
+    """``JᵀJ / v + Λ`` ``(A, n, n)`` and ``−(Jᵀr / v + Λ(x − μ))`` ``(A, n)`` from residual columns ``first …``,
+    non-finite residual rows left out."""
     ok = torch.isfinite(r) & torch.isfinite(J).all(-1)
-    r, J = torch.where(ok, r, 0.0), torch.where(ok.unsqueeze(-1), J, 0.0)
-    H = J.mT @ J
-    g = -(J.mT @ r.unsqueeze(-1)).squeeze(-1)
-    if prior is not None:
-        H = H + prior[1]
-        g = g - (prior[1] @ (x - prior[0]).unsqueeze(-1)).squeeze(-1)
-    return H, g
+    r, J = torch.where(ok, r, 0.0)[:, first:], torch.where(ok.unsqueeze(-1), J, 0.0)[:, first:]
+    v = _per_row(variance, rows)
+    H = J.mT @ J / (v.unsqueeze(-1) if isinstance(v, Tensor) else v)
+    g = (J.mT @ r.unsqueeze(-1)).squeeze(-1) / v
+    if prior is None:
+        return H, -g
+    return H + prior.information(rows), -g - prior.gradient(x, rows)
 
 
 class _Iteration:
     """The fixed parts of one solve: the residual, the prior, the options and the per-coordinate tolerance."""
 
-    def __init__(self, residual: ResidualFunction, prior: GaussianPrior | None, options: LeastSquaresOptions,
-                 like: Tensor) -> None:
-        self.residual, self.prior, self.options = residual, prior, options
+    def __init__(self, residual: ResidualFunction, prior: GaussianPrior | None, variance: float | Tensor,
+                 options: LeastSquaresOptions, like: Tensor) -> None:
+        self.residual, self.prior, self.variance, self.options = residual, prior, variance, options
         self.tolerance = torch.as_tensor(options.tolerance, dtype=like.dtype, device=like.device).expand(like.shape[-1])
-
-    def prior_rows(self, rows: Tensor) -> tuple[Tensor, Tensor] | None:
-        return None if self.prior is None else self.prior.rows(rows)
 
     def cost(self, x: Tensor, rows: Tensor, r: Tensor | None = None) -> Tensor:
         """Cost ``(A,)`` of states ``x (A, n)`` of problems ``rows`` (``r``: their residuals, if known)."""
         r = self.residual(x, rows) if r is None else r
-        return least_squares_cost(r, x, self.prior_rows(rows), invalid_residual=self.options.invalid_residual)
+        return least_squares_cost(r[:, self.options.first_column:], x, rows, prior=self.prior, variance=self.variance,
+                                  invalid_residual=self.options.invalid_residual)
 
     def linearize(self, x: Tensor, rows: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        """Residuals ``(A, m)``, ``JᵀJ + Λ`` ``(A, n, n)`` and the right-hand side ``(A, n)`` at ``x (A, n)``."""
+        """Residuals ``(A, m)``, ``JᵀJ/v + Λ`` ``(A, n, n)`` and the right-hand side ``(A, n)`` at ``x (A, n)``."""
         r, J = jacobian(self.residual, x, rows, method=self.options.jacobian, step=self.options.step)
-        H, g = _normal_equations(r, J, x, self.prior_rows(rows))
+        H, g = _normal_equations(r, J, x, rows, self.prior, self.variance, self.options.first_column)
         return r, H, g
 
     def small(self, dx: Tensor) -> Tensor:
@@ -235,6 +268,7 @@ def _levenberg_marquardt(it: _Iteration, x: Tensor, rows: Tensor, H: Tensor, g: 
 
 
 def batch_least_squares(residual: ResidualFunction, x0: Tensor, *, prior: GaussianPrior | None = None,
+                        variance: float | Tensor = 1.0,
                         options: LeastSquaresOptions = LeastSquaresOptions()) -> LeastSquaresResult:
     """Minimise ``½ |r(x)|² + ½ (x − μ)ᵀ Λ (x − μ)`` for ``B`` problems at once (module docstring).
 
@@ -243,13 +277,16 @@ def batch_least_squares(residual: ResidualFunction, x0: Tensor, *, prior: Gaussi
             :mod:`~lightcurve_gp.inference.jacobian`); NaN marks a left-out sample.
         x0: starting states ``(B, n)`` (not modified).
         prior: the Gaussian prior, or ``None`` (the data alone).
+        variance: the residuals' variance ``v``, a number or one per problem ``(B,)``: the data term is
+            ``½ Σ r² / v``. 1 (the default) for whitened residuals; the measurement variance (e.g. mag²) for
+            residuals ``y − h(x)`` that share one noise level, which keeps the differences of ``h`` unscaled.
         options: the method, stopping rule, Jacobian and covariance (:class:`LeastSquaresOptions`).
 
     Returns:
         :class:`LeastSquaresResult`.
     """
     B, n = x0.shape
-    it, x = _Iteration(residual, prior, options, x0), x0.clone()
+    it, x = _Iteration(residual, prior, variance, options, x0), x0.clone()
     every = torch.arange(B, device=x0.device)
     active = torch.ones(B, dtype=torch.bool, device=x0.device)
     iterations = torch.zeros(B, dtype=torch.int64, device=x0.device)
@@ -271,6 +308,8 @@ def batch_least_squares(residual: ResidualFunction, x0: Tensor, *, prior: Gaussi
         else:
             x[rows], stop, done = _gauss_newton(it, x[rows], rows, r, H, g)
         active[rows], converged[rows] = ~stop, done
+        if options.stop_together and bool(active.any()):
+            active[:] = True
     return _finish(it, x, every, iterations, converged, information)
 
 
