@@ -227,6 +227,21 @@ def test_missing_samples_are_left_out_and_each_problem_is_solved_as_if_alone():
     assert bool(torch.isfinite(full).all())
 
 
+def test_an_invalid_residual_penalty_keeps_steps_out_of_where_the_model_fails():
+    def residual(x, rows):  # the model fails (NaN) beyond x = 2.5; the data want x = 3
+        r = torch.cat([x - 3.0, 2 * (x - 3.0)], -1)
+        return torch.where(x < 2.5, r, torch.nan)
+
+    x0 = torch.zeros(1, 1, dtype=DT)
+    options = LeastSquaresOptions(damping=1e-6, iterations=1, covariance="none")
+    left_out = batch_least_squares(residual, x0, options=options)
+    assert float(left_out.x) == pytest.approx(3.0, abs=1e-5) and float(left_out.cost) == 0.0  # all samples lost
+    guarded = batch_least_squares(residual, x0, options=dataclasses.replace(options, invalid_residual=1e3,
+                                                                            iterations=30))
+    assert 0.0 < float(guarded.x) < 2.5
+    assert float(guarded.cost) < float(least_squares_cost(residual(x0, torch.arange(1)), x0, torch.arange(1)))
+
+
 def test_converged_problems_stop_costing():
     a = torch.tensor([1.0, 1.0], dtype=DT)
     residual, seen = rosenbrock(a), []

@@ -1,28 +1,34 @@
 """Batched nonlinear least squares: Gauss–Newton and Levenberg–Marquardt over ``B`` independent problems at once.
 
-Problem ``b`` has the state ``x_b (n,)``, whitened residuals ``r_b(x_b) (m,)`` (for a measurement ``y`` with
-standard deviation ``σ`` and a prediction ``h(x)``: ``r = (y − h(x)) / σ``) and optionally a Gaussian prior
-``x_b ~ N(μ_b, Λ_b⁻¹)``. The solver minimises, per problem,
+Problem ``b`` has the state ``x_b (n,)``, residuals ``r_b(x_b) (m,)`` of variance ``v_b`` and optionally a Gaussian
+prior ``x_b ~ N(μ_b, Λ_b⁻¹)``. The solver minimises, per problem,
 
-    cost(x) = ½ Σ_k r_k(x)² + ½ (x − μ)ᵀ Λ (x − μ)
+    cost(x) = ½ Σ_k r_k(x)² / v + ½ (x − μ)ᵀ Λ (x − μ)
 
-(the negative log posterior up to a constant). A non-finite residual (a missing sample, NaN) is left out: of the
-cost, and of the normal equations together with its Jacobian row. ``invalid_residual`` instead charges every
-non-finite residual as ``invalid_residual`` in the cost, so a step into a region where the model fails is rejected.
+(the negative log posterior up to a constant). For a measurement ``y`` with standard deviation ``σ`` and a
+prediction ``h(x)`` either ``r = (y − h(x)) / σ`` with ``v = 1`` (whitened; per-sample ``σ`` allowed) or
+``r = y − h(x)`` with ``v = σ²`` (one noise level per problem). A non-finite residual (a missing sample, NaN) is left
+out: of the cost, and of the normal equations together with its Jacobian row. ``invalid_residual`` instead charges
+every non-finite residual as that value in the cost, so a step into a region where the model fails is rejected.
 
 Each iteration linearises the active problems (:func:`~lightcurve_gp.inference.jacobian.jacobian`) and solves the
-normal equations ``(JᵀJ + Λ) dx = −(Jᵀr + Λ(x − μ))``:
+normal equations ``(JᵀJ/v + Λ) dx = −(Jᵀr/v + Λ(x − μ))``:
 
 * ``"gauss_newton"`` takes the step; with ``halvings > 0`` it backtracks, taking the longest ``dx / 2^k``
   (``k ≤ halvings``) that does not raise the cost (no step if none);
-* ``"levenberg_marquardt"`` solves with Marquardt's scaled damping ``JᵀJ + Λ + λ diag(JᵀJ + Λ)``, takes the step
-  when it lowers the cost (then ``λ ← λ / damping_down``), else keeps the state (``λ ← λ · damping_up``); ``λ`` is
-  per problem.
+* ``"levenberg_marquardt"`` solves with Marquardt's scaled damping ``H + λ diag(H)``, ``H = JᵀJ/v + Λ``, takes the
+  step when it lowers the cost (then ``λ ← λ / damping_down``), else keeps the state (``λ ← λ · damping_up``);
+  ``λ`` is per problem.
 
 A problem stops (and costs nothing more) once every component of its proposed step is within ``tolerance``
 (a number or one per coordinate, in the units of ``x``; ``inf`` ignores a coordinate), or, with Levenberg–Marquardt,
-once its damping reaches ``damping_max`` (no step lowers the cost any more); both count as converged. The Laplace
-approximation of the posterior covariance is ``(JᵀJ + Λ)⁻¹`` at the solution (NaN where that matrix is singular).
+once its damping reaches ``damping_max`` (no step lowers the cost any more); both count as converged. A failed solve
+(a singular matrix) stops a Gauss–Newton problem unconverged and counts as a rejected Levenberg–Marquardt step. The
+Laplace approximation of the posterior covariance is ``H⁻¹`` at the solution (NaN where ``H`` is singular).
+
+Three options exist to reproduce the first batch MAP solvers bit for bit (:mod:`.attitude`, :mod:`.spin`):
+``stop_together`` (all problems iterate until all stop), ``first_column`` (residual columns computed but dropped
+after differencing) and ``covariance="last_linearization"``.
 """
 
 from __future__ import annotations
@@ -111,7 +117,7 @@ class LeastSquaresOptions:
         damping: Levenberg–Marquardt's initial ``λ``; ``damping_down``, ``damping_up`` its factors after an accepted
             and a rejected step; ``damping_max`` where a problem stops.
         invalid_residual: what a non-finite residual counts in the cost (whitened units); ``None``: left out.
-        covariance: ``"solution"``: ``(JᵀJ + Λ)⁻¹`` linearised at the returned state (one more Jacobian);
+        covariance: ``"solution"``: ``(JᵀJ/v + Λ)⁻¹`` linearised at the returned state (one more Jacobian);
             ``"last_linearization"``: at the state of each problem's last iteration (before its last step, no extra
             evaluation); ``"none"``.
         stop_together: every problem iterates until all stop in the same iteration (one batched solve without the
@@ -151,10 +157,11 @@ class LeastSquaresResult:
 
     Attributes:
         x: the states ``(B, n)``.
-        cost: ``½ |r|² + ½ (x − μ)ᵀ Λ (x − μ)`` at ``x`` ``(B,)``.
+        cost: ``½ |r|²/v + ½ (x − μ)ᵀ Λ (x − μ)`` at ``x`` ``(B,)``.
         iterations: linearisations each problem took ``(B,)`` (int64).
         converged: whether it stopped before the iteration limit ``(B,)`` (bool).
-        information: ``JᵀJ + Λ`` ``(B, n, n)`` where the covariance was taken (``None`` with ``covariance="none"``).
+        information: ``JᵀJ/v + Λ`` ``(B, n, n)`` where the covariance was taken (``None`` with
+            ``covariance="none"``).
         covariance: its inverse, the Laplace approximation of the posterior covariance ``(B, n, n)`` (units of
             ``x`` squared; NaN where singular), or ``None``.
     """
@@ -270,10 +277,10 @@ def _levenberg_marquardt(it: _Iteration, x: Tensor, rows: Tensor, H: Tensor, g: 
 def batch_least_squares(residual: ResidualFunction, x0: Tensor, *, prior: GaussianPrior | None = None,
                         variance: float | Tensor = 1.0,
                         options: LeastSquaresOptions = LeastSquaresOptions()) -> LeastSquaresResult:
-    """Minimise ``½ |r(x)|² + ½ (x − μ)ᵀ Λ (x − μ)`` for ``B`` problems at once (module docstring).
+    """Minimise ``½ |r(x)|²/v + ½ (x − μ)ᵀ Λ (x − μ)`` for ``B`` problems at once (module docstring).
 
     Args:
-        residual: ``residual(x (A, n), rows (A,)) → (A, m)`` whitened residuals of the problems ``rows`` (see
+        residual: ``residual(x (A, n), rows (A,)) → (A, m)`` residuals of the problems ``rows`` (see
             :mod:`~lightcurve_gp.inference.jacobian`); NaN marks a left-out sample.
         x0: starting states ``(B, n)`` (not modified).
         prior: the Gaussian prior, or ``None`` (the data alone).
