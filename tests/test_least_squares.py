@@ -258,6 +258,22 @@ def test_converged_problems_stop_costing():
     assert late and all(bool((rows == 1).all()) for rows in late)
 
 
+def test_chunks_of_problems_give_the_same_solution():
+    a = torch.linspace(-1.0, 2.0, 7, dtype=DT)
+    x0 = torch.stack([torch.full_like(a, -1.2), torch.ones_like(a)], -1)
+    whole = batch_least_squares(rosenbrock(a), x0, options=LeastSquaresOptions(tolerance=1e-12, iterations=100))
+    sizes = []
+
+    def counting(x, rows):
+        sizes.append(rows.shape[0])
+        return rosenbrock(a)(x, rows)
+
+    pieces = batch_least_squares(counting, x0, options=LeastSquaresOptions(tolerance=1e-12, iterations=100, chunk=3))
+    torch.testing.assert_close(pieces.x, whole.x, rtol=0, atol=1e-14)
+    torch.testing.assert_close(pieces.covariance, whole.covariance, rtol=1e-12, atol=0)
+    assert max(sizes) == 3 * 5  # three problems, each at five points of the central differences
+
+
 def test_a_singular_information_gives_a_nan_covariance_not_an_error():
     def residual(x, rows):  # x_1 never enters: no information on it and no prior
         return torch.stack([x[:, 0] - 1.0, 2 * x[:, 0]], -1)
@@ -273,6 +289,7 @@ def test_a_singular_information_gives_a_nan_covariance_not_an_error():
     ({"method": "newton"}, "method: 'newton' is not 'gauss_newton' or 'levenberg_marquardt'"),
     ({"covariance": "full"}, "covariance: 'full' is not 'solution', 'last_linearization' or 'none'"),
     ({"iterations": -1}, "iterations: -1, halvings: 0 must be >= 0"),
+    ({"chunk": 0}, r"chunk: 0 must be >= 1 \(or None\)"),
 ])
 def test_bad_options_are_named(kwargs, message):
     with pytest.raises(ValueError, match=message):

@@ -125,6 +125,8 @@ class LeastSquaresOptions:
         first_column: residual columns before this one are computed but are not data (e.g. the prediction of a
             sample that sets a prior only); they are dropped after differencing. With finite differences the
             products then see the memory layout the first batch MAP had, which reproduces its numbers bit for bit.
+        chunk: at most this many problems per residual call (``None``: all at once); bounds the memory of a large
+            batch (a finite-difference Jacobian evaluates ``(2n + 1) · chunk`` or ``(n + 1) · chunk`` rows).
     """
 
     method: Literal["gauss_newton", "levenberg_marquardt"] = "levenberg_marquardt"
@@ -141,6 +143,7 @@ class LeastSquaresOptions:
     covariance: Literal["solution", "last_linearization", "none"] = "solution"
     stop_together: bool = False
     first_column: int = 0
+    chunk: int | None = None
 
     def __post_init__(self) -> None:
         if self.method not in ("gauss_newton", "levenberg_marquardt"):
@@ -149,6 +152,8 @@ class LeastSquaresOptions:
             raise ValueError(f"covariance: {self.covariance!r} is not 'solution', 'last_linearization' or 'none'")
         if self.iterations < 0 or self.halvings < 0:
             raise ValueError(f"iterations: {self.iterations}, halvings: {self.halvings} must be >= 0")
+        if self.chunk is not None and self.chunk < 1:
+            raise ValueError(f"chunk: {self.chunk} must be >= 1 (or None)")
 
 
 @dataclass(frozen=True)
@@ -215,15 +220,26 @@ class _Iteration:
         self.residual, self.prior, self.variance, self.options = residual, prior, variance, options
         self.tolerance = torch.as_tensor(options.tolerance, dtype=like.dtype, device=like.device).expand(like.shape[-1])
 
+    def chunks(self, x: Tensor, rows: Tensor) -> zip:
+        """``(x, rows)`` in pieces of at most ``options.chunk`` problems."""
+        size = self.options.chunk or max(1, rows.shape[0])
+        return zip(x.split(size), rows.split(size))
+
+    def evaluate(self, x: Tensor, rows: Tensor) -> Tensor:
+        """Residuals ``(A, m)`` of states ``x (A, n)`` of problems ``rows``, chunk by chunk."""
+        return torch.cat([self.residual(xc, rc) for xc, rc in self.chunks(x, rows)])
+
     def cost(self, x: Tensor, rows: Tensor, r: Tensor | None = None) -> Tensor:
         """Cost ``(A,)`` of states ``x (A, n)`` of problems ``rows`` (``r``: their residuals, if known)."""
-        r = self.residual(x, rows) if r is None else r
+        r = self.evaluate(x, rows) if r is None else r
         return least_squares_cost(r[:, self.options.first_column:], x, rows, prior=self.prior, variance=self.variance,
                                   invalid_residual=self.options.invalid_residual)
 
     def linearize(self, x: Tensor, rows: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """Residuals ``(A, m)``, ``JᵀJ/v + Λ`` ``(A, n, n)`` and the right-hand side ``(A, n)`` at ``x (A, n)``."""
-        r, J = jacobian(self.residual, x, rows, method=self.options.jacobian, step=self.options.step)
+        o = self.options
+        parts = [jacobian(self.residual, xc, rc, method=o.jacobian, step=o.step) for xc, rc in self.chunks(x, rows)]
+        r, J = (parts[0] if len(parts) == 1 else (torch.cat([p[0] for p in parts]), torch.cat([p[1] for p in parts])))
         H, g = _normal_equations(r, J, x, rows, self.prior, self.variance, self.options.first_column)
         return r, H, g
 
@@ -328,7 +344,7 @@ def _finish(it: _Iteration, x: Tensor, every: Tensor, iterations: Tensor, conver
         r, H, _ = it.linearize(x, every)
         information = H if how == "solution" else torch.where((iterations == 0)[:, None, None], H, information)
     else:
-        r = it.residual(x, every)
+        r = it.evaluate(x, every)
     cost = it.cost(x, every, r)
     if how == "none":
         return LeastSquaresResult(x, cost, iterations, converged, None, None)
