@@ -25,7 +25,7 @@ from lightcurve_gp.attitude.rotations import quat_mul, rotvec_to_quat
 from lightcurve_gp.inference.solver import GaussianPrior, LeastSquaresOptions, batch_least_squares
 from lightcurve_gp.observation.base import ObservationModel
 
-__all__ = ["MapPrior", "chunked_magnitudes", "map_attitude", "map_known_rate", "map_rmse_deg", "seed_rows"]
+__all__ = ["MapPrior", "chunked_magnitudes", "map_attitude", "map_known_rate", "map_rmse_deg", "select_seeds"]
 
 
 @dataclass(frozen=True)
@@ -52,7 +52,7 @@ def chunked_magnitudes(model: ObservationModel, *, q: Tensor, m_past: Tensor, ch
     return torch.cat(parts)
 
 
-def seed_rows(values: Tensor, rows: Tensor) -> Tensor:
+def select_seeds(values: Tensor, rows: Tensor) -> Tensor:
     """``values`` as given when shared (``(4,)``, one initial estimate for every seed), else its rows
     ``values[rows]`` (``(S, 4)`` per seed)."""
     return values if values.dim() == 1 else values[rows]
@@ -62,7 +62,7 @@ def _magnitudes(model: ObservationModel, x: Tensor, rows: Tensor, *, q_est0: Ten
                 m_past: Tensor) -> Tensor:
     """Magnitudes ``(A, t+1)`` of states ``x (A, 3 | 4)`` of the seeds ``rows`` along the known dynamics
     (``increments (t, 4)``), the offset added with a fourth state."""
-    q = propagate_only(quat_mul(rotvec_to_quat(x[:, :3]), seed_rows(q_est0, rows)), increments)
+    q = propagate_only(quat_mul(rotvec_to_quat(x[:, :3]), select_seeds(q_est0, rows)), increments)
     m = chunked_magnitudes(model, q=q, m_past=m_past[rows], chunk=m_past.shape[0])
     return m + x[:, 3:] if x.shape[-1] == 4 else m
 

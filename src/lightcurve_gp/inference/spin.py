@@ -23,7 +23,7 @@ from torch import Tensor
 from lightcurve_gp.attitude.dynamics import propagate
 from lightcurve_gp.attitude.metrics import attitude_errors_deg
 from lightcurve_gp.attitude.rotations import quat_mul, rotvec_to_quat
-from lightcurve_gp.inference.attitude import MapPrior, chunked_magnitudes, seed_rows
+from lightcurve_gp.inference.attitude import MapPrior, chunked_magnitudes, select_seeds
 from lightcurve_gp.inference.solver import GaussianPrior, LeastSquaresOptions, batch_least_squares, least_squares_cost
 from lightcurve_gp.observation.base import ObservationModel
 
@@ -82,7 +82,7 @@ def _residual(model: ObservationModel, x: Tensor, rows: Tensor, *, q_est0: Tenso
     """Residuals ``ỹ_k − h(q_k) − b`` ``(A, t+1)`` (mag), ``k = 0 … t``, of states ``x (A, 6 | 7)`` of the seeds
     ``rows (A,)`` (the offset added with a seventh state); ``k = 0`` only sets the offset's prior, the solver
     drops it (``first_column=1``)."""
-    q, _ = rate_map_trajectory(x, q_est0=seed_rows(q_est0, rows), dynamics=dynamics, n_steps=t)
+    q, _ = rate_map_trajectory(x, q_est0=select_seeds(q_est0, rows), dynamics=dynamics, n_steps=t)
     m = chunked_magnitudes(model, q=q, m_past=observations[rows, :1], chunk=observations.shape[0])
     m = m + x[:, 6:] if x.shape[-1] == 7 else m
     return observations[rows, :t + 1] - m
