@@ -29,17 +29,21 @@ from torch import Tensor
 
 from lightcurve_gp.attitude.metrics import chi2_band
 from lightcurve_gp.attitude.rotations import quat_normalize, quat_to_euler321
-from lightcurve_gp.attitude.timeline import spin_increments
+from lightcurve_gp.attitude.timeline import spin_increments, sub_steps
 from lightcurve_gp.config.load import ConfigError
 from lightcurve_gp.config.schema import GeometryConfig, SiteConfig
 from lightcurve_gp.filters.bank import BankResult, bank_attitudes, run_bank, run_filter
 from lightcurve_gp.filters.offset import offset_to_rho
 from lightcurve_gp.filters.usque import FilterHistory
-from lightcurve_gp.observed.lightcurve_file import LightCurve, iso_times
+from lightcurve_gp.observed.lightcurve_file import LightCurve, LightCurveFileError, iso_times
 from lightcurve_gp.passes.geometry import PassGeometry, orbit_pass
 
-__all__ = ["ObservedRun", "FileGeometryError", "file_geometry", "check_model_takes_geometry", "file_inputs",
-           "estimate_light_curve", "history_table", "nis_summary", "bank_table"]
+__all__ = ["ObservedRun", "FileGeometryError", "MAX_SUB_STEPS", "file_geometry", "check_model_takes_geometry",
+           "check_light_curve", "file_inputs", "estimate_light_curve", "history_table", "nis_summary", "bank_table"]
+
+#: the most sub-steps of ``scenario.dt_s`` the known-spin propagation takes through a file (a long gap is
+#: integrated step by step: 10 000 s of gap took 26 s on one core)
+MAX_SUB_STEPS = 100_000
 
 
 class FileGeometryError(ValueError):
@@ -91,6 +95,28 @@ def check_model_takes_geometry(model, lc: LightCurve) -> None:
             f"{lc.source}: the file gives {what}, but the model (inputs: {inputs}) was trained under one fixed "
             f"geometry and would ignore it; use a model with model.inputs: body_geometry (e.g. configs/geo_pass.yaml) "
             f"or remove the geometry from the file to run with the config's fixed Sun and observer")
+
+
+def check_light_curve(cfg, lc: LightCurve) -> None:
+    """Refuse, before anything runs, a light curve the filter of ``cfg`` cannot use: fewer samples than one to
+    start from plus one scalar update per unknown of its state, or a span the known-spin propagation would need
+    more than :data:`MAX_SUB_STEPS` sub-steps of ``scenario.dt_s`` for (:class:`LightCurveFileError`)."""
+    unknowns = {"attitude": 3, "body rate": 3 * int(cfg.filter.estimate_omega),
+                "magnitude offset": int(cfg.filter.estimate_offset)}
+    dim = sum(unknowns.values())
+    n = int(lc.t.size)
+    if n < dim + 1:
+        raise LightCurveFileError(
+            f"{lc.source}: {n} sample{'s' if n != 1 else ''}; the filter needs at least {dim + 1}: the first sets the "
+            f"start and each later one is one scalar update of a state with {dim} unknowns "
+            f"({', '.join(k for k, v in unknowns.items() if v)})")
+    dt = float(cfg.scenario.dt_s)
+    count = int(sub_steps(torch.as_tensor(lc.t, dtype=torch.float64), dt)[0].sum())
+    if count > MAX_SUB_STEPS:
+        raise LightCurveFileError(
+            f"{lc.source}: the file spans {lc.t[-1] / 86400:.1f} days; the known-spin propagation covers it in "
+            f"{count} sub-steps of scenario.dt_s = {dt:g} s, more than {MAX_SUB_STEPS}; give a shorter light curve "
+            f"or a longer scenario.dt_s")
 
 
 def file_inputs(cfg, lc: LightCurve) -> tuple[Tensor, Tensor, Tensor | None]:
