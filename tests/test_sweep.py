@@ -163,9 +163,11 @@ def test_cli_ctrl_c_is_one_line_exit_130_and_keeps_finished_cases(tmp_path, caps
     code = main([str(config), "--out", str(tmp_path), "--grid", "scenario.rho_true=0.3,0.7", "--seeds", "1",
                  "--estimators", "ukf", "--no-progress"])
     assert code == 130
-    err = capsys.readouterr().err
-    assert err == (f"interrupted; finished cases are stored in {tmp_path / 'tiny' / 'cases'}; rerun the same "
-                   f"command to resume\n")
+    out, err = capsys.readouterr()
+    assert err.startswith(f"interrupted; 1 of 2 cases stored in {tmp_path / 'tiny' / 'cases'} (partial tables in "
+                          f"{tmp_path / 'tiny' / 'sweep'}")
+    assert err.endswith("); rerun the same command to resume\n") and err.count("\n") == 1
+    assert out.startswith("kept so far: 1 of 2 cases\n") and "written:" not in out
     assert [p.stem for p in (tmp_path / "tiny" / "cases").glob("*.json")] == seen
 
 
