@@ -127,7 +127,7 @@ def training_rates(data: DataConfig, count: int, *, dtype=None, device=None) -> 
 
 
 def window_samples(scene: Scene, q0: Tensor, rho: Tensor, data: DataConfig, inertia: Tensor,
-                   chunk: int = 4096, progress: bool = False) -> TrainingSet:
+                   chunk: int = 4096, progress: bool | None = False) -> TrainingSet:
     """Propagate, render and window trajectories into training points (see the module docstring).
 
     Args:
@@ -138,7 +138,7 @@ def window_samples(scene: Scene, q0: Tensor, rho: Tensor, data: DataConfig, iner
         data: the ``data`` config section (ω0 in deg/s, dt, t_span_past, quaternion_sign).
         inertia: principal moments of inertia ``(3,)`` (kg m²).
         chunk: attitudes per rendering chunk (bounds memory).
-        progress: show a progress bar.
+        progress: show a progress bar (``None``: only when stderr is a terminal).
 
     Trajectories with a zero-flux sample (no magnitude) are dropped and counted in ``dropped``.
     """
@@ -147,7 +147,8 @@ def window_samples(scene: Scene, q0: Tensor, rho: Tensor, data: DataConfig, iner
     paired = rho.ndim == 1
     parts: list[TrainingSet] = []
     starts = range(0, q0.shape[0], chunk)
-    for start in tqdm(starts, desc="rendering training trajectories", disable=not progress, unit="chunk"):
+    bar_off = None if progress is None else not progress  # None: tqdm shows the bar on a terminal only
+    for start in tqdm(starts, desc="rendering training trajectories", disable=bar_off, unit="chunk"):
         qc = q0[start:start + chunk]
         rc = rho[start:start + chunk] if paired else rho
         wc = omega0 if omega0.ndim == 1 else omega0[start:start + chunk]
@@ -190,7 +191,7 @@ def _inertia(cfg: Config) -> Tensor:
     return torch.tensor(cfg.shape.inertia_kg_m2, dtype=cfg.torch_dtype)
 
 
-def generate_training_set(cfg: Config, progress: bool = True) -> TrainingSet:
+def generate_training_set(cfg: Config, progress: bool | None = None) -> TrainingSet:
     """The training set of ``cfg`` (paper: 3852 attitudes × 5 ρ = 19260 points), on CPU in ``cfg.dtype``; with
     ``data.surfaces`` rendered over many surfaces (:mod:`lightcurve_gp.training.surfaces`)."""
     if cfg.data.surfaces is not None:
@@ -270,7 +271,7 @@ def data_cache_key(cfg: Config) -> str:
 
 
 def load_or_generate(cfg: Config, cache_dir: str | Path = "runs/cache",
-                     progress: bool = True) -> tuple[TrainingSet, Path, bool]:
+                     progress: bool | None = None) -> tuple[TrainingSet, Path, bool]:
     """Load the training set of ``cfg`` from ``cache_dir`` or generate and cache it atomically.
 
     Returns:
