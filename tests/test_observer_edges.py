@@ -285,7 +285,7 @@ def test_the_bank_verdict_merges_members_modulo_the_images():
     # without the image the turned member is another answer: 30 % of the weight elsewhere
     alone = bank_verdict(fake_bank(members, weights), images[:1])
     assert alone.top_family_weight == pytest.approx(0.7, abs=1e-15) and alone.verdict == "ambiguous"
-    assert "warning: the answer is not unique: 30 % of the posterior weight lies on other attitudes" in \
+    assert "warning: the answer is not unique: 30.0 % of the posterior weight lies on other attitudes" in \
         "\n".join(alone.sentences(5))
 
 

@@ -39,7 +39,7 @@ from lightcurve_gp.commands.common import (
     run_interruptible,
 )
 from lightcurve_gp.config.load import Config, config_to_dict, load_config
-from lightcurve_gp.evaluation.plots import prediction_scatter, residual_histogram
+from lightcurve_gp.evaluation.plots import prediction_scatter, residual_histogram, target_quantity
 from lightcurve_gp.files import RunFolder, file_sha256, write_json_atomic, write_text_atomic
 from lightcurve_gp.observation.base import ObservationModel, Variance
 from lightcurve_gp.observation.exact_gp import ExactGP, fast_variance_error
@@ -169,7 +169,8 @@ def _train_into(cfg: Config, run_dir: Path, cache_dir: Path, *, progress: bool, 
         save_model(model, tmp / "model.pt", extra={**model_record(cfg), "heldout": metrics})
         write_text_atomic(yaml.safe_dump(config_to_dict(cfg), sort_keys=False), tmp / "config.yaml")
         prediction_scatter(heldout.y, mean, tmp / "heldout_scatter.png",
-                           title=f"{cfg.name}: {cfg.model.kind} GP, held-out RMSE {metrics['rmse']:.3f} mag")
+                           title=f"{cfg.name}: {cfg.model.kind} GP, held-out RMSE {metrics['rmse']:.3f} mag",
+                           quantity=target_quantity(cfg.model.target, cfg.model.rho_reference))
         residual_histogram(mean - heldout.y, std_y, tmp / "heldout_residuals.png")
         result = {
             "name": cfg.name, "model": cfg.model.kind, "target": cfg.model.target, "train_points": len(data),

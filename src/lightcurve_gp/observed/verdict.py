@@ -72,14 +72,15 @@ class BankVerdict:
 
     def sentences(self, size: int) -> list[str]:
         """The verdict in words for a bank of ``size`` members: a line of numbers and, when ambiguous, a warning."""
-        family = (f"the top family ({self.top_family_members} members within {FAMILY_RADIUS_DEG:g} deg of the best "
+        n = self.top_family_members
+        family = (f"the top family ({n} member{'s' if n != 1 else ''} within {FAMILY_RADIUS_DEG:g} deg of the best "
                   f"estimate or of its {self.images.shape[0] - 1} symmetric attitudes) holds "
                   f"{100 * self.top_family_weight:.1f} % of the posterior weight")
         lines = [f"posterior: effective number of members {self.effective_members:.1f} of {size}; {family}"]
         if self.verdict == "unique":
             lines.append("verdict: unique (one attitude, up to the shape's symmetries, explains the light curve)")
         else:
-            lines.append(f"warning: the answer is not unique: {100 * (1 - self.top_family_weight):.0f} % of the "
+            lines.append(f"warning: the answer is not unique: {100 * (1 - self.top_family_weight):.1f} % of the "
                          f"posterior weight lies on other attitudes, so the reported attitude may be far from the "
                          f"truth; try a longer light curve, a larger --bank-size, or --initial-attitude if one is "
                          f"known")
