@@ -85,10 +85,13 @@ def test_the_same_set_key_twice_is_refused(tmp_path, capsys):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_simulate_and_sweep_refuse_a_set_key_twice(tmp_path, capsys):
+def test_simulate_train_and_sweep_refuse_a_set_key_twice(tmp_path, capsys):
+    from lightcurve_gp.commands import train
     from lightcurve_gp.sweep import cli as sweep_cli
 
     twice = ["--set", "filter.p0_deg=5", "--set", "filter.p0_deg=10"]
+    assert train.main([BOXWING, "--out", str(tmp_path), *twice]) == 2
+    assert capsys.readouterr().err.startswith("error: --set: filter.p0_deg given twice")
     assert simulate.main([BOXWING, "--out", str(tmp_path / "obs.ecsv"), *twice]) == 2
     assert capsys.readouterr().err.startswith("error: --set: filter.p0_deg given twice")
     assert sweep_cli.main([BOXWING, "--out", str(tmp_path), *twice]) == 2

@@ -32,6 +32,7 @@ from lightcurve_gp.commands.common import (
     apply_threads,
     check_new_folder,
     check_output_root,
+    check_overrides,
     exit_process,
     progress_enabled,
     provenance,
@@ -253,6 +254,7 @@ def _check_replaceable(run_dir: Path) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     apply_threads(args.threads)
+    check_overrides(args.overrides)
     cfg = load_config(args.config, args.overrides)
     check_output_root(args.out)
     run_dir = args.out / cfg.name
