@@ -40,7 +40,7 @@ from lightcurve_gp.commands.common import (
     run_command,
 )
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.files import atomic_path
+from lightcurve_gp.files import atomic_path, json_ready
 from lightcurve_gp.observed.lightcurve_file import (
     LightCurve,
     iso_times,
@@ -67,7 +67,7 @@ def truth_table(sc: Scenario, lc: LightCurve, record: dict, rows: np.ndarray) ->
                    "mag_clean": sc.m_clean.cpu().numpy()[rows]})
     table.meta.update({"seed": sc.seeds[0], "rho_true": sc.rho_true, "noise_var": sc.noise_var,
                        "q_est0": [float(v) for v in sc.q_est0.tolist()],
-                       "simulation": json.dumps(record, default=str)})
+                       "simulation": json.dumps(json_ready(record), default=str, allow_nan=False)})
     return table
 
 
