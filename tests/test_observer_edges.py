@@ -183,8 +183,8 @@ def test_a_span_the_propagation_cannot_cover_is_refused_naming_dt(tmp_path, caps
     far = write_light_curve(lc, tmp_path / "far.ecsv")
     assert run_estimate("--model", str(model_file), "--light-curve", str(far), "--out", str(tmp_path / "out")) == 2
     assert capsys.readouterr().err == (
-        f"error: {far}: the file spans 5.0 days; the known-spin propagation covers it in 432000 sub-steps of "
-        f"scenario.dt_s = 1 s, more than 100000; give a shorter light curve or a longer scenario.dt_s\n")
+        f"error: {far}: the file spans 5.0 days; the known-spin propagation through its gaps takes 431940 sub-steps "
+        f"of scenario.dt_s = 1 s, more than 100000; give a shorter light curve or a longer scenario.dt_s\n")
 
 
 # 11. simulate: --seed checked, --help says what --force replaces
