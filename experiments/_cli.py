@@ -5,8 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from lightcurve_gp.sweep import EXECUTORS
-from lightcurve_gp.sweep.executors import CLUSTER_EXTRA
+from lightcurve_gp.sweep.executors import CLUSTER_EXTRA, EXECUTORS
 
 ROOT = Path(__file__).resolve().parents[1]
 

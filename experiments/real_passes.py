@@ -47,7 +47,8 @@ from lightcurve_gp.files import write_json_atomic, write_text_atomic
 from lightcurve_gp.passes.geometry import pass_geometry
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario
-from lightcurve_gp.sweep import EXECUTORS, run_sweep
+from lightcurve_gp.sweep.executors import EXECUTORS
+from lightcurve_gp.sweep.runner import run_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ("geo_pass", "leo_pass", "geo_night")

@@ -37,7 +37,8 @@ from lightcurve_gp.evaluation.plots import euler_errors, light_curves, rmse_boxp
 from lightcurve_gp.evaluation.registry import DEFAULT_ESTIMATORS
 from lightcurve_gp.evaluation.reporting import CaseRecord
 from lightcurve_gp.files import write_json_atomic, write_text_atomic
-from lightcurve_gp.sweep import Executor, SweepResult, make_executor, run_sweep
+from lightcurve_gp.sweep.executors import Executor, make_executor
+from lightcurve_gp.sweep.runner import SweepResult, run_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 BASE_CONFIG = ROOT / "configs" / "boxwing.yaml"

@@ -10,7 +10,7 @@ from typing import Any, Sequence
 
 from lightcurve_gp.evaluation.registry import DEFAULT_ESTIMATORS
 from lightcurve_gp.evaluation.reporting import CaseRecord, Quantiles, format_quantiles, quantiles, write_report_table
-from lightcurve_gp.sweep import SweepResult
+from lightcurve_gp.sweep.runner import SweepResult
 
 AXES_NAMES = ("yaw", "pitch", "roll")
 

@@ -35,7 +35,8 @@ from lightcurve_gp.commands.common import apply_threads
 from lightcurve_gp.config.load import apply_overrides, load_raw_config
 from lightcurve_gp.evaluation.reporting import format_quantiles, markdown_table, quantiles
 from lightcurve_gp.files import write_json_atomic, write_text_atomic
-from lightcurve_gp.sweep import make_executor, run_sweep
+from lightcurve_gp.sweep.executors import make_executor
+from lightcurve_gp.sweep.runner import run_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 HEADER = ("ω process noise ((rad/s)² per step)", "duration", "< 10° all axes", "NEES [δp, ω] (band)",

@@ -29,7 +29,8 @@ from lightcurve_gp.commands.common import apply_threads
 from lightcurve_gp.config.load import apply_overrides, load_raw_config
 from lightcurve_gp.evaluation.reporting import CaseRecord, markdown_table
 from lightcurve_gp.files import write_json_atomic, write_text_atomic
-from lightcurve_gp.sweep import make_executor, run_sweep
+from lightcurve_gp.sweep.executors import make_executor
+from lightcurve_gp.sweep.runner import run_sweep
 
 PAIR = ((False, "both"), (True, "after"))  # (sigma_redraw, q_placement): the default, the paper
 AXES = [("filter.sigma_redraw", [False, True]), ("filter.q_placement", ["both", "after"])]

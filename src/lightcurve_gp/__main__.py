@@ -1,26 +1,24 @@
 """``lightcurve-gp COMMAND …`` (and ``python -m lightcurve_gp COMMAND …``): one entry point for every command.
 
 ``COMMAND`` is one of :data:`COMMANDS`; the rest of the line goes to that command unchanged, so
-``lightcurve-gp train configs/boxwing.yaml`` is ``python -m lightcurve_gp.train configs/boxwing.yaml``.
+``lightcurve-gp train configs/boxwing.yaml`` is ``python -m lightcurve_gp.train configs/boxwing.yaml``. The command's
+module (and torch with it: seconds) is imported only once the command is known, inside the interrupt handler, so a
+Ctrl-C while it loads is the one line and exit code 130 of every interrupt, not a traceback.
 """
 
 from __future__ import annotations
 
+import importlib
 import sys
-from typing import Callable
 
-from lightcurve_gp.commands import estimate, simulate, train
-from lightcurve_gp.commands.common import exit_process
-from lightcurve_gp.sweep import cli as sweep
+__all__ = ["COMMANDS", "main", "run", "usage"]
 
-__all__ = ["COMMANDS", "main", "run"]
-
-#: command name -> (its ``main(argv) -> exit code``, one line of help)
-COMMANDS: dict[str, tuple[Callable[[list[str] | None], int], str]] = {
-    "train": (train.main, "generate the training set, fit the GP observation model, evaluate it"),
-    "estimate": (estimate.main, "run the estimators on simulated seeds or on a light-curve file"),
-    "simulate": (simulate.main, "write a synthetic light curve in the light-curve file format"),
-    "sweep": (sweep.main, "run the estimators over a grid of config values, resumable"),
+#: command name -> (the module whose ``main(argv) -> exit code`` runs it, one line of help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "train": ("lightcurve_gp.commands.train", "generate the training set, fit the GP observation model, evaluate it"),
+    "estimate": ("lightcurve_gp.commands.estimate", "run the estimators on simulated seeds or on a light-curve file"),
+    "simulate": ("lightcurve_gp.commands.simulate", "write a synthetic light curve in the light-curve file format"),
+    "sweep": ("lightcurve_gp.sweep.cli", "run the estimators over a grid of config values, resumable"),
 }
 
 
@@ -43,12 +41,17 @@ def main(argv: list[str] | None = None) -> int:
     if name not in COMMANDS:
         print(f"error: {name!r} is not a command; choose from {', '.join(COMMANDS)}", file=sys.stderr)
         return 2
-    return COMMANDS[name][0](rest)
+    return importlib.import_module(COMMANDS[name][0]).main(rest)
 
 
 def run() -> None:
     """The ``lightcurve-gp`` console script: :func:`main`, then the process ends the way every command ends."""
-    exit_process(main())
+    try:
+        code = main()
+    except KeyboardInterrupt:  # only while a command's module loads: a running command handles its own
+        print("interrupted; nothing written", file=sys.stderr)
+        sys.exit(130)
+    importlib.import_module("lightcurve_gp.commands.common").exit_process(code)
 
 
 if __name__ == "__main__":

@@ -27,6 +27,7 @@ from lightcurve_gp.commands.common import (
     apply_threads,
     check_new_folder,
     check_output_root,
+    check_overrides,
     exit_process,
     progress_enabled,
     provenance,
@@ -35,7 +36,7 @@ from lightcurve_gp.commands.common import (
 )
 from lightcurve_gp.commands.layout import check_run_name, data_cache, model_store, train_folder
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.evaluation.plots import prediction_scatter, residual_histogram
+from lightcurve_gp.evaluation.plots import prediction_scatter, residual_histogram, target_quantity
 from lightcurve_gp.training.fit import TARGETS, TrainingInterrupted, TrainingRun, check_fit_memory, train
 from lightcurve_gp.training.store import add_to_store
 
@@ -46,7 +47,8 @@ def write_figures(folder: Path, run: TrainingRun) -> None:
     """The held-out figures of a training run, into its folder: predicted vs true, and the residuals."""
     prediction_scatter(run.heldout.y, run.mean, folder / "heldout_scatter.png",
                        title=f"{run.metrics['name']}: {run.metrics['model']} GP, held-out RMSE "
-                             f"{run.metrics['heldout']['rmse']:.3f} mag")
+                             f"{run.metrics['heldout']['rmse']:.3f} mag",
+                       quantity=target_quantity(run.metrics["target"], run.metrics["rho_reference"]))
     residual_histogram(run.mean - run.heldout.y, run.std, folder / "heldout_residuals.png")
 
 
@@ -106,6 +108,7 @@ def _check_replaceable(run_dir: Path) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     apply_threads(args.threads)
+    check_overrides(args.overrides)
     cfg = load_config(args.config, args.overrides)
     check_run_name(cfg.name)
     check_fit_memory(cfg)

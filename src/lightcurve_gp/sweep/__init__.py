@@ -26,17 +26,8 @@ moment it arrives, so the store is the same, and resumable, whichever executor w
 Config errors (unknown key, bad value) stop the sweep before any work and name the key; a run-time failure of one
 case is recorded and the others go on; a case whose worker process died is run again (a bounded number of times).
 Ctrl-C keeps every finished case.
+
+The package face imports nothing (torch loads only with a submodule), so ``python -m lightcurve_gp.sweep`` can turn a
+Ctrl-C during its imports into one line: import the names from their modules (``.runner``, ``.executors``, ``.cli``,
+…).
 """
-
-from lightcurve_gp.evaluation.reporting import RESULT_COLUMNS, CaseRecord
-from lightcurve_gp.sweep.cli import build_parser, main
-from lightcurve_gp.sweep.executors import EXECUTORS, Executor, make_executor
-from lightcurve_gp.sweep.grid import MODEL_SECTIONS, Case, expand_grid, make_cases, model_key, parse_grid
-from lightcurve_gp.sweep.models import ensure_models
-from lightcurve_gp.sweep.runner import SweepResult, run_case, run_sweep
-from lightcurve_gp.sweep.store import read_case
-from lightcurve_gp.sweep.tables import SUMMARY_COLUMNS, summarize_rows
-
-__all__ = ["EXECUTORS", "Executor", "make_executor", "RESULT_COLUMNS", "SUMMARY_COLUMNS", "MODEL_SECTIONS", "Case",
-           "CaseRecord", "SweepResult", "parse_grid", "expand_grid", "make_cases", "model_key", "ensure_models",
-           "run_case", "run_sweep", "read_case", "summarize_rows", "build_parser", "main"]

@@ -11,6 +11,7 @@ from lightcurve_gp.commands.common import (
     UserError,
     add_common_arguments,
     apply_threads,
+    check_overrides,
     progress_enabled,
     run_command,
 )
@@ -19,7 +20,7 @@ from lightcurve_gp.config.load import config_from_dict, load_raw_config
 from lightcurve_gp.evaluation.registry import DEFAULT_ESTIMATORS, ESTIMATORS
 from lightcurve_gp.sweep.executors import CLUSTER_EXTRA, EXECUTORS
 from lightcurve_gp.sweep.grid import parse_grid
-from lightcurve_gp.sweep.runner import run_sweep
+from lightcurve_gp.sweep.runner import SweepResult, run_sweep
 from lightcurve_gp.sweep.tables import print_summary
 
 __all__ = ["build_parser", "main"]
@@ -89,6 +90,7 @@ example:
 
 def _run(args: argparse.Namespace) -> int:
     threads = apply_threads(args.threads)
+    check_overrides(args.overrides)
     if args.seeds is not None and args.seeds < 1:
         raise UserError(f"--seeds: {args.seeds} must be >= 1")
     raw = load_raw_config(args.config, args.overrides)
@@ -97,7 +99,7 @@ def _run(args: argparse.Namespace) -> int:
     base = config_from_dict(raw)
     seeds = range(args.seeds if args.seeds is not None else base.scenario.seeds)
     out = sweeps_root(args.out)
-    kept = f"finished cases are stored in {out / base.name / 'cases'}; rerun the same command to resume"
+    cases_folder = out / base.name / "cases"
     try:
         result = run_sweep(raw, axes, seeds, out=out, store=model_store(args.out), sweep_id=args.sweep_id,
                            estimators=estimators, workers=args.workers, threads=threads,
@@ -105,14 +107,26 @@ def _run(args: argparse.Namespace) -> int:
                            progress=progress_enabled(args.no_progress), rerun_failed=not args.no_retry,
                            executor=args.executor, scheduler=args.scheduler, retries=args.retries)
     except KeyboardInterrupt:
-        raise Interrupted(kept) from None
+        raise Interrupted(f"finished cases are stored in {cases_folder}; rerun the same command to resume") from None
+    if result.interrupted:
+        raise Interrupted(_kept(result, [k for k, _ in axes], cases_folder))
     print_summary(result.summary, [k for k, _ in axes])
     for cid in result.failed:
         print(f"case {cid} failed: {result.records[cid].error}", file=sys.stderr)
     print(f"written: {result.folder}")
-    if result.interrupted:
-        raise Interrupted(kept)
     return 1 if result.failed else 0
+
+
+def _kept(result: SweepResult, grid_keys: list[str], cases_folder: Path) -> str:
+    """What an interrupted sweep kept: the table of its stored cases (printed when there is one) and the line of
+    the interrupt."""
+    stored, total = len(result.records), len(result.cases)
+    if not stored:
+        return f"no case finished (0 of {total}); rerun the same command to start again"
+    print(f"kept so far: {stored} of {total} cases")
+    print_summary(result.summary, grid_keys)
+    return (f"{stored} of {total} cases stored in {cases_folder} (partial tables in {result.folder}); rerun the same "
+            f"command to resume")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -41,8 +41,8 @@ def train_model(spec: dict[str, Any]) -> str:
     return str(path)
 
 
-def ensure_models(cases: Sequence[Case], store: Path, cache_dir: Path, executor: Executor, progress: bool = True,
-                  threads: int | None = None) -> dict[str, str | None]:
+def ensure_models(cases: Sequence[Case], store: Path, cache_dir: Path, executor: Executor,
+                  progress: bool | None = None, threads: int | None = None) -> dict[str, str | None]:
     """Get every model the cases need from the model store ``store``: one :func:`train_model` task per distinct
     model on ``executor`` (a model already in the store, trained by ``train`` or an earlier sweep, is only loaded
     and checked).
@@ -57,4 +57,4 @@ def ensure_models(cases: Sequence[Case], store: Path, cache_dir: Path, executor:
                           "cache_dir": str(cache_dir), "threads": threads, "progress": progress and in_process}
              for model_hash, cfg in wanted.items()}
     return {outcome.key: None if outcome.ok else f"model training failed: {outcome.error}"
-            for outcome in executor.run(train_model, specs, desc="models", progress=progress and bool(specs))}
+            for outcome in executor.run(train_model, specs, desc="models", progress=progress if specs else False)}

@@ -131,7 +131,7 @@ def _pending(cases: Sequence[Case], root: Path, rerun_failed: bool) -> tuple[dic
 
 def _run_pending(pending: Sequence[Case], root: Path, executor: Executor, records: dict[str, CaseRecord], *,
                  store: Path, seeds: list[int], estimators: Sequence[str], threads: int | None, cache_dir: Path,
-                 total: int, progress: bool, case_runner) -> None:
+                 total: int, progress: bool | None, case_runner) -> None:
     """Get the models the pending cases need from the model store ``store`` (shared with ``train`` and the
     experiments; trained into it when missing), then run the cases on ``executor``, storing each record atomically
     into the case store of ``root`` and into ``records`` the moment it arrives (in completion order)."""
@@ -152,7 +152,7 @@ def run_sweep(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Seque
               out: str | Path = "runs", store: str | Path | None = None, sweep_id: str | None = None,
               estimators: Sequence[str] = DEFAULT_ESTIMATORS,
               workers: int = 1, threads: int = 1, cache_dir: str | Path | None = None,
-              progress: bool = True, rerun_failed: bool = True, executor: str | Executor = "local",
+              progress: bool | None = None, rerun_failed: bool = True, executor: str | Executor = "local",
               scheduler: str | None = None, retries: int = 2,
               case_runner: Callable[[dict[str, Any]], CaseRecord] = run_case) -> SweepResult:
     """Run (or resume) a sweep; see :mod:`lightcurve_gp.sweep` for what is written where.

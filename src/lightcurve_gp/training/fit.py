@@ -261,7 +261,8 @@ def _train_into(cfg: Config, run_dir: Path, cache_dir: Path, *, progress: bool, 
         save_model(model, tmp / "model.pt", extra={**model_record(cfg), "heldout": metrics})
         write_text_atomic(yaml.safe_dump(config_to_dict(cfg), sort_keys=False), tmp / "config.yaml")
         result = {
-            "name": cfg.name, "model": cfg.model.kind, "target": cfg.model.target, "train_points": len(data),
+            "name": cfg.name, "model": cfg.model.kind, "target": cfg.model.target,
+            "rho_reference": cfg.model.rho_reference, "train_points": len(data),
             "heldout": metrics, "fast_variance_vs_exact": variance_check, "timings_s": timings,
             "fit_objective": _fit_objective(model), "device": str(_model_device(model)),
             "model_file": str(run_dir / "model.pt"), "model_key": model_key(cfg),

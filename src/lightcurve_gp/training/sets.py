@@ -41,7 +41,7 @@ __all__ = ["TrainingSet", "initial_attitudes", "training_scene", "drop_duplicate
 DATA_FORMAT_VERSION = 1
 
 
-def generate_training_set(cfg: Config, progress: bool = True) -> TrainingSet:
+def generate_training_set(cfg: Config, progress: bool | None = None) -> TrainingSet:
     """The training set of ``cfg`` (paper: 3852 attitudes × 5 ρ = 19260 points), on CPU in ``cfg.dtype``: rendered
     over many surfaces with ``data.surfaces`` (:mod:`.surfaces`), over geometries for a ``body_geometry`` GP
     (:mod:`.geometry`), else the paper's windows (:func:`~.windows.window_training_set`)."""
@@ -113,7 +113,7 @@ def data_cache_key(cfg: Config) -> str:
 
 
 def load_or_generate(cfg: Config, cache_dir: str | Path = "runs/cache",
-                     progress: bool = True) -> tuple[TrainingSet, Path, bool]:
+                     progress: bool | None = None) -> tuple[TrainingSet, Path, bool]:
     """Load the training set of ``cfg`` from ``cache_dir`` or generate and cache it atomically.
 
     Returns:

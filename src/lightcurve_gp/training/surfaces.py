@@ -58,7 +58,7 @@ def equivalent_reflectance(surface: Surface, f0_reference: float) -> Tensor:
 
 
 def render_over_surfaces(scene: Scene, q0: Tensor, surfaces: Surface, cfg: Config, *,
-                         progress: bool = False) -> TrainingSet:
+                         progress: bool | None = False) -> TrainingSet:
     """Windows (see :mod:`lightcurve_gp.training.windows`) of attitudes ``q0 (A, 4)``, each rendered with its surfaces
     ``surfaces`` (fields ``(K, A)``); surface-major points, ``rho`` the equivalent reflectance. An attitude with a
     zero-flux sample is dropped for all its surfaces (zero flux is geometry: nothing lit and visible)."""
@@ -67,7 +67,8 @@ def render_over_surfaces(scene: Scene, q0: Tensor, surfaces: Surface, cfg: Confi
     q_hist, _ = propagate(q0, omega0, shape_inertia(cfg).to(q0.dtype), cfg.data.dt_s, n_steps)  # (A, n+1, 4)
     k_count = surfaces.rho.shape[0]
     m = torch.stack([scene.magnitude(q_hist, surface=surfaces.index(k))
-                     for k in tqdm(range(k_count), desc="rendering over surfaces", disable=not progress)])
+                     for k in tqdm(range(k_count), desc="rendering over surfaces",
+                                  disable=None if progress is None else not progress)])
     ok = torch.isfinite(m).all(-1).all(0)  # (A,)
     a_ok = int(ok.sum())
     return TrainingSet(q=q_hist[ok, -1].repeat(k_count, 1), m_past=m[:, ok, :-1].mean(-1).reshape(-1),
@@ -76,7 +77,7 @@ def render_over_surfaces(scene: Scene, q0: Tensor, surfaces: Surface, cfg: Confi
                        dropped=k_count * (q0.shape[0] - a_ok))
 
 
-def generate_surface_training_set(cfg: Config, progress: bool = True) -> TrainingSet:
+def generate_surface_training_set(cfg: Config, progress: bool | None = None) -> TrainingSet:
     """The training set of ``cfg`` with ``data.surfaces``: ``data.sampling`` attitudes × K surfaces each."""
     dtype = cfg.torch_dtype
     q0 = initial_attitudes(cfg.data, dtype=dtype)

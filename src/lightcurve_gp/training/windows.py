@@ -136,7 +136,7 @@ def training_rates(data: DataConfig, count: int, *, dtype=None, device=None) -> 
 
 
 def window_samples(scene: Scene, q0: Tensor, rho: Tensor, data: DataConfig, inertia: Tensor,
-                   chunk: int = 4096, progress: bool = False) -> TrainingSet:
+                   chunk: int = 4096, progress: bool | None = False) -> TrainingSet:
     """Propagate, render and window trajectories into training points (see the module docstring).
 
     Args:
@@ -147,7 +147,7 @@ def window_samples(scene: Scene, q0: Tensor, rho: Tensor, data: DataConfig, iner
         data: the ``data`` config section (ω0 in deg/s, dt, t_span_past, quaternion_sign).
         inertia: principal moments of inertia ``(3,)`` (kg m²).
         chunk: attitudes per rendering chunk (bounds memory).
-        progress: show a progress bar.
+        progress: show a progress bar (``None``: only when stderr is a terminal).
 
     Trajectories with a zero-flux sample (no magnitude) are dropped and counted in ``dropped``.
     """
@@ -156,7 +156,8 @@ def window_samples(scene: Scene, q0: Tensor, rho: Tensor, data: DataConfig, iner
     paired = rho.ndim == 1
     parts: list[TrainingSet] = []
     starts = range(0, q0.shape[0], chunk)
-    for start in tqdm(starts, desc="rendering training trajectories", disable=not progress, unit="chunk"):
+    bar_off = None if progress is None else not progress  # None: tqdm shows the bar on a terminal only
+    for start in tqdm(starts, desc="rendering training trajectories", disable=bar_off, unit="chunk"):
         qc = q0[start:start + chunk]
         rc = rho[start:start + chunk] if paired else rho
         wc = omega0 if omega0.ndim == 1 else omega0[start:start + chunk]
@@ -201,7 +202,7 @@ def shape_inertia(cfg: Config) -> Tensor:
     return torch.tensor(cfg.shape.inertia_kg_m2, dtype=cfg.torch_dtype)
 
 
-def window_training_set(cfg: Config, progress: bool = True) -> TrainingSet:
+def window_training_set(cfg: Config, progress: bool | None = None) -> TrainingSet:
     """The paper's training set of ``cfg`` (3852 attitudes × 5 ρ = 19260 points), on the CPU in ``cfg.dtype``."""
     dtype = cfg.torch_dtype
     scene = training_scene(cfg, dtype=dtype)
