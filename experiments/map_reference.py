@@ -1,7 +1,7 @@
 """What the prior and the light curve allow: a batch MAP estimate of the attitude from all observations so far.
 
 At each checkpoint ``t`` (every ``--every`` s inside the scoring window)
-:func:`lightcurve_gp.inference.attitude.batch_map`
+:func:`lightcurve_gp.inference.attitude.map_known_rate`
 maximises the posterior of the initial attitude (and, with an offset, the magnitude offset) given ``ỹ_1 … ỹ_t``,
 the known dynamics and the filters' prior, re-linearising every observation at every iteration.
 
@@ -26,7 +26,7 @@ from experiments._models import trained_model
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.evaluation.reporting import markdown_table
 from lightcurve_gp.files import write_json_atomic, write_text_atomic
-from lightcurve_gp.inference.attitude import MapPrior, batch_map, map_rmse_deg
+from lightcurve_gp.inference.attitude import MapPrior, map_known_rate, map_rmse_deg
 from lightcurve_gp.observation.parametric import Parametric
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import Scenario, simulate_scenario
@@ -37,8 +37,8 @@ def run_map(model, sc: Scenario, cfg, checkpoints: list[int], offset: bool) -> t
     start = time.perf_counter()
     prior = MapPrior(cfg.filter.p0_deg, cfg.filter.measurement_noise, cfg.filter.offset_prior_std)
     q_est0, increments = sc.q_est0[0], sc.increments[0]  # the config's truth, shared by the seeds
-    est = batch_map(model, q_est0=q_est0, increments=increments, observations=sc.observations, prior=prior,
-                    checkpoints=checkpoints, offset=offset)
+    est = map_known_rate(model, q_est0=q_est0, increments=increments, observations=sc.observations,
+                         prior=prior, checkpoints=checkpoints, offset=offset)
     rmse = map_rmse_deg(est, q_true=sc.q_true[0], q_est0=q_est0, increments=increments)
     summary = {"rmse_deg_median": rmse.median(0).values.tolist(),
                "fraction_all_axes_below_10deg": float((rmse < 10).all(-1).double().mean()),

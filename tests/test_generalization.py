@@ -14,7 +14,8 @@ from lightcurve_gp.config.load import load_config
 from lightcurve_gp.evaluation.harness import run_estimators
 from lightcurve_gp.evaluation.scoring import nees_band
 from lightcurve_gp.evaluation.suite_summary import ERROR_BINS, bin_label, suite_rows, summarize, whitened_correlation
-from lightcurve_gp.inference.surface import batch_map
+from lightcurve_gp.inference.surface import map_with_surface
+from lightcurve_gp.observation.surface_state import reference_surface
 from lightcurve_gp.photometry.brdf import Surface
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_truths
@@ -82,13 +83,45 @@ def test_map_recovers_the_attitude_from_a_noise_free_curve_of_a_known_surface():
     draw = TruthDraw([0], t64([[0.0, 0.0, 0.0, 1.0]]), torch.deg2rad(t64([cfg.scenario.omega0_deg_s])), surface,
                      torch.deg2rad(t64([[5.0, -4.0, 6.0]])), t64([math.radians(10.0)]))
     truths = simulate_truths(cfg, draw, scene)
-    est = batch_map(scene, q_est0=draw.q_est0, sigma0=draw.sigma0 * 100, observations=truths.m_clean,
-                    increments=truths.increments, checkpoints=[400, 600], measurement_noise=0.5, reference=surface,
-                    offset_std=1.0, surface=False, iterations=30, warm_iterations=10)
+    est = map_with_surface(scene, q_est0=draw.q_est0, sigma0=draw.sigma0 * 100, observations=truths.m_clean,
+                           increments=truths.increments, checkpoints=[400, 600], measurement_noise=0.5,
+                           reference=surface, offset_std=1.0, surface=False, iterations=30, warm_iterations=10)
     start = propagate_only(draw.q_est0, truths.increments[0])[0, [400, 600]]
     assert float(total_angle_deg(truths.q_true[0, [400, 600]], start).min()) > 8.0
     assert float(total_angle_deg(truths.q_true[0, [400, 600]], est.q_est[0]).max()) < 0.5
     assert abs(float(est.x[0, -1, 3])) < 1e-2
+
+
+@pytest.mark.parametrize("surface", [True, False])
+def test_the_numbers_of_the_first_surface_map_are_kept(cfg, scene, truths, surface):
+    # computed by the solver this one replaced (commit 7be9713); the shared core reproduces them bit for bit
+    est = map_with_surface(scene, q_est0=truths.q_est0, sigma0=truths.sigma0,
+                           observations=truths.observations, increments=truths.increments, checkpoints=[20, 30],
+                           measurement_noise=cfg.filter.measurement_noise, reference=reference_surface(cfg),
+                           offset_std=cfg.filter.offset_prior_std, surface=surface)
+    x, var = MAP_REFERENCE["surface" if surface else "offset"]
+    torch.testing.assert_close(est.x[:, -1], torch.tensor(x, dtype=DT), rtol=0, atol=1e-12)
+    torch.testing.assert_close(est.P[:, -1].diagonal(dim1=-2, dim2=-1), torch.tensor(var, dtype=DT), rtol=1e-10,
+                               atol=0)
+
+
+MAP_REFERENCE = {
+    "surface": ([[0.005423367099117407, -0.02301992587270495, 0.016078796990197215, -2.1620579476378703,
+                  -0.8590741951550271, 5.756462732485115, 5.756462732485115],
+                 [0.00936763378090152, 0.012646751776099132, -0.004278146221810485, -0.4307268772495623,
+                  1.1260002167486838, 5.756462732485115, 5.756462732485115],
+                 [0.011117430452794577, 0.009651659378243185, 0.001749542706780922, -0.6444504589574762,
+                  0.040603096279672415, 5.756462732485115, 5.756462732485115]],
+                [[0.03226377559233697, 0.03187425295485204, 0.03218142374855307],
+                 [0.01854548282390917, 0.018666633972065014, 0.018871787324870146],
+                 [0.02956130784923121, 0.02962288726834861, 0.030283889329765647]]),
+    "offset": ([[0.004209455205125966, -0.024431860700797083, 0.02122363800075614, 1.234660473267517],
+                [0.03296517316546846, 0.03128621932700972, -0.004083429532570506, 0.4142577848331911],
+                [0.01043228900699496, 0.009017948791027283, 0.0016392591189212798, -0.03254950381401446]],
+               [[0.03225566531470198, 0.03178044541218737, 0.03213773901166695],
+                [0.017947494099322225, 0.018306560114664798, 0.018868607635655354],
+                [0.02901747147497689, 0.029118279587490952, 0.03027054766816922]]),
+}
 
 
 def test_nees_band_of_one_sample_holds_95_percent_of_chi_square_3():

@@ -39,7 +39,7 @@ from lightcurve_gp.evaluation.scoring import Estimate
 from lightcurve_gp.filters.selection import select_by_likelihood
 from lightcurve_gp.filters.setup import run_filter, run_surface_filter
 from lightcurve_gp.filters.state import FilterHistory
-from lightcurve_gp.inference.surface import batch_map
+from lightcurve_gp.inference.surface import map_with_surface
 from lightcurve_gp.observation.base import ObservationModel
 from lightcurve_gp.observation.parametric import Parametric
 from lightcurve_gp.observation.surface_state import reference_surface
@@ -157,10 +157,10 @@ def map_estimate(cfg: Config, scene: Scene, sc: Scenario, *, surface: bool, ever
     solvers here): attitude and surface unknown (``surface``), or attitude and offset on the reference surface;
     ``R = filter.measurement_noise``, the offset's prior std ``filter.offset_prior_std``."""
     checkpoints = map_checkpoints(cfg, every_s)
-    est = batch_map(scene, q_est0=sc.q_est0, sigma0=sc.sigma0, observations=sc.observations,
-                    increments=sc.increments_assumed, checkpoints=checkpoints,
-                    measurement_noise=cfg.filter.measurement_noise, reference=reference_surface(cfg),
-                    offset_std=cfg.filter.offset_prior_std, surface=surface)
+    est = map_with_surface(scene, q_est0=sc.q_est0, sigma0=sc.sigma0, observations=sc.observations,
+                           increments=sc.increments_assumed, checkpoints=checkpoints,
+                           measurement_noise=cfg.filter.measurement_noise, reference=reference_surface(cfg),
+                           offset_std=cfg.filter.offset_prior_std, surface=surface)
     return Estimate(est.q_est, est.P, samples=torch.tensor(checkpoints, device=est.q_est.device),
                     offset_final=None if surface else est.x[:, -1, 3])
 
