@@ -14,17 +14,27 @@ Once, at σ_ω = 0.03 °/s, 600 s and the first ρ_true, the matched-ρ UKF with
 10 % off the truth's on each axis (``INERTIA_ERRORS``, ±10 % in alternating signs: a common scale would not change
 the torque-free ω(t)).
 
-With ``--map``, the batch MAP with ω0 unknown (:mod:`experiments.spin_map`: the initial attitude and rate, and the
-offset for the GP, from all observations so far, the filters' prior) is added at each of ``--map-durations``
-(default 600 s) for every σ_ω of that duration and every ρ_true — what the light curve allows at all — on
-``--map-seeds`` of the same noise seeds, read back from ``OUT/spin_unknown/map/`` when it ran before.
+With ``--map``, the batch MAP with ω0 unknown (:func:`map_case`) is added at each of ``--map-durations`` (default
+600 s) for every σ_ω of that duration and every ρ_true — what the light curve allows at all — on ``--map-seeds`` of
+the same noise seeds. It simulates the same noisy light curves and runs
+:func:`lightcurve_gp.inference.spin.map_with_rate` with the filters' prior (``filter.p0_deg``,
+``filter.p0_omega_deg_s``, ``filter.measurement_noise``, ``filter.offset_prior_std``) and initial estimates; its
+checkpoints are every ``--map-every`` seconds to the end (each solve starts from the previous one), those inside the
+scoring window scored: Euler-angle RMSE per axis, the body-rate error at each (RMS) and at the last. Observation
+models: ``renderer`` (the true ρ, like ``matched_ukf``), ``gp_offset`` (the robust GP with the offset, like
+``gpukf``) and ``renderer_from_truth``, the renderer's MAP solved at the scored checkpoints only, its first solve
+started at the true initial state (an oracle: the posterior's mode nearest the truth, to tell a mode the optimiser
+cannot reach from the prior from one the data do not single out). Beside the errors: the Laplace posterior std of ω
+at the end and, for the renderer, the share of seeds whose truth has a lower negative log posterior than the MAP
+found (the optimiser stopped in a worse local minimum than the truth).
 
 Nothing is tuned here: every filter setting is the robust config's (its attitude process noise chosen on seeds
 100-199, its rate process noise ``filter.omega_process_noise`` on seeds 100-149 by :mod:`experiments.spin_tuning`);
-the noise seeds start at ``--seed-start`` (200).
-Every case runs through the sweep machinery (resumable: a rerun reuses finished cases), on the local pool or dask.
-Writes ``--results`` (experiments/results/spin): ``tables.md``, ``summary.json``, one box plot per duration and
-ρ_true and the seed-0 error traces with their ±3σ bands of σ_ω = 0.03 °/s, 600 s.
+the noise seeds start at ``--seed-start`` (200). Resumable: every filter case runs through the sweep machinery (on
+the local pool or dask), every MAP case through the case store (``OUT/spin_unknown/map/cases/``,
+:func:`lightcurve_gp.sweep.store.resume_case`); a rerun reuses finished cases. Writes ``--results``
+(experiments/results/spin): ``tables.md``, ``summary.json``, one box plot per duration and ρ_true and the seed-0
+error traces with their ±3σ bands of σ_ω = 0.03 °/s, 600 s.
 
     python -m experiments.spin_unknown --workers 2
 """
@@ -32,10 +42,17 @@ Writes ``--results`` (experiments/results/spin): ``tables.md``, ``summary.json``
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import functools
+import math
+import os
 import sys
 import time
 from pathlib import Path
 from typing import Sequence
+
+import numpy as np
+import torch
 
 from experiments.common import (
     ROBUST_CONFIG,
@@ -47,14 +64,21 @@ from experiments.common import (
     seed_block,
     spin_table_row,
     sweep_arguments,
+    trained_model,
     write_outputs,
 )
-from experiments.spin_map import DIAGNOSTICS_HEADER, MAP_LABELS, MAP_MODELS, map_case, map_diagnostics_row, map_row
+from lightcurve_gp.attitude.rotations import quat_inv, quat_mul, quat_to_rotvec
 from lightcurve_gp.commands.common import apply_threads
-from lightcurve_gp.config.load import apply_overrides, load_raw_config
+from lightcurve_gp.config.load import apply_overrides, config_from_dict, config_hash, load_raw_config
 from lightcurve_gp.evaluation.plots import error_bands, rmse_boxplot
-from lightcurve_gp.evaluation.reporting import CaseRecord, markdown_table, quantiles
+from lightcurve_gp.evaluation.reporting import CaseRecord, format_quantiles, markdown_table, quantiles
+from lightcurve_gp.inference.attitude import MapPrior
+from lightcurve_gp.inference.spin import RateDynamics, map_with_rate, neg_log_posterior, rate_map_errors
+from lightcurve_gp.observation.parametric import Parametric
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.simulation.scenario import Scenario, simulate_scenario
 from lightcurve_gp.sweep import make_executor, run_sweep
+from lightcurve_gp.sweep.store import resume_case
 
 ESTIMATORS_UNKNOWN = ("gpukf", "matched_ukf", "no_update")
 ESTIMATORS_KNOWN = ("gpukf", "matched_ukf")
@@ -64,6 +88,12 @@ INERTIA_ERRORS = ((1.1, 0.9, 1.1), (0.9, 1.1, 0.9))
 #: at most 0.005 °/s
 GOAL_SIGMA = 0.03
 GOALS = {"ratio": ("<=", 1.5), "fraction": (">=", 0.8), "final_omega": ("<=", 0.005)}
+
+MAP_MODELS = ("renderer", "gp_offset", "renderer_from_truth")
+MAP_LABELS = {"renderer": "MAP, renderer with the true ρ", "gp_offset": "MAP, robust GP with the offset",
+              "renderer_from_truth": "MAP started at the truth (oracle), renderer with the true ρ"}
+DIAGNOSTICS_HEADER = ("σ_ω (°/s)", "MAP model", "seeds", "final ω error (°/s)", "posterior ω std at the end (°/s)",
+                      "prior ω std (°/s)", "truth's cost below the MAP's", "s", "load average")
 
 
 def _map_models(text: str) -> list[str]:
@@ -88,7 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
     sweep_arguments(p)
     p.add_argument("--no-inertia", action="store_true", help="skip the inertia-error cases")
     p.add_argument("--no-gp", action="store_true", help="leave the robust GPUKF out (the renderer-based filters only)")
-    p.add_argument("--map", action="store_true", help="add the batch MAP with ω0 unknown (experiments/spin_map.py) at "
+    p.add_argument("--map", action="store_true", help="add the batch MAP with ω0 unknown (map_case) at "
                    "every --map-durations for every σ_ω and ρ_true")
     p.add_argument("--map-durations", type=floats, default=[600.0],
                    help="durations of the MAP cases, s (default 600; each must be one of --durations)")
@@ -98,6 +128,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--map-seeds", type=int, default=None, help="noise seeds of the MAP (default: --seeds)")
     return p
 
+
+# ----------------------------------------------------------------------------------------------- filters
 
 def run_all(raw: dict, args) -> tuple[dict[tuple[float, float | None], dict[float, CaseRecord]], dict]:
     """Every sweep on one executor: ``{(duration, σ_ω or None): {ρ_true: record}}`` and the inertia-error records
@@ -122,6 +154,111 @@ def run_all(raw: dict, args) -> tuple[dict[tuple[float, float | None], dict[floa
     return out, inertia
 
 
+def inertia_error(raw: dict, args, executor, seeds) -> dict[tuple, CaseRecord]:
+    """The matched-ρ UKF with ω at σ_ω = 0.03 °/s, 600 s, ρ_true = ``args.rhos[0]``, assuming a wrong inertia."""
+    J = raw["shape"]["inertia_kg_m2"]
+    values = [[round(j * e, 6) for j, e in zip(J, err)] for err in INERTIA_ERRORS]
+    res = run_sweep(apply_overrides(raw, [*case_overrides(600.0, GOAL_SIGMA), f"scenario.rho_true={args.rhos[0]}"]),
+                    [("filter.inertia_kg_m2", values)], seeds, out=args.out, sweep_id="spin_600s_inertia",
+                    workers=args.workers, threads=args.threads, estimators=["matched_ukf"],
+                    progress=not args.no_progress, executor=executor)
+    return {err: res.record(**{"filter.inertia_kg_m2": v}) for err, v in zip(INERTIA_ERRORS, values)}
+
+
+# ----------------------------------------------------------------------------------------------- batch MAP
+
+def map_key(cfg, seeds: Sequence[int], model: str, checkpoints: Sequence[int]) -> str:
+    """The case-store key of a MAP case: its whole config, seeds, model and checkpoints. ``filter.omega_process_noise``
+    is a filter setting the MAP does not use (it has no process noise); it is keyed as 0 so that tuning it does not
+    recompute the MAP."""
+    cfg = dataclasses.replace(cfg, filter=dataclasses.replace(cfg.filter, omega_process_noise=0.0))
+    return config_hash(cfg, extra={"experiment": "spin_unknown_map", "seeds": list(seeds), "model": model,
+                                   "checkpoints": list(checkpoints)})
+
+
+def _truth_state(sc: Scenario) -> torch.Tensor:
+    """The true ``[e, δω]`` ``(6,)`` against the filters' initial estimates (the config's truth, shared by the
+    seeds)."""
+    e = quat_to_rotvec(quat_mul(sc.q_true[0, 0], quat_inv(sc.q_est0[0])))
+    return torch.cat([e, sc.omega_true[0, 0] - sc.omega_est0[0]])
+
+
+def solve_map(cfg, sc: Scenario, model, *, offset: bool, checkpoints: list[int], scored: list[int],
+              from_truth: bool = False) -> dict:
+    """Run the MAP on every seed of ``sc`` and score it (per-seed lists)."""
+    prior = MapPrior(cfg.filter.p0_deg, cfg.filter.measurement_noise, cfg.filter.offset_prior_std)
+    inertia = cfg.filter.inertia_kg_m2 or cfg.shape.inertia_kg_m2
+    q_est0 = sc.q_est0[0]  # the config's truth: every seed starts from the same estimate
+    dynamics = RateDynamics(omega_est0=sc.omega_est0[0], p0_omega_deg_s=cfg.filter.p0_omega_deg_s, dt=cfg.scenario.dt_s,
+                            inertia=torch.tensor(inertia, dtype=sc.observations.dtype))
+    x_start = _truth_state(sc).expand(sc.observations.shape[0], 6) if from_truth else None
+    est = map_with_rate(model, q_est0=q_est0, dynamics=dynamics, observations=sc.observations, prior=prior,
+                        checkpoints=checkpoints, offset=offset, x_start=x_start)
+    in_window = {t: est[t] for t in scored}
+    att, rate = rate_map_errors(in_window, q_true=sc.q_true[0], omega_true=sc.omega_true[0], q_est0=q_est0,
+                                dynamics=dynamics)
+    last = est[checkpoints[-1]]
+    omega_std = torch.rad2deg(last.covariance.diagonal(dim1=-2, dim2=-1)[:, 3:6].sum(-1).sqrt())  # of |δω|
+    out = {"rmse_deg": att.pow(2).mean(1).sqrt().tolist(), "omega_rmse_deg_s": rate.pow(2).mean(1).sqrt().tolist(),
+           "omega_error_final_deg_s": rate[:, -1].tolist(), "omega_posterior_std_final_deg_s": omega_std.tolist()}
+    if not offset:
+        truth = _truth_state(sc).expand_as(last.x)
+        costs = [neg_log_posterior(model, x, q_est0=q_est0, dynamics=dynamics, observations=sc.observations,
+                                   prior=prior, t=checkpoints[-1]) for x in (last.x, truth)]
+        out["truth_cost_below_map"] = (costs[1] < costs[0]).tolist()
+    return out
+
+
+def map_case(raw_case: dict, *, seeds: Sequence[int], rho_true: float, model: str, every: float,
+             out: Path) -> dict:
+    """The MAP of observation model ``model`` on one case (read back from the case store of ``out/<config
+    name>/map`` when it ran before).
+
+    Args:
+        raw_case: the case's config as a plain mapping (its duration, rate prior and initial rate error set).
+        seeds: noise seeds (as the filters').
+        rho_true: the truth's ρ.
+        model: one of :data:`MAP_MODELS`.
+        every: checkpoint spacing (s).
+        out: root of the models and the case store (``runs``).
+
+    Returns:
+        Per-seed ``rmse_deg`` (S × 3), ``omega_rmse_deg_s``, ``omega_error_final_deg_s``,
+        ``omega_posterior_std_final_deg_s`` and (renderer) ``truth_cost_below_map``; ``checkpoints_s``,
+        ``scored_s``, ``seconds`` and ``load_average`` (start, end).
+    """
+    if model not in MAP_MODELS:
+        raise ValueError(f"--map-models: {model!r} is not one of {', '.join(MAP_MODELS)}")
+    cfg = config_from_dict(apply_overrides(raw_case, [f"scenario.rho_true={rho_true:g}"]))
+    dt, (lo, hi) = cfg.scenario.dt_s, cfg.evaluation.rmse_window_s
+    times = torch.arange(every, cfg.scenario.duration_s + 1e-9, every, dtype=torch.float64).tolist()
+    if model == "renderer_from_truth":
+        times = [t for t in times if t >= lo - 1e-9]
+    checkpoints = [int(round(t / dt)) for t in times]
+    scored = [k for k, t in zip(checkpoints, times) if lo - 1e-9 <= t <= hi + 1e-9]
+    compute = functools.partial(_map_result, cfg, seeds=seeds, rho_true=rho_true, model=model, times=times,
+                                checkpoints=checkpoints, scored=scored, out=out)
+    record, _ = resume_case(out / cfg.name / "map", map_key(cfg, seeds, model, checkpoints), compute,
+                            values={"experiment": "spin_unknown_map", "model": model, "rho_true": rho_true},
+                            seeds=seeds, estimators=[f"map_{model}"])
+    return record.summary
+
+
+def _map_result(cfg, *, seeds: Sequence[int], rho_true: float, model: str, times: list[float], checkpoints: list[int],
+                scored: list[int], out: Path) -> tuple[dict, list]:
+    """One MAP case for the store: its result (:func:`map_case`) as the summary, no per-seed metric rows."""
+    start, load = time.perf_counter(), os.getloadavg()[0]
+    scene = Scene.from_config(cfg)
+    sc = simulate_scenario(cfg, seeds=seeds, rho_true=rho_true, scene=scene)
+    observation = trained_model(cfg, out) if model == "gp_offset" else Parametric(scene, rho_true)
+    result = solve_map(cfg, sc, observation, offset=model == "gp_offset", checkpoints=checkpoints, scored=scored,
+                       from_truth=model == "renderer_from_truth")
+    result.update({"model": model, "seeds": list(seeds), "rho_true": rho_true, "checkpoints_s": times,
+                   "scored_s": [k * cfg.scenario.dt_s for k in scored], "seconds": time.perf_counter() - start,
+                   "load_average": [load, os.getloadavg()[0]]})
+    return result, []
+
+
 def map_results(raw: dict, args) -> dict[tuple[float, float, str], dict[float, dict]]:
     """The batch MAP with ω0 unknown of every MAP model at every MAP duration: ``{(duration, σ_ω, model): {ρ_true:
     result}}`` (beyond 600 s the σ_ω of ``--long-sigmas``, as the filters)."""
@@ -138,16 +275,7 @@ def map_results(raw: dict, args) -> dict[tuple[float, float, str], dict[float, d
     return out
 
 
-def inertia_error(raw: dict, args, executor, seeds) -> dict[tuple, CaseRecord]:
-    """The matched-ρ UKF with ω at σ_ω = 0.03 °/s, 600 s, ρ_true = ``args.rhos[0]``, assuming a wrong inertia."""
-    J = raw["shape"]["inertia_kg_m2"]
-    values = [[round(j * e, 6) for j, e in zip(J, err)] for err in INERTIA_ERRORS]
-    res = run_sweep(apply_overrides(raw, [*case_overrides(600.0, GOAL_SIGMA), f"scenario.rho_true={args.rhos[0]}"]),
-                    [("filter.inertia_kg_m2", values)], seeds, out=args.out, sweep_id="spin_600s_inertia",
-                    workers=args.workers, threads=args.threads, estimators=["matched_ukf"],
-                    progress=not args.no_progress, executor=executor)
-    return {err: res.record(**{"filter.inertia_kg_m2": v}) for err, v in zip(INERTIA_ERRORS, values)}
-
+# ----------------------------------------------------------------------------------------------- tables
 
 def tables(records: dict, inertia: dict, maps: dict, args) -> tuple[list[str], dict]:
     """One Markdown table per (duration, ρ_true) with the MAP rows of its duration, the inertia-error table, the MAP
@@ -195,6 +323,27 @@ def goal(unknown: CaseRecord, known: CaseRecord) -> dict:
             "final_omega_error_median_deg_s": measured["final_omega"], **check.flags}
 
 
+def map_row(label: str, result: dict) -> list[str]:
+    """Cells of :data:`experiments.common.SPIN_HEADER` for a MAP result (no NEES, no per-step time)."""
+    rmse = np.asarray(result["rmse_deg"])
+    below = 100 * float((rmse < 10).all(-1).mean())
+    return [label, *(format_quantiles(quantiles(rmse[:, i])) for i in range(3)), f"{below:.0f} %", "–", "–", "–",
+            format_quantiles(quantiles(result["omega_rmse_deg_s"]), 4),
+            format_quantiles(quantiles(result["omega_error_final_deg_s"]), 4), "–"]
+
+
+def map_diagnostics_row(sigma: float, result: dict) -> list[str]:
+    """Cells of :data:`DIAGNOSTICS_HEADER`: what the MAP found against what the light curve determines."""
+    below = result.get("truth_cost_below_map")
+    share = "–" if below is None else f"{100 * float(np.mean(below)):.0f} %"
+    prior = math.sqrt(3) * sigma
+    lo, hi = result["load_average"]
+    return [f"{sigma:g}", result["model"], str(len(result["seeds"])),
+            format_quantiles(quantiles(result["omega_error_final_deg_s"]), 4),
+            format_quantiles(quantiles(result["omega_posterior_std_final_deg_s"]), 4), f"{prior:.4f}", share,
+            f"{result['seconds']:.0f}", f"{lo:.1f}–{hi:.1f}"]
+
+
 def figures(records: dict, args) -> list[str]:
     names = []
     for duration in args.durations:
@@ -213,7 +362,7 @@ def figures(records: dict, args) -> list[str]:
         rho = args.rhos[0]
         name = f"errors_seed{trace[rho].traces['seed']}_600s_sigma{GOAL_SIGMA:g}_rho{rho:g}.png"
         error_bands(trace[rho].traces, [n for n in ("gpukf", "matched_ukf") if n in trace[rho].estimators],
-                            args.results / name)
+                    args.results / name)
         names.append(name)
     return names
 
