@@ -19,8 +19,9 @@ Pruning (``--prune-after-s S --prune-keep K``): all members run the first ``S`` 
 pruning of a small grid would have done: since a survivor's continuation is its uninterrupted run, the pruned
 ranking is the unpruned one restricted to the survivors, so one unpruned run scores every (S, K) exactly.
 
-Resumable: one case file per seed under ``<runs>/global_start/cases/`` (the sweep's case store); a rerun skips the
-stored seeds. Writes ``--out`` (experiments/results/global_start/): summary.md, summary.json, per_seed.csv.
+Resumable: one case file per seed under ``<runs>/global_start/cases/`` (the sweep's case store,
+:func:`lightcurve_gp.sweep.store.resume_case`); a rerun skips the stored seeds. Writes ``--out``
+(experiments/results/global_start/): summary.md, summary.json, per_seed.csv.
 
     python -m experiments.global_start --seeds 0:100 --prune-after-s 60 --prune-keep 64
 """
@@ -28,6 +29,7 @@ stored seeds. Writes ``--out`` (experiments/results/global_start/): summary.md, 
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import sys
 import time
@@ -36,14 +38,12 @@ from pathlib import Path
 import torch
 from tqdm.auto import tqdm
 
-from experiments._models import trained_model
-from experiments.generalization import seed_range
+from experiments.common import ROBUST_CONFIG, ROOT, command_line, seed_range, trained_model, write_outputs
 from lightcurve_gp.attitude.metrics import attitude_error_vector, attitude_errors_deg, nees
 from lightcurve_gp.attitude.rotations import quat_mul
 from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.config.load import ConfigError, config_hash, load_config
-from lightcurve_gp.evaluation.reporting import CaseRecord, csv_text, markdown_table, quantiles
-from lightcurve_gp.files import write_json_atomic, write_text_atomic
+from lightcurve_gp.evaluation.reporting import csv_text, markdown_table, quantiles
 from lightcurve_gp.filters.bank import bank_attitudes, run_bank
 from lightcurve_gp.filters.selection import innovation_log_likelihood, innovation_log_terms
 from lightcurve_gp.filters.setup import run_filter
@@ -51,10 +51,9 @@ from lightcurve_gp.observed.run import nis_summary
 from lightcurve_gp.photometry.shapes import facets_from_config
 from lightcurve_gp.photometry.symmetry import symmetry_quaternions
 from lightcurve_gp.simulation.scenario import simulate_scenario
-from lightcurve_gp.sweep.store import read_case, write_case
+from lightcurve_gp.sweep.store import resume_case
 from lightcurve_gp.training.store import model_key
 
-ROOT = Path(__file__).resolve().parents[1]
 RHO_CYCLE = (0.3, 0.4, 0.6, 0.7)
 FORMAT = 3
 PRUNE_GRID_S = (30.0, 60.0, 120.0)
@@ -153,12 +152,17 @@ def truth_start_scores(cfg, model, sc, bank, window) -> dict:
                 (window_scores(sc.q_true[0], truth.q_est, sc.times, window)["median_abs"][0] < 10).all())}
 
 
-def case_path(args, cfg, seed: int) -> Path:
-    key = config_hash(cfg, "scenario", "filter", "evaluation", extra={
+def case_key(args, cfg, seed: int) -> str:
+    """Content hash of one seed's case: the sections it reads, the model, the seed and the bank's settings."""
+    return config_hash(cfg, "scenario", "filter", "evaluation", extra={
         "experiment": "global_start", "format": FORMAT, "seed": seed, "bank": args.bank_size, "keep": args.keep,
         "model": model_key(cfg), "prune": None if args.prune_after_s is None else [args.prune_after_s, args.prune_keep],
         "prune_study": args.prune_study})
-    return args.runs / "global_start" / "cases" / f"{key}.json"
+
+
+def seed_case(cfg_path: str, seed: int, model, args) -> tuple[dict, list]:
+    """One seed's case for the store: its row (:func:`run_seed`) as the summary, no per-seed metric rows."""
+    return {"row": run_seed(cfg_path, seed, model, args)}, []
 
 
 def report(rows: list[dict], args, command: str, wall: float) -> str:
@@ -206,7 +210,7 @@ def report(rows: list[dict], args, command: str, wall: float) -> str:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--config", default=str(ROOT / "configs/boxwing_robust.yaml"))
+    p.add_argument("--config", default=str(ROBUST_CONFIG))
     p.add_argument("--seeds", default="0:100", type=seed_range, help="FIRST:END")
     p.add_argument("--bank-size", type=int, default=1024)
     p.add_argument("--keep", type=int, default=5)
@@ -232,23 +236,17 @@ def main(argv=None) -> int:
         return 2
     torch.set_num_threads(args.threads)
     model = trained_model(cfg, args.runs).to(args.device)
-    command = "python -m experiments.global_start " + " ".join(sys.argv[1:] if argv is None else argv)
+    command = command_line("global_start", sys.argv[1:] if argv is None else argv)
     start, rows = time.perf_counter(), []
     for seed in tqdm(args.seeds, desc="seeds", unit="seed"):
-        path = case_path(args, cfg, seed)
-        record = read_case(path)
-        if record is None or not record.ok:
-            t0 = time.perf_counter()
-            row = run_seed(args.config, seed, model, args)
-            record = CaseRecord(case_id=path.stem, values={"experiment": "global_start"}, seeds=[seed],
-                                estimators=["bank"], summary={"row": row}, seconds=time.perf_counter() - t0)
-            write_case(record, path)
+        record, _ = resume_case(args.runs / "global_start", case_key(args, cfg, seed),
+                                functools.partial(seed_case, args.config, seed, model, args),
+                                values={"experiment": "global_start"}, seeds=[seed], estimators=["bank"])
         rows.append(record.summary["row"])
     text = report(rows, args, command, time.perf_counter() - start)
-    write_text_atomic(text, args.out / "summary.md")
-    write_json_atomic({"command": command, "rows": rows}, args.out / "summary.json")
-    write_text_atomic(csv_text([{k: v for k, v in r.items() if k not in ("q0_true", "prune_study")} for r in rows]),
-                      args.out / "per_seed.csv")
+    table = [{k: v for k, v in r.items() if k not in ("q0_true", "prune_study")} for r in rows]
+    write_outputs(args.out, {"summary.md": text, "summary.json": {"command": command, "rows": rows},
+                             "per_seed.csv": csv_text(table)})
     print(text)
     return 0
 

@@ -22,16 +22,21 @@ from pathlib import Path
 
 import torch
 
-from experiments._models import trained_model
-from experiments.generalization import SUITE_ESTIMATORS, registry_name, seed_range, truth_draw
+from experiments.common import (
+    ROBUST_CONFIG,
+    ROOT,
+    SUITE_ESTIMATORS,
+    registry_name,
+    seed_range,
+    trained_model,
+    truth_draw,
+)
 from lightcurve_gp.config.load import ConfigError, load_config
 from lightcurve_gp.evaluation.harness import run_estimators
 from lightcurve_gp.evaluation.reporting import markdown_table
 from lightcurve_gp.evaluation.scoring import nees_band
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_truths
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def parse_candidate(text: str) -> tuple[str, list[str]]:
@@ -53,7 +58,7 @@ def candidate_row(scored, band) -> dict[str, float]:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("candidates", nargs="+", help="estimator[@key=value...] (config overrides of the candidate)")
-    p.add_argument("--config", default=str(ROOT / "configs/boxwing_robust.yaml"))
+    p.add_argument("--config", default=str(ROBUST_CONFIG))
     p.add_argument("--blocks", default="1000:1100", help="comma-separated FIRST:END seed ranges (tuning seeds)")
     p.add_argument("--paper-rho", type=float, default=None,
                    help="run the blocks on the paper's case with this true rho (the suite's paper block) instead of "

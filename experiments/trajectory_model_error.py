@@ -18,14 +18,12 @@ from pathlib import Path
 
 import torch
 
-from experiments._models import trained_model
+from experiments.common import ROOT, trained_model
 from lightcurve_gp.config.load import ConfigError, load_config
 from lightcurve_gp.evaluation.reporting import markdown_table
 from lightcurve_gp.observation.along_pass import bind_geometry
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def trajectory_error_row(cfg, model) -> list[str]:

@@ -23,7 +23,7 @@ from lightcurve_gp.files import atomic_path
 
 __all__ = ["save_figure", "prediction_scatter", "residual_histogram", "euler_errors", "light_curves", "rmse_boxplot",
            "ESTIMATOR_COLORS", "ESTIMATOR_LABELS", "SUCCESS_DEG", "estimator_label", "plain_log_ticks",
-           "target_quantity"]
+           "target_quantity", "error_bands"]
 
 #: paper colours: GPUKF blue, conventional UKF red, truth black; the extra baselines get their own
 ESTIMATOR_COLORS = {"gpukf": "tab:blue", "ukf": "tab:red", "truth": "black", "matched_ukf": "tab:green",
@@ -184,4 +184,35 @@ def rmse_boxplot(rmse: Mapping[str, object], path: str | Path, title: str = "") 
     fig.legend(loc="outside lower center", frameon=False, fontsize=8)
     if title:
         fig.suptitle(title, fontsize=10)
+    return save_figure(fig, path)
+
+
+def error_bands(traces: Mapping[str, object], estimators: Sequence[str], path: str | Path) -> Path:
+    """One seed's filter errors with their ±3σ bands: top row the GRP attitude error per body axis (deg, ≈ rotation
+    vector), bottom row the body-rate error (deg/s); each estimator's error a line, its ±3σ a band.
+
+    ``traces`` is a sweep case record's (:attr:`lightcurve_gp.evaluation.reporting.CaseRecord.traces`: ``seed``,
+    ``times`` and per estimator ``attitude_error_deg``, ``attitude_sigma_deg``, ``omega_error_deg_s`` and, where
+    the filter estimates ω, ``omega_sigma_deg_s``, each ``(T, 3)``); an estimator without a row's σ is left out
+    of that row.
+    """
+    t = _np(traces["times"])
+    fig = Figure(figsize=(12, 5.5), layout="constrained")
+    axes = fig.subplots(2, 3, sharex=True)
+    rows = (("attitude_error_deg", "attitude_sigma_deg", "attitude error {} (deg)"),
+            ("omega_error_deg_s", "omega_sigma_deg_s", "rate error {} (deg/s)"))
+    for r, (err_key, sig_key, label) in enumerate(rows):
+        for name in estimators:
+            if name not in traces.get(sig_key, {}):
+                continue
+            err, sig = _np(traces[err_key][name]), _np(traces[sig_key][name])
+            color = ESTIMATOR_COLORS.get(name, "gray")
+            for i, ax in enumerate(axes[r]):
+                ax.fill_between(t, -3 * sig[:, i], 3 * sig[:, i], color=color, alpha=0.15, linewidth=0)
+                ax.plot(t, err[:, i], color=color, linewidth=0.9, label=name if i == 0 else None)
+                ax.set_ylabel(label.format("xyz"[i]))
+        axes[r][0].legend(fontsize=8)
+    for ax in axes[1]:
+        ax.set_xlabel("time (s)")
+    fig.suptitle(f"seed {traces['seed']}: errors and ±3σ bands")
     return save_figure(fig, path)
