@@ -143,7 +143,7 @@ def chi2_band(dof: int, n_samples: int, confidence: float = 0.95) -> tuple[float
     ``n · mean ~ χ²(n · dof)``, so the band is ``χ²⁻¹((1 ∓ c)/2; n dof) / n``; consistent NEES/NIS averages fall
     inside it with probability ``confidence``.
     """
-    from scipy.stats import chi2
+    from scipy.stats import chi2  # scipy.stats takes ~2 s to import: only the bands need it
 
     if dof < 1 or n_samples < 1 or not 0.0 < confidence < 1.0:
         raise ValueError(f"need dof >= 1, n_samples >= 1, 0 < confidence < 1; got {dof}, {n_samples}, {confidence}")

@@ -34,7 +34,7 @@ def icosphere_axes(subdivisions: int = 3, dtype: torch.dtype | None = None, devi
     """
     if isinstance(subdivisions, bool) or not isinstance(subdivisions, Integral) or subdivisions < 0:
         raise ValueError(f"subdivisions must be an integer >= 0, got {subdivisions!r}")
-    import trimesh
+    import trimesh  # 1.3 s to import: only the training grid needs it
 
     verts = torch.as_tensor(trimesh.creation.icosphere(subdivisions=int(subdivisions), radius=1.0).vertices,
                             dtype=torch.float64)

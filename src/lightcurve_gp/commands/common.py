@@ -34,6 +34,11 @@ from typing import Any, Callable
 import torch
 from tqdm.auto import tqdm
 
+from lightcurve_gp import __version__
+from lightcurve_gp.config.load import ConfigError, config_to_dict
+from lightcurve_gp.observation.serialization import ModelFileError
+from lightcurve_gp.observed.lightcurve_file import LightCurveFileError
+
 __all__ = ["DEFAULT_THREADS", "UserError", "Interrupted", "add_common_arguments", "apply_threads",
            "progress_enabled", "check_output_root", "check_new_folder", "check_overrides", "available_memory",
            "format_bytes", "run_interruptible", "run_command", "exit_process", "provenance"]
@@ -174,10 +179,6 @@ def run_interruptible(fn: Callable[[], Any], *, status: str = "", progress: bool
 
 def run_command(body: Callable[[], int], *, debug: bool) -> int:
     """Run a command's body with the error policy of the module docstring; returns the exit code."""
-    from lightcurve_gp.config.load import ConfigError
-    from lightcurve_gp.observation.serialization import ModelFileError
-    from lightcurve_gp.observed.lightcurve_file import LightCurveFileError
-
     try:
         return body()
     except (UserError, ConfigError, ModelFileError, LightCurveFileError) as exc:
@@ -214,9 +215,6 @@ def exit_process(code: int) -> None:
 def provenance(cfg, seeds: list[int] | None = None, **extra: Any) -> dict:
     """What a run's ``results.json`` / ``metrics.json`` records to be repeated: the command line, the exact config
     (as a dict), the package, torch and Python versions, the thread count, the seeds and ``extra``."""
-    from lightcurve_gp import __version__
-    from lightcurve_gp.config.load import config_to_dict
-
     return {"command": shlex.join([Path(sys.orig_argv[0]).name, *sys.orig_argv[1:]]),
             "working_directory": os.getcwd(), "config": config_to_dict(cfg), "package_version": __version__,
             "torch_version": torch.__version__, "python_version": sys.version.split()[0],

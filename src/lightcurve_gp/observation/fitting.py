@@ -11,7 +11,7 @@ adds a matrix of entries up to ``N θ1²/σ²`` to one whose small eigenvalues c
 the first (about 1e-7 of each entry) already makes the sum indefinite on the robust config's data.
 Both run :func:`maximise_mll` (Adam, or L-BFGS for the sparse GP's ``model.sparse.optimizer``)
 with a progress bar. GPyTorch is used for fitting only; predictions are plain torch on cached tensors
-(:mod:`.exact_gp`, :mod:`.sparse_gp`). That is why ``gpytorch`` (and tqdm) are imported inside the functions that
+(:mod:`.exact_gp`, :mod:`.sparse_gp`). That is why ``gpytorch`` is imported inside the functions that
 fit: a command that only loads a trained model, simulates or filters never pays gpytorch's import (0.3–0.8 s).
 """
 
@@ -23,6 +23,7 @@ from typing import Any
 
 import torch
 from torch import Tensor
+from tqdm.auto import tqdm
 
 from lightcurve_gp.observation.kernels import theta2_to_lengthscale
 
@@ -216,7 +217,6 @@ def maximise_mll(model, likelihood, x: Tensor, y: Tensor, params: list, *, itera
     with the current value. ``objective``, when given, is maximised instead of GPyTorch's
     ``ExactMarginalLogLikelihood`` (the same bound in another form, :func:`gram_bound`, over the same parameters)."""
     import gpytorch
-    from tqdm.auto import tqdm
 
     if optimizer not in ("adam", "lbfgs"):
         raise ValueError(f"optimizer must be adam or lbfgs, got {optimizer!r}")

@@ -36,6 +36,7 @@ import numpy as np
 import yaml
 from astropy.table import Table
 from astropy.time import Time, TimeDelta
+from sgp4.api import Satrec
 
 from lightcurve_gp.files import atomic_path
 from lightcurve_gp.observed.times import (
@@ -296,7 +297,6 @@ def _geometry(table: Table, path: Path, where: _Locator) -> dict[str, np.ndarray
 
 def tle_epoch(line1: str, line2: str, path: Path | str = "") -> Time:
     """UTC epoch of a TLE after checking its two lines (numbers, lengths, checksums, parse by sgp4)."""
-    from sgp4.api import Satrec
 
     for number, line in ((1, line1), (2, line2)):
         try:

@@ -20,6 +20,7 @@ with the config's fixed Sun and observer.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -140,7 +141,6 @@ def estimate_light_curve(cfg, model, lc: LightCurve, *, initial_attitude: Tensor
     """The GPUKF of ``cfg`` on ``lc``: from ``initial_attitude (4,)`` when given, else from the best member of a
     bank of ``bank_size`` filters (the best ``keep`` are rerun with the config's settings; with ``prune_after_s``
     only the best ``prune_keep`` run past the samples of the first ``prune_after_s`` seconds)."""
-    import time
 
     check_model_takes_geometry(model, lc)
     geometry = file_geometry(lc)

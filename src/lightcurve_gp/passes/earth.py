@@ -12,7 +12,8 @@ every sample. Positions agree with astropy's direct transforms to far below a me
 
 IERS data come from the ``astropy-iers-data`` package; automatic downloads are switched off inside
 :func:`no_downloads` (a time past the bundled tables uses their last values, with astropy's warning).
-Units: km, seconds, radians.
+Units: km, seconds, radians. astropy's coordinates and ERFA (about a second to import) are imported inside the
+functions that use them, so that runs under the fixed geometry never load them.
 """
 
 from __future__ import annotations

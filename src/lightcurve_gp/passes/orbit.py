@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from sgp4.api import Satrec
 
 from lightcurve_gp.config.parsing import check_tle, parse_utc
 from lightcurve_gp.passes.earth import TimeGrid, teme_to_gcrs
@@ -26,7 +27,6 @@ MU_EARTH_KM3_S2 = 398600.4418
 
 def satellite_from_tle(lines: list[str]):
     """An ``sgp4.api.Satrec`` from two checked TLE lines (``ValueError`` naming the line otherwise)."""
-    from sgp4.api import Satrec
 
     for i, line in enumerate(lines):
         check_tle(line, i + 1)
