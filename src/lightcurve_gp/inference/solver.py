@@ -1,0 +1,291 @@
+"""Batched nonlinear least squares: Gauss–Newton and Levenberg–Marquardt over ``B`` independent problems at once.
+
+Problem ``b`` has the state ``x_b (n,)``, whitened residuals ``r_b(x_b) (m,)`` (for a measurement ``y`` with
+standard deviation ``σ`` and a prediction ``h(x)``: ``r = (y − h(x)) / σ``) and optionally a Gaussian prior
+``x_b ~ N(μ_b, Λ_b⁻¹)``. The solver minimises, per problem,
+
+    cost(x) = ½ Σ_k r_k(x)² + ½ (x − μ)ᵀ Λ (x − μ)
+
+(the negative log posterior up to a constant). A non-finite residual (a missing sample, NaN) is left out: of the
+cost, and of the normal equations together with its Jacobian row. ``invalid_residual`` instead charges every
+non-finite residual as ``invalid_residual`` in the cost, so a step into a region where the model fails is rejected.
+
+Each iteration linearises the active problems (:func:`~lightcurve_gp.inference.jacobian.jacobian`) and solves the
+normal equations ``(JᵀJ + Λ) dx = −(Jᵀr + Λ(x − μ))``:
+
+* ``"gauss_newton"`` takes the step; with ``halvings > 0`` it backtracks, taking the longest ``dx / 2^k``
+  (``k ≤ halvings``) that does not raise the cost (no step if none);
+* ``"levenberg_marquardt"`` solves with Marquardt's scaled damping ``JᵀJ + Λ + λ diag(JᵀJ + Λ)``, takes the step
+  when it lowers the cost (then ``λ ← λ / damping_down``), else keeps the state (``λ ← λ · damping_up``); ``λ`` is
+  per problem.
+
+A problem stops (and costs nothing more) once every component of its proposed step is within ``tolerance``
+(a number or one per coordinate, in the units of ``x``; ``inf`` ignores a coordinate), or, with Levenberg–Marquardt,
+once its damping reaches ``damping_max`` (no step lowers the cost any more); both count as converged. The Laplace
+approximation of the posterior covariance is ``(JᵀJ + Λ)⁻¹`` at the solution (NaN where that matrix is singular).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import torch
+from torch import Tensor
+
+from lightcurve_gp.inference.jacobian import JacobianMethod, ResidualFunction, jacobian
+
+__all__ = ["GaussianPrior", "LeastSquaresOptions", "LeastSquaresResult", "batch_least_squares", "least_squares_cost"]
+
+
+@dataclass(frozen=True)
+class GaussianPrior:
+    """``x ~ N(mean, precision⁻¹)`` for every problem.
+
+    Attributes:
+        mean: ``(B, n)`` per problem or ``(n,)`` shared (units of ``x``).
+        precision: the information matrix ``Λ``, ``(B, n, n)`` per problem or ``(n, n)`` shared (inverse units²).
+    """
+
+    mean: Tensor
+    precision: Tensor
+
+    def __post_init__(self) -> None:
+        n = self.mean.shape[-1]
+        if self.mean.ndim not in (1, 2) or self.precision.ndim != self.mean.ndim + 1 \
+                or self.precision.shape[-2:] != (n, n):
+            raise ValueError(f"prior: mean {tuple(self.mean.shape)} and precision {tuple(self.precision.shape)} must "
+                             "be (n,) and (n, n), or (B, n) and (B, n, n)")
+
+    @classmethod
+    def diagonal(cls, mean: Tensor, precision: Tensor) -> "GaussianPrior":
+        """Independent coordinates: ``precision`` the diagonal of ``Λ``, ``(B, n)`` or ``(n,)`` like ``mean``."""
+        return cls(mean, torch.diag_embed(precision.expand_as(mean)))
+
+    @classmethod
+    def from_sqrt_information(cls, mean: Tensor, root: Tensor) -> "GaussianPrior":
+        """``Λ = RᵀR`` from a square root ``R`` ``(B, n, n)`` or ``(n, n)`` (e.g. the upper Cholesky factor): the
+        prior's whitened residual is ``R (x − mean)``."""
+        return cls(mean, root.mT @ root)
+
+    def rows(self, rows: Tensor) -> tuple[Tensor, Tensor]:
+        """Mean ``(A, n)`` and precision ``(A, n, n)`` of the problems ``rows (A,)``."""
+        A = rows.shape[0]
+        if self.mean.ndim == 1:
+            return self.mean.expand(A, -1), self.precision.expand(A, -1, -1)
+        return self.mean[rows], self.precision[rows]
+
+
+@dataclass(frozen=True)
+class LeastSquaresOptions:
+    """How :func:`batch_least_squares` iterates (module docstring).
+
+    Attributes:
+        method: ``"gauss_newton"`` or ``"levenberg_marquardt"``.
+        iterations: linearisations per problem at most.
+        tolerance: a problem stops once every ``|dx_i| ≤ tolerance_i``: a number or ``(n,)`` (units of ``x``).
+        jacobian: ``"forward_mode"``, ``"central"`` or ``"forward_difference"``
+            (:mod:`~lightcurve_gp.inference.jacobian`); ``step``: the finite-difference step, a number or ``(n,)``.
+        halvings: Gauss–Newton backtracking: step halvings per iteration at most (0: the plain step).
+        damping: Levenberg–Marquardt's initial ``λ``; ``damping_down``, ``damping_up`` its factors after an accepted
+            and a rejected step; ``damping_max`` where a problem stops.
+        invalid_residual: what a non-finite residual counts in the cost (whitened units); ``None``: left out.
+        covariance: ``"solution"``: ``(JᵀJ + Λ)⁻¹`` linearised at the returned state (one more Jacobian);
+            ``"last_linearization"``: at the state of each problem's last iteration (before its last step, no extra
+            evaluation); ``"none"``.
+    """
+
+    method: Literal["gauss_newton", "levenberg_marquardt"] = "levenberg_marquardt"
+    iterations: int = 20
+    tolerance: float | Tensor = 1e-9
+    jacobian: JacobianMethod = "central"
+    step: float | Tensor = 1e-6
+    halvings: int = 0
+    damping: float = 1e-3
+    damping_down: float = 3.0
+    damping_up: float = 4.0
+    damping_max: float = 1e6
+    invalid_residual: float | None = None
+    covariance: Literal["solution", "last_linearization", "none"] = "solution"
+
+    def __post_init__(self) -> None:
+        if self.method not in ("gauss_newton", "levenberg_marquardt"):
+            raise ValueError(f"method: {self.method!r} is not 'gauss_newton' or 'levenberg_marquardt'")
+        if self.covariance not in ("solution", "last_linearization", "none"):
+            raise ValueError(f"covariance: {self.covariance!r} is not 'solution', 'last_linearization' or 'none'")
+        if self.iterations < 0 or self.halvings < 0:
+            raise ValueError(f"iterations: {self.iterations}, halvings: {self.halvings} must be >= 0")
+
+
+@dataclass(frozen=True)
+class LeastSquaresResult:
+    """What :func:`batch_least_squares` returns for ``B`` problems of ``n`` states.
+
+    Attributes:
+        x: the states ``(B, n)``.
+        cost: ``½ |r|² + ½ (x − μ)ᵀ Λ (x − μ)`` at ``x`` ``(B,)``.
+        iterations: linearisations each problem took ``(B,)`` (int64).
+        converged: whether it stopped before the iteration limit ``(B,)`` (bool).
+        information: ``JᵀJ + Λ`` ``(B, n, n)`` where the covariance was taken (``None`` with ``covariance="none"``).
+        covariance: its inverse, the Laplace approximation of the posterior covariance ``(B, n, n)`` (units of
+            ``x`` squared; NaN where singular), or ``None``.
+    """
+
+    x: Tensor
+    cost: Tensor
+    iterations: Tensor
+    converged: Tensor
+    information: Tensor | None
+    covariance: Tensor | None
+
+
+def least_squares_cost(r: Tensor, x: Tensor, prior: tuple[Tensor, Tensor] | None, *,
+                       invalid_residual: float | None = None) -> Tensor:
+    """``½ Σ r² + ½ (x − μ)ᵀ Λ (x − μ)`` ``(A,)`` of residuals ``r (A, m)`` at states ``x (A, n)``, ``prior`` the
+    mean ``(A, n)`` and precision ``(A, n, n)`` of those rows (or ``None``); non-finite residuals as the module
+    docstring says."""
+    fill = 0.0 if invalid_residual is None else float(invalid_residual)
+    r = torch.where(torch.isfinite(r), r, torch.full_like(r, fill))
+    total = (r * r).sum(-1)
+    if prior is not None:
+        delta = x - prior[0]
+        total = total + (delta * (prior[1] @ delta.unsqueeze(-1)).squeeze(-1)).sum(-1)
+    return 0.5 * total
+
+
+def _normal_equations(r: Tensor, J: Tensor, x: Tensor, prior: tuple[Tensor, Tensor] | None) -> tuple[Tensor, Tensor]:
+    """``JᵀJ + Λ`` ``(A, n, n)`` and ``−(Jᵀr + Λ(x − μ))`` ``(A, n)``, non-finite residual rows left out."""
+    ok = torch.isfinite(r) & torch.isfinite(J).all(-1)
+    r, J = torch.where(ok, r, 0.0), torch.where(ok.unsqueeze(-1), J, 0.0)
+    H = J.mT @ J
+    g = -(J.mT @ r.unsqueeze(-1)).squeeze(-1)
+    if prior is not None:
+        H = H + prior[1]
+        g = g - (prior[1] @ (x - prior[0]).unsqueeze(-1)).squeeze(-1)
+    return H, g
+
+
+class _Iteration:
+    """The fixed parts of one solve: the residual, the prior, the options and the per-coordinate tolerance."""
+
+    def __init__(self, residual: ResidualFunction, prior: GaussianPrior | None, options: LeastSquaresOptions,
+                 like: Tensor) -> None:
+        self.residual, self.prior, self.options = residual, prior, options
+        self.tolerance = torch.as_tensor(options.tolerance, dtype=like.dtype, device=like.device).expand(like.shape[-1])
+
+    def prior_rows(self, rows: Tensor) -> tuple[Tensor, Tensor] | None:
+        return None if self.prior is None else self.prior.rows(rows)
+
+    def cost(self, x: Tensor, rows: Tensor, r: Tensor | None = None) -> Tensor:
+        """Cost ``(A,)`` of states ``x (A, n)`` of problems ``rows`` (``r``: their residuals, if known)."""
+        r = self.residual(x, rows) if r is None else r
+        return least_squares_cost(r, x, self.prior_rows(rows), invalid_residual=self.options.invalid_residual)
+
+    def linearize(self, x: Tensor, rows: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """Residuals ``(A, m)``, ``JᵀJ + Λ`` ``(A, n, n)`` and the right-hand side ``(A, n)`` at ``x (A, n)``."""
+        r, J = jacobian(self.residual, x, rows, method=self.options.jacobian, step=self.options.step)
+        H, g = _normal_equations(r, J, x, self.prior_rows(rows))
+        return r, H, g
+
+    def small(self, dx: Tensor) -> Tensor:
+        """Whether every component of the steps ``dx (A, n)`` is within the tolerance ``(A,)``."""
+        return (dx.abs() <= self.tolerance).all(-1)
+
+    def backtrack(self, x: Tensor, dx: Tensor, rows: Tensor, cost_now: Tensor) -> Tensor:
+        """Per problem the longest ``dx / 2^k`` (``k ≤ halvings``) that does not raise the cost; zero if none."""
+        out, pending = torch.zeros_like(dx), torch.ones(x.shape[0], dtype=torch.bool, device=x.device)
+        for k in range(self.options.halvings + 1):
+            idx = pending.nonzero().squeeze(-1)
+            trial = dx[idx] / 2 ** k
+            ok = self.cost(x[idx] + trial, rows[idx]) <= cost_now[idx]
+            out[idx[ok]], pending[idx[ok]] = trial[ok], False
+            if not bool(pending.any()):
+                break
+        return out
+
+
+def _gauss_newton(it: _Iteration, x: Tensor, rows: Tensor, r: Tensor, H: Tensor, g: Tensor
+                  ) -> tuple[Tensor, Tensor, Tensor]:
+    """One Gauss–Newton step of the problems ``rows``: their new states ``(A, n)``, stop and converged flags."""
+    dx, info = torch.linalg.solve_ex(H, g)
+    failed = info != 0
+    dx = torch.where(failed.unsqueeze(-1), torch.zeros_like(dx), dx)
+    if it.options.halvings:
+        dx = it.backtrack(x, dx, rows, it.cost(x, rows, r))
+    converged = it.small(dx) & ~failed
+    return x + dx, converged | failed, converged
+
+
+def _levenberg_marquardt(it: _Iteration, x: Tensor, rows: Tensor, H: Tensor, g: Tensor, cost: Tensor,
+                         damping: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """One Levenberg–Marquardt trial of the problems ``rows``: new states, costs, dampings and stop flags (a stop
+    is a convergence: the step is small or no step lowers the cost)."""
+    o = it.options
+    scaled = H + torch.diag_embed(damping.unsqueeze(-1) * torch.diagonal(H, dim1=-2, dim2=-1))
+    dx, info = torch.linalg.solve_ex(scaled, g)
+    failed = info != 0
+    dx = torch.where(failed.unsqueeze(-1), torch.zeros_like(dx), dx)
+    trial = it.cost(x + dx, rows)
+    better = (trial < cost) & ~failed
+    x = torch.where(better.unsqueeze(-1), x + dx, x)
+    cost = torch.where(better, trial, cost)
+    damping = torch.where(better, damping / o.damping_down, damping * o.damping_up)
+    stop = (it.small(dx) & ~failed) | (damping >= o.damping_max)
+    return x, cost, damping, stop
+
+
+def batch_least_squares(residual: ResidualFunction, x0: Tensor, *, prior: GaussianPrior | None = None,
+                        options: LeastSquaresOptions = LeastSquaresOptions()) -> LeastSquaresResult:
+    """Minimise ``½ |r(x)|² + ½ (x − μ)ᵀ Λ (x − μ)`` for ``B`` problems at once (module docstring).
+
+    Args:
+        residual: ``residual(x (A, n), rows (A,)) → (A, m)`` whitened residuals of the problems ``rows`` (see
+            :mod:`~lightcurve_gp.inference.jacobian`); NaN marks a left-out sample.
+        x0: starting states ``(B, n)`` (not modified).
+        prior: the Gaussian prior, or ``None`` (the data alone).
+        options: the method, stopping rule, Jacobian and covariance (:class:`LeastSquaresOptions`).
+
+    Returns:
+        :class:`LeastSquaresResult`.
+    """
+    B, n = x0.shape
+    it, x = _Iteration(residual, prior, options, x0), x0.clone()
+    every = torch.arange(B, device=x0.device)
+    active = torch.ones(B, dtype=torch.bool, device=x0.device)
+    iterations = torch.zeros(B, dtype=torch.int64, device=x0.device)
+    converged = torch.zeros_like(active)
+    information = torch.full((B, n, n), torch.nan, dtype=x0.dtype, device=x0.device)
+    lm = options.method == "levenberg_marquardt"
+    cost = it.cost(x, every) if lm else None
+    damping = torch.full((B,), options.damping, dtype=x0.dtype, device=x0.device)
+    for _ in range(options.iterations):
+        rows = active.nonzero().squeeze(-1)
+        if rows.numel() == 0:
+            break
+        r, H, g = it.linearize(x[rows], rows)
+        information[rows], iterations[rows] = H, iterations[rows] + 1
+        if lm:
+            x[rows], cost[rows], damping[rows], stop = _levenberg_marquardt(it, x[rows], rows, H, g, cost[rows],
+                                                                           damping[rows])
+            done = stop
+        else:
+            x[rows], stop, done = _gauss_newton(it, x[rows], rows, r, H, g)
+        active[rows], converged[rows] = ~stop, done
+    return _finish(it, x, every, iterations, converged, information)
+
+
+def _finish(it: _Iteration, x: Tensor, every: Tensor, iterations: Tensor, converged: Tensor,
+            information: Tensor) -> LeastSquaresResult:
+    """The result: the cost at ``x`` and the Laplace covariance where the options ask for it."""
+    how = it.options.covariance
+    if how == "solution" or (how == "last_linearization" and bool((iterations == 0).any())):
+        r, H, _ = it.linearize(x, every)
+        information = H if how == "solution" else torch.where((iterations == 0)[:, None, None], H, information)
+    else:
+        r = it.residual(x, every)
+    cost = it.cost(x, every, r)
+    if how == "none":
+        return LeastSquaresResult(x, cost, iterations, converged, None, None)
+    covariance, info = torch.linalg.inv_ex(information)
+    covariance = torch.where((info != 0)[:, None, None], torch.nan, covariance)
+    return LeastSquaresResult(x, cost, iterations, converged, information, covariance)
