@@ -1,11 +1,11 @@
 """Families of inversion solutions: clustered modulo the exact ambiguity group, cut by likelihood ratio, weighted by
 their Laplace evidence.
 
-Distance between two solutions ``(q_a, ω_a)`` and ``(q_b, ω_b)`` (initial attitude and body rate): over the images
-``(q_R ⊗ q_b ⊗ q_C, R ω_b)`` of :class:`~lightcurve_gp.photometry.ambiguity.AmbiguityGroup`, the one that minimises
-``angle / angle_deg + |Δω| / rate_deg_s`` — its attitude angle (deg) and rate difference (deg/s). Solutions within
-``angle_deg`` and ``rate_deg_s`` of a better one join its family (greedy, best cost first); the family is its best
-member.
+Two solutions ``(q_a, ω_a)`` and ``(q_b, ω_b)`` (initial attitude and body rate) are one when an image
+``(q_R ⊗ q_b ⊗ q_C, R ω_b)`` of :class:`~lightcurve_gp.photometry.ambiguity.AmbiguityGroup` lies within
+``angle_deg`` of ``q_a`` and ``rate_deg_s`` of ``ω_a``; families are formed greedily, best cost first, and a
+family is its best member. :func:`image_distance` scores an estimate against a truth the same way (the image that
+minimises ``angle / angle_deg + |Δω| / rate_deg_s``).
 
 Weights. With the cost ``c = ½ Σ r²`` (whitened residuals) the log-likelihood is ``ℓ = −c − Σ ln(√(2π) σ_k)``; a
 family's Laplace evidence under a uniform prior of volume ``V`` over the state ``[θ, ω, ln ρ]`` (SO(3) with its Haar
@@ -48,23 +48,38 @@ def image_distance(group: AmbiguityGroup, q_a: Tensor, omega_a: Tensor, q_b: Ten
     return pick(angle), pick(rate), best
 
 
+def _neighbours(group: AmbiguityGroup, q0: Tensor, omega0: Tensor, angle_deg: float, rate_deg_s: float,
+                chunk: int = 256) -> Tensor:
+    """``(M, M)`` bool: some image of ``j`` lies within ``angle_deg`` and ``rate_deg_s`` of ``i``; the attitude angle
+    from quaternion dot products (``cos(angle/2) = |⟨q_i, q_img⟩|``), the rate difference from distances."""
+    q_img, w_img = group.attitudes(q0), group.rates(omega0)  # (K, M, 4), (K, M, 3)
+    cos_half = math.cos(math.radians(angle_deg) / 2.0)
+    rate_rad = math.radians(rate_deg_s)
+    rows = []
+    for part in torch.arange(q0.shape[0], device=q0.device).split(chunk):
+        dots = torch.einsum("ia,kja->kij", q0[part], q_img).abs()  # (K, c, M)
+        dist = torch.cdist(omega0[part].unsqueeze(0).expand(len(group), -1, -1), w_img)  # (K, c, M)
+        rows.append(((dots >= cos_half) & (dist <= rate_rad)).any(0))
+    return torch.cat(rows)
+
+
 def cluster(group: AmbiguityGroup, q0: Tensor, omega0: Tensor, cost: Tensor, *, angle_deg: float = 5.0,
             rate_deg_s: float = 0.05) -> tuple[Tensor, Tensor]:
-    """Greedy clustering of solutions ``q0 (M, 4)``, ``omega0 (M, 3)`` (rad/s) by ``cost (M,)`` modulo ``group``.
+    """Greedy clustering of solutions ``q0 (M, 4)``, ``omega0 (M, 3)`` (rad/s) by ``cost (M,)`` modulo ``group``:
+    the best free solution heads a family that takes every free solution with an image within ``angle_deg`` and
+    ``rate_deg_s`` of it.
 
     Returns:
         ``labels (M,)`` (the family of each solution, 0 the best) and ``heads (F,)`` (each family's best member).
     """
-    order = torch.argsort(cost)
-    labels = torch.full_like(order, -1)
+    near = _neighbours(group, q0, omega0, angle_deg, rate_deg_s)
+    order = torch.argsort(cost).tolist()
+    labels = torch.full((q0.shape[0],), -1, dtype=torch.long, device=q0.device)
     heads = []
-    for i in order.tolist():
+    for i in order:
         if labels[i] >= 0:
             continue
-        free = (labels < 0).nonzero().squeeze(-1)
-        angle, rate, _ = image_distance(group, q0[free], omega0[free], q0[i], omega0[i], angle_deg=angle_deg,
-                                        rate_deg_s=rate_deg_s)
-        labels[free[(angle <= angle_deg) & (rate <= rate_deg_s)]] = len(heads)
+        labels[near[i] & (labels < 0)] = len(heads)
         labels[i] = len(heads)
         heads.append(i)
     return labels, torch.tensor(heads, dtype=torch.long, device=q0.device)
