@@ -180,20 +180,31 @@ def _cross(a: Tensor, b: Tensor) -> Tensor:
     return torch.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
+def _product(a: Tensor, b: Tensor) -> Tensor:
+    """The toolkit's product ``a ⊗ b`` (``rotations.quat_mul``) of quaternions stored along the first dimension
+    ``(4, ...)``, written out component by component (no cross-product call, no concatenation)."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return torch.stack([aw * bx + bw * ax - (ay * bz - az * by), aw * by + bw * ay - (az * bx - ax * bz),
+                        aw * bz + bw * az - (ax * by - ay * bx), aw * bw - ax * bx - ay * by - az * bz])
+
+
 def propagate_rates(omega0: Tensor, *, inertia: Tensor, dt: float, index: Tensor) -> Tensor:
     """``Δ(t_k; ω_0)`` ``(..., K, 4)`` at the grid steps ``index (K,)`` (increasing, from 0) for rates ``ω_0 (..., 3)``
     (rad/s): the RK4 increments of :func:`~lightcurve_gp.attitude.dynamics.quaternion_increments` multiplied up,
-    normalised at every step as the toolkit's propagation does."""
+    normalised at every step as the toolkit's propagation does (components first in the loop, so that every
+    operation reads contiguous rows)."""
     n = int(index[-1])
-    delta = quaternion_increments(omega0, inertia, dt, n)  # (..., n, 4)
-    q = torch.zeros(*omega0.shape[:-1], 4, dtype=omega0.dtype, device=omega0.device)
-    q[..., 3] = 1.0
+    delta = quaternion_increments(omega0, inertia, dt, n).movedim(-1, 0).movedim(-1, 0).contiguous()  # (n, 4, ...)
+    q = torch.zeros(4, *omega0.shape[:-1], dtype=omega0.dtype, device=omega0.device)
+    q[3] = 1.0
     out = [q]
     for k in range(n):
-        q = quat_mul(delta[..., k, :], q)
-        q = q / torch.linalg.vector_norm(q, dim=-1, keepdim=True)
+        q = _product(delta[k], q)
+        q = q / torch.sqrt((q * q).sum(0, keepdim=True))
         out.append(q)
-    return torch.stack(out, -2)[..., index, :]
+    picked = torch.stack([out[i] for i in index.tolist()])  # (K, 4, ...)
+    return picked.movedim(0, -1).movedim(0, -1)
 
 
 def rate_sensitivity(omega0: Tensor, *, inertia: Tensor, dt: float, index: Tensor,

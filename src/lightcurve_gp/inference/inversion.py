@@ -52,7 +52,7 @@ class InversionSettings:
         shell_ratio: ratio of neighbouring rate shells of the log grid.
         arcs_s: arc length of each stage (s); 0 means the whole light curve.
         keep: rows entering each stage after the first (one per stage after the first).
-        iterations: Levenberg–Marquardt iterations per stage.
+        iterations: Levenberg–Marquardt iterations per stage; final_iterations: on the whole light curve (few rows).
         turn_rad: the rate prior of a stage on an arc of ``L`` s has the standard deviation ``turn_rad / L``.
         cluster_angle_deg, cluster_rate_deg_s: solutions this close modulo the group are one.
         seed: of the Sobol' attitudes.
@@ -67,6 +67,7 @@ class InversionSettings:
     arcs_s: tuple[float, ...] = (30.0, 60.0, 120.0, 240.0, 0.0)
     keep: tuple[int, ...] = (1000, 300, 100, 50)
     iterations: int = 6
+    final_iterations: int = 20
     turn_rad: float = 0.35
     cluster_angle_deg: float = 5.0
     cluster_rate_deg_s: float = 0.05
@@ -206,7 +207,7 @@ def invert(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: Inver
         whole = part.samples == problem.samples
         say(f"stage {stage + 1}/{len(settings.arcs_s)}: {x.shape[0]} rows on {part.samples} samples")
         res = _stage(part.with_anchors(anchors), x, prior_sd=None if whole else settings.turn_rad / max(arc_s, 1e-9),
-                     iterations=settings.iterations)
+                     iterations=settings.final_iterations if whole else settings.iterations)
         anchors, x = _reanchor(part.with_anchors(anchors), res.x)
         cost = res.cost
         seconds[f"stage {stage + 1}"], tick = time.perf_counter() - tick, time.perf_counter()
