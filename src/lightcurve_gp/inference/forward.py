@@ -33,7 +33,6 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from lightcurve_gp.attitude.dynamics import quaternion_increments
 from lightcurve_gp.attitude.rotations import attitude_matrix, quat_conj, quat_mul
 from lightcurve_gp.photometry.brdf import DIFFUSE_SCALE, exp_floor
 from lightcurve_gp.photometry.render import SUN_MAGNITUDE, Scene
@@ -189,18 +188,52 @@ def _product(a: Tensor, b: Tensor) -> Tensor:
                         aw * bz + bw * az - (ax * by - ay * bx), aw * bw - ax * bx - ay * by - az * bz])
 
 
+def _pure_times(w: Tensor, p: Tensor) -> Tensor:
+    """``[w; 0] ⊗ p`` (the toolkit's product) with ``w (3, ...)`` and ``p (4, ...)`` stored components first."""
+    wx, wy, wz = w
+    px, py, pz, pw = p
+    return torch.stack([pw * wx - (wy * pz - wz * py), pw * wy - (wz * px - wx * pz), pw * wz - (wx * py - wy * px),
+                        -(wx * px + wy * py + wz * pz)])
+
+
+def _rk4_step(w: Tensor, c: Tensor, dt: float) -> tuple[Tensor, Tensor]:
+    """One RK4 step of the torque-free rates ``w (3, ...)`` (``ω̇_i = c_i ω_j ω_k``, diagonal inertia) and the
+    kinematic increment ``δ (4, ...)`` with ``RK4(q) = δ ⊗ q`` — the arithmetic of
+    :func:`lightcurve_gp.attitude.dynamics.quaternion_increments`, written out components first."""
+    rate = lambda v: c * torch.stack([v[1] * v[2], v[2] * v[0], v[0] * v[1]])  # noqa: E731
+    k1 = rate(w)
+    w2 = w + (0.5 * dt) * k1
+    k2 = rate(w2)
+    w3 = w + (0.5 * dt) * k2
+    k3 = rate(w3)
+    w4 = w + dt * k3
+    k4 = rate(w4)
+    w_next = w + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    one = torch.zeros_like(w[:1]).expand(4, *w.shape[1:]).clone()
+    one[3] = 1.0
+    pure1 = torch.cat([w, torch.zeros_like(w[:1])])
+    t2 = _pure_times(w2, one + (0.25 * dt) * pure1)
+    t3 = _pure_times(w3, one + (0.25 * dt) * t2)
+    t4 = _pure_times(w4, one + (0.5 * dt) * t3)
+    return one + (dt / 12.0) * (pure1 + 2.0 * t2 + 2.0 * t3 + t4), w_next
+
+
 def propagate_rates(omega0: Tensor, *, inertia: Tensor, dt: float, index: Tensor) -> Tensor:
     """``Δ(t_k; ω_0)`` ``(..., K, 4)`` at the grid steps ``index (K,)`` (increasing, from 0) for rates ``ω_0 (..., 3)``
-    (rad/s): the RK4 increments of :func:`~lightcurve_gp.attitude.dynamics.quaternion_increments` multiplied up,
-    normalised at every step as the toolkit's propagation does (components first in the loop, so that every
-    operation reads contiguous rows)."""
-    n = int(index[-1])
-    delta = quaternion_increments(omega0, inertia, dt, n).movedim(-1, 0).movedim(-1, 0).contiguous()  # (n, 4, ...)
+    (rad/s) and principal moments ``inertia (3,)``: RK4 on the ``dt`` grid as
+    :func:`~lightcurve_gp.attitude.dynamics.propagate` (the same increments, normalised at every step), with the
+    components first so that every operation reads contiguous rows."""
+    j = torch.as_tensor(inertia, dtype=omega0.dtype, device=omega0.device)
+    if j.shape != (3,):
+        raise ValueError(f"inertia: the inversion needs the three principal moments (3,), got {tuple(j.shape)}")
+    c = ((j.roll(-1) - j.roll(-2)) / j).reshape(3, *([1] * (omega0.ndim - 1)))
+    w = omega0.movedim(-1, 0).contiguous()
     q = torch.zeros(4, *omega0.shape[:-1], dtype=omega0.dtype, device=omega0.device)
     q[3] = 1.0
     out = [q]
-    for k in range(n):
-        q = _product(delta[k], q)
+    for _ in range(int(index[-1])):
+        delta, w = _rk4_step(w, c, dt)
+        q = _product(delta, q)
         q = q / torch.sqrt((q * q).sum(0, keepdim=True))
         out.append(q)
     picked = torch.stack([out[i] for i in index.tolist()])  # (K, 4, ...)

@@ -61,12 +61,12 @@ class InversionSettings:
 
     starts: int = 10_000
     screen_factor: int = 4
-    attitudes: int = 512
+    attitudes: int = 256
     rate_range_deg_s: tuple[float, float] = (0.05, 5.0)
     shell_ratio: float = 1.5
     arcs_s: tuple[float, ...] = (30.0, 60.0, 120.0, 240.0, 0.0)
     keep: tuple[int, ...] = (1000, 300, 100, 50)
-    iterations: int = 6
+    iterations: int = 5
     final_iterations: int = 20
     turn_rad: float = 0.35
     cluster_angle_deg: float = 5.0

@@ -122,10 +122,12 @@ class TrajectoryProblem:
         ok = torch.isfinite(self.renderer.magnitude(f))
         scale = torch.where(ok, M_PER_LN / (f.clamp_min(1e-300) * self.sigma), 0.0)  # ∂r/∂f · f/… : r = (y − m)/σ
         grad = (torch.exp(x[:, 6])[:, None, None] * phot.dD + phot.dS) * scale.unsqueeze(-1)  # ∂r/∂δ_k (A, K, 3)
-        j_theta = grad.unsqueeze(-2) @ attitude_matrix(delta) @ left_jacobian(x[:, :3]).unsqueeze(-3)
-        j_omega = grad.unsqueeze(-2) @ phi
+        rot = attitude_matrix(delta)  # (A, K, 3, 3)
+        j_theta = torch.einsum("aki,akij->akj", grad, rot)
+        j_theta = torch.einsum("akj,ajl->akl", j_theta, left_jacobian(x[:, :3]))
+        j_omega = torch.einsum("aki,akij->akj", grad, phi)
         j_beta = (rho_d * scale).unsqueeze(-1)
-        return r, torch.cat([j_theta.squeeze(-2), j_omega.squeeze(-2), j_beta], -1)
+        return r, torch.cat([j_theta, j_omega, j_beta], -1)
 
     def grid_cost(self, omega: Tensor, q0: Tensor, *, chunk: int = 1 << 18) -> tuple[Tensor, Tensor]:
         """Costs ``½ Σ r²`` ``(R, A)`` and profiled ``β`` ``(R, A)`` of every rate ``omega (R, 3)`` with every initial
