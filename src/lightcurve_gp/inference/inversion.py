@@ -67,7 +67,7 @@ class InversionSettings:
     arcs_s: tuple[float, ...] = (30.0, 60.0, 120.0, 240.0, 0.0)
     keep: tuple[int, ...] = (1000, 300, 100, 50)
     iterations: int = 5
-    final_iterations: int = 20
+    final_iterations: int = 8
     turn_rad: float = 0.35
     cluster_angle_deg: float = 5.0
     cluster_rate_deg_s: float = 0.05
