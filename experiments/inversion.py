@@ -95,7 +95,7 @@ def run_seed(cfg, seed: int, sigma: float, args) -> dict:
                                 cfg.scenario.dt_s, q0[None])
     group = ambiguity_group(scene, times_s=times, inertia=inertia, rate_known=False, dt_s=cfg.scenario.dt_s)
     start = time.perf_counter()
-    inv = invert(problem, group, settings=InversionSettings(starts=args.starts))
+    inv = invert(problem, group, settings=InversionSettings(starts=args.starts, attitudes=args.attitudes))
     seconds = time.perf_counter() - start
     fam = families(group, q0=inv.q0, omega0=inv.omega0, log_rho=inv.log_rho, cost=inv.cost,
                    covariance=inv.covariance, sigma=problem.sigma, rate_max_rad_s=math.radians(5.0))
@@ -182,6 +182,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=seed_range, default=range(0, 20))
     parser.add_argument("--sigma", type=float, nargs="+", default=[0.05, 0.1])
     parser.add_argument("--starts", type=int, default=10_000)
+    parser.add_argument("--attitudes", type=int, default=InversionSettings.attitudes,
+                        help="Sobol' attitudes of the screening grid (the rest of the grid goes to rates)")
     parser.add_argument("--duration-s", type=float, default=600.0)
     parser.add_argument("--bank-size", type=int, default=0, help="filters of today's global start beside it (0: none)")
     parser.add_argument("--bank-config", default=str(ROOT / "configs" / "boxwing_robust.yaml"))
@@ -196,7 +198,8 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for sigma in args.sigma:
         for seed in tqdm(args.seeds, desc=f"{cfg.name} σ {sigma:g}"):
-            path = cases / f"{cfg.name}_s{sigma:g}_n{args.starts}_b{args.bank_size}_v{FORMAT}_{seed}.json"
+            grid = "" if args.attitudes == InversionSettings.attitudes else f"_a{args.attitudes}"
+            path = cases / f"{cfg.name}_s{sigma:g}_n{args.starts}{grid}_b{args.bank_size}_v{FORMAT}_{seed}.json"
             if path.exists():
                 rows.append(json.loads(path.read_text()))
                 continue
