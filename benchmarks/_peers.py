@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from scipy.spatial.distance import cdist
 
-__all__ = ["GPyTorchMean", "UsqueSetup", "filterpy_usque", "numpy_gpukf"]
+__all__ = ["GPyTorchMean", "UsqueSetup", "filterpy_runner", "filterpy_usque", "numpy_gpukf", "numpy_runner"]
 
 
 class UsqueSetup:
@@ -132,6 +132,26 @@ def filterpy_usque(s: UsqueSetup, render, *, q0: np.ndarray, P0: np.ndarray, obs
         ukf.x = np.zeros(3)
         out[k] = q
     return out
+
+
+def numpy_runner(setup: UsqueSetup, exact, sc, P0: torch.Tensor):
+    """``run(n_steps, seed) -> estimates (n_steps + 1, 4)`` of :func:`numpy_gpukf` with the library's ExactGP
+    ``exact`` on one filter of scenario ``sc`` (its observations of noise seed ``seed``)."""
+    gp = {"xs": exact.xs_train.numpy(), "inv_scale": 1.0 / (exact.lengthscale.numpy() * math.sqrt(2.0)),
+          "alpha": exact.alpha.numpy(), "theta1": float(exact.outputscale), "y_mean": float(exact.y_mean)}
+    obs, inc, q0, p0 = sc.observations.numpy(), sc.increments[0].numpy(), sc.q_est0[0].numpy(), P0.numpy()
+    return lambda n, seed: numpy_gpukf(setup, gp, q0=q0, P0=p0, obs=obs[seed, :n + 1], increments=inc[:n])
+
+
+def filterpy_runner(setup: UsqueSetup, scene, rho: float, sc, P0: torch.Tensor):
+    """``run(n_steps, seed)`` of :func:`filterpy_usque` with the library's renderer ``scene`` at reflectance
+    ``rho`` (as :func:`numpy_runner`)."""
+
+    def render(q: np.ndarray) -> float:
+        return float(scene.magnitude(torch.from_numpy(q).unsqueeze(0), rho=rho)[0])
+
+    obs, inc, q0, p0 = sc.observations.numpy(), sc.increments[0].numpy(), sc.q_est0[0].numpy(), P0.numpy()
+    return lambda n, seed: filterpy_usque(setup, render, q0=q0, P0=p0, obs=obs[seed, :n + 1], increments=inc[:n])
 
 
 class GPyTorchMean:

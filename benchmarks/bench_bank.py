@@ -39,7 +39,8 @@ def model_for(cfg, runs: Path):
 
 def main() -> None:
     from lightcurve_gp import load_config
-    from lightcurve_gp.filters.bank import bank_attitudes, run_filter
+    from lightcurve_gp.filters.bank import bank_attitudes
+    from lightcurve_gp.filters.setup import run_filter
     from lightcurve_gp.simulation.scenario import simulate_scenario
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -57,7 +58,7 @@ def main() -> None:
     load_before = os.getloadavg()[0]
     start = time.perf_counter()
     run_filter(cfg, model, q_est0=q0, observations=sc.observations.expand(args.bank_size, -1),
-               increments=sc.increments, variance="none")
+               increments=sc.increments[0], variance="none")
     per_step = (time.perf_counter() - start) / args.steps
     print(f"{what}; bank of {args.bank_size} filters, {args.steps} steps, {args.threads} thread(s): "
           f"{per_step:.3f} s per step (x600 steps: {600 * per_step:.0f} s); load average {load_before:.1f} -> "

@@ -77,15 +77,16 @@ class Bench:
     def add_device(self, device: str) -> None:
         import torch
 
-        from lightcurve_gp.evaluation.estimators import prior_covariance
+        from lightcurve_gp.filters.setup import prior_covariance
         from lightcurve_gp.filters.usque import initial_covariance
 
         dev, sc = torch.device(device), self.scenario
         P0 = initial_covariance(self.cfg.filter.p0_deg, dtype=self.cfg.torch_dtype, device=dev)
         rate_cfg = dataclasses.replace(self.cfg, filter=dataclasses.replace(self.cfg.filter, estimate_omega=True))
         P0_rates = prior_covariance(rate_cfg, offset=True, dtype=P0.dtype, device=dev)
-        self.tensors[device] = {"P0": P0, "P0_rates": P0_rates, "omega0": sc.omega_est0.to(dev),
-                                "obs": sc.observations.to(dev), "inc": sc.increments.to(dev), "q0": sc.q_est0.to(dev)}
+        self.tensors[device] = {"P0": P0, "P0_rates": P0_rates, "omega0": sc.omega_est0[0].to(dev),
+                                "obs": sc.observations.to(dev), "inc": sc.increments[0].to(dev),
+                                "q0": sc.q_est0[0].to(dev)}
 
     def run(self, model, params, B, n_steps, device="cpu", start=0, rates=False):
         """``B`` filters over the first ``n_steps`` steps, on the noise seeds ``start, start + 1, ...`` (cycled);

@@ -81,7 +81,7 @@ def robust_m1500(args, tab) -> None:
     import torch
 
     from lightcurve_gp.config.load import load_config
-    from lightcurve_gp.evaluation.estimators import run_offset_filter
+    from lightcurve_gp.filters.setup import run_filter
     from lightcurve_gp.simulation.scenario import simulate_scenario
     from lightcurve_gp.training.store import get_or_train
 
@@ -98,8 +98,9 @@ def robust_m1500(args, tab) -> None:
     for B in (1, 1000):
         rows = torch.arange(B) % sc.observations.shape[0]
         obs = sc.observations[rows, :args.steps + 1]
-        q0 = sc.q_est0.reshape(1, 4).expand(B, 4)
-        go = lambda m: run_offset_filter(cfg, m, obs, q0, sc.increments[:args.steps])  # noqa: E731
+        q0 = sc.q_est0[:1].expand(B, 4)
+        go = lambda m: run_filter(cfg, m, q_est0=q0, observations=obs,  # noqa: E731
+                                  increments=sc.increments[0, :args.steps], offset=True)
         out = {k: go(m) for k, m in (("f32", model), ("f64", base))}
         err = float((out["f32"].q_est - out["f64"].q_est).abs().max())
         reps = max(3, args.repeats // (50 if B == 1 else 200))

@@ -36,7 +36,7 @@ def _filter_steps(steps: int):
     data = generate_training_set(cfg, progress=False)
     gp = ExactGP.from_data(data.q, data.m_past, data.y, cfg.model)
     params = UsqueParams.from_config(cfg)
-    obs, inc = truth.observations[:, :steps + 1], truth.increments[:steps]
+    obs, inc = truth.observations[:, :steps + 1], truth.increments[0, :steps]
     P0 = initial_covariance(cfg.filter.p0_deg)
     return lambda: run_usque(model=gp, q_est0=truth.q_est0.expand(10, 4), P0=P0, observations=obs, m_past0=obs[:, 0],
                              increments=inc, params=params)

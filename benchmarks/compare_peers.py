@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import statistics
 import time
 
@@ -79,31 +78,11 @@ def library_runner(model, params, sc, P0):
 
     def run(n_steps: int, seed: int) -> np.ndarray:
         obs = sc.observations[seed:seed + 1, :n_steps + 1]
-        hist = run_usque(model=model, q_est0=sc.q_est0.reshape(1, 4), P0=P0, observations=obs,
-                         m_past0=obs[:, 0], increments=sc.increments[:n_steps], params=params)
+        hist = run_usque(model=model, q_est0=sc.q_est0[:1], P0=P0, observations=obs,
+                         m_past0=obs[:, 0], increments=sc.increments[0, :n_steps], params=params)
         return hist.q_est[0].numpy()
 
     return run
-
-
-def numpy_runner(setup, exact, sc, P0):
-    from _peers import numpy_gpukf
-
-    gp = {"xs": exact.xs_train.numpy(), "inv_scale": 1.0 / (exact.lengthscale.numpy() * math.sqrt(2.0)),
-          "alpha": exact.alpha.numpy(), "theta1": float(exact.outputscale), "y_mean": float(exact.y_mean)}
-    obs, inc, q0, p0 = sc.observations.numpy(), sc.increments.numpy(), sc.q_est0.reshape(4).numpy(), P0.numpy()
-    return lambda n, seed: numpy_gpukf(setup, gp, q0=q0, P0=p0, obs=obs[seed, :n + 1], increments=inc[:n])
-
-
-def filterpy_runner(setup, scene, rho, sc, P0):
-    import torch
-    from _peers import filterpy_usque
-
-    def render(q: np.ndarray) -> float:
-        return float(scene.magnitude(torch.from_numpy(q).unsqueeze(0), rho=rho)[0])
-
-    obs, inc, q0, p0 = sc.observations.numpy(), sc.increments.numpy(), sc.q_est0.reshape(4).numpy(), P0.numpy()
-    return lambda n, seed: filterpy_usque(setup, render, q0=q0, P0=p0, obs=obs[seed, :n + 1], increments=inc[:n])
 
 
 def max_angle_deg(q1: np.ndarray, q2: np.ndarray) -> float:
@@ -152,8 +131,8 @@ def time_batch(model, params, sc, P0, B: int, steps: int, repeats: int) -> float
 
     rows = np.arange(B) % sc.observations.shape[0]
     obs = sc.observations[rows, :steps + 1]
-    go = lambda n: run_usque(model=model, q_est0=sc.q_est0.reshape(1, 4).expand(B, 4), P0=P0,  # noqa: E731
-                             observations=obs[:, :n + 1], m_past0=obs[:, 0], increments=sc.increments[:n],
+    go = lambda n: run_usque(model=model, q_est0=sc.q_est0[:1].expand(B, 4), P0=P0,  # noqa: E731
+                             observations=obs[:, :n + 1], m_past0=obs[:, 0], increments=sc.increments[0, :n],
                              params=params)
     go(1)
     return statistics.median(C.timed(lambda: go(steps))[1] / steps for _ in range(repeats))
@@ -177,7 +156,7 @@ def build_tables(cases, gpytorch_solve_s, batch_row, sc, info_start) -> list:
                 {"family": c.family, "label": c.label, "s_per_step": step, "s_per_run": run, "projected": c.projected,
                  "per_step_all": c.per_step, "per_run_all": c.per_run, "step_ratio": step / ref_step,
                  "run_ratio": run / ref_run, "max_angle_deg": max_angle_deg(c.estimates, ref.estimates)})
-    T = sc.increments.shape[0]
+    T = sc.steps
     for family, (lo, hi) in (("GPUKF", PAPER_GPUKF_S), ("UKF", PAPER_UKF_S)):
         ref_step = statistics.median(ours[family].per_step)
         tab.add([family, "paper, Sec. 4 (quoted, not measured)", f"{lo:g}–{hi:g} s", f"{lo * T:.3g}–{hi * T:.3g} s",
@@ -202,14 +181,45 @@ def build_tables(cases, gpytorch_solve_s, batch_row, sc, info_start) -> list:
     return [tab]
 
 
+def build_cases(args, exact, data, scene, rho: float, sc, P0, params) -> tuple[list[Case], float | None]:
+    """The cases of the one-filter table (module docstring) and GPyTorch's first-call solve time (s, or ``None``)."""
+    from _peers import GPyTorchMean, UsqueSetup, filterpy_runner, numpy_runner
+
+    from lightcurve_gp.observation.parametric import Parametric
+
+    setup, mean_only = UsqueSetup(params), dataclasses.replace(params, variance="none")
+    compiled = dataclasses.replace(mean_only, compile=True)
+    cases = [Case("lightcurve-gp (ExactGP, mean)", "GPUKF", library_runner(exact, mean_only, sc, P0))]
+    if not args.skip_compiled:
+        cases.append(Case("lightcurve-gp (ExactGP, mean), filter.compile", "GPUKF",
+                          library_runner(exact, compiled, sc, P0)))
+    cases.append(Case("numpy GPUKF (exact GP, cdist + matvec)", "GPUKF", numpy_runner(setup, exact, sc, P0)))
+    gpytorch_solve_s = None
+    if not args.skip_gpytorch:
+        gdefault = GPyTorchMean(exact, data.y)
+        gmean = gdefault.skipping_variances()
+        print("GPyTorch: first call (its mean solve over all N points) ...", flush=True)
+        _, gpytorch_solve_s = C.timed(lambda: gmean(q=sc.q_est0[:1], m_past=sc.observations[0, :1]))
+        cases.append(Case("GPyTorch likelihood(model(x)).mean in this USQUE, default settings", "GPUKF",
+                          library_runner(gdefault, mean_only, sc, P0), steps=args.gpytorch_steps, repeats=1,
+                          projected=True))
+        cases.append(Case("GPyTorch, the same with skip_posterior_variances", "GPUKF",
+                          library_runner(gmean, mean_only, sc, P0)))
+    cases.append(Case("lightcurve-gp (renderer)", "UKF", library_runner(Parametric(scene, rho), params, sc, P0)))
+    if not args.skip_compiled:
+        cases.append(Case("lightcurve-gp (renderer), filter.compile", "UKF",
+                          library_runner(Parametric(scene, rho), dataclasses.replace(params, compile=True), sc, P0)))
+    cases.append(Case("filterpy UnscentedKalmanFilter + the renderer", "UKF",
+                      filterpy_runner(setup, scene, rho, sc, P0)))
+    return cases, gpytorch_solve_s
+
+
 def main() -> None:
     args = parse_args()
 
     import torch
-    from _peers import GPyTorchMean, UsqueSetup
 
     from lightcurve_gp.filters.usque import UsqueParams, initial_covariance
-    from lightcurve_gp.observation.parametric import Parametric
     from lightcurve_gp.photometry.render import Scene
     from lightcurve_gp.simulation.scenario import simulate_scenario
     from lightcurve_gp.training.sets import load_or_generate
@@ -225,38 +235,14 @@ def main() -> None:
     P0 = initial_covariance(cfg.filter.p0_deg, dtype=torch.float64)
     params = UsqueParams.from_config(cfg)
     mean_only = dataclasses.replace(params, variance="none")
-    setup = UsqueSetup(params)
-    rho = cfg.filter.rho_assumed
-
-    compiled = dataclasses.replace(mean_only, compile=True)
-    cases = [Case("lightcurve-gp (ExactGP, mean)", "GPUKF", library_runner(exact, mean_only, sc, P0))]
-    if not args.skip_compiled:
-        cases.append(Case("lightcurve-gp (ExactGP, mean), filter.compile", "GPUKF",
-                          library_runner(exact, compiled, sc, P0)))
-    cases.append(Case("numpy GPUKF (exact GP, cdist + matvec)", "GPUKF", numpy_runner(setup, exact, sc, P0)))
-    gpytorch_solve_s = None
-    if not args.skip_gpytorch:
-        gdefault = GPyTorchMean(exact, data.y)
-        gmean = gdefault.skipping_variances()
-        print("GPyTorch: first call (its mean solve over all N points) ...", flush=True)
-        _, gpytorch_solve_s = C.timed(lambda: gmean(q=sc.q_est0.reshape(1, 4), m_past=sc.observations[0, :1]))
-        cases.append(Case("GPyTorch likelihood(model(x)).mean in this USQUE, default settings", "GPUKF",
-                          library_runner(gdefault, mean_only, sc, P0), steps=args.gpytorch_steps, repeats=1,
-                          projected=True))
-        cases.append(Case("GPyTorch, the same with skip_posterior_variances", "GPUKF",
-                          library_runner(gmean, mean_only, sc, P0)))
-    cases.append(Case("lightcurve-gp (renderer)", "UKF", library_runner(Parametric(scene, rho), params, sc, P0)))
-    if not args.skip_compiled:
-        cases.append(Case("lightcurve-gp (renderer), filter.compile", "UKF",
-                          library_runner(Parametric(scene, rho), dataclasses.replace(params, compile=True), sc, P0)))
-    cases.append(Case("filterpy UnscentedKalmanFilter + the renderer", "UKF",
-                      filterpy_runner(setup, scene, rho, sc, P0)))
+    cases, gpytorch_solve_s = build_cases(args, exact, data, scene, cfg.filter.rho_assumed, sc, P0, params)
     time_round_robin(cases, steps=args.steps, repeats=args.repeats, run_repeats=args.run_repeats,
-                     T=sc.increments.shape[0])
+                     T=sc.steps)
     batch_row = None
     if args.batch:
         sparse, _, _ = C.cached_gp(cfg, data, "sparse", num_inducing=512, cache_dir=args.cache_dir)
-        variants = [("", mean_only)] + ([] if args.skip_compiled else [(", filter.compile", compiled)])
+        variants = [("", mean_only)] + ([] if args.skip_compiled else [(", filter.compile",
+                                                                       dataclasses.replace(mean_only, compile=True))])
         batch_row = [(label, (args.batch, time_batch(sparse, p, sc, P0, args.batch, steps=10, repeats=3)))
                      for label, p in variants]
     tables = build_tables(cases, gpytorch_solve_s, batch_row, sc, info)

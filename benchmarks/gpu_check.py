@@ -139,7 +139,7 @@ def scenario_tensors(cfg, seeds: int, device) -> dict:
     from lightcurve_gp.simulation.scenario import simulate_scenario
 
     sc = simulate_scenario(cfg, seeds=range(seeds))
-    return {"obs": sc.observations.to(device), "inc": sc.increments.to(device), "q0": sc.q_est0.to(device),
+    return {"obs": sc.observations.to(device), "inc": sc.increments[0].to(device), "q0": sc.q_est0[0].to(device),
             "P0": initial_covariance(cfg.filter.p0_deg, dtype=cfg.torch_dtype, device=device)}
 
 

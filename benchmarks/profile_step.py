@@ -6,7 +6,8 @@ Profiles ``--steps`` steps of ``run_usque`` with the ExactGP (N = 19 260, mean o
 operators by self CPU time and the count of operator calls per step.
 
 With ``--compile`` the filter runs with ``filter.compile: true`` (:mod:`lightcurve_gp.filters.compiled`); its first
-run, which compiles, is timed apart and printed.
+run, which compiles, is timed apart and printed (``benchmarks/bench_compile.py`` tabulates compile time, step time
+and the break-even run length).
 
 With ``--floor`` (exact model) the same process then times, each alone, the three pieces of arithmetic the exact
 GP's mean cannot avoid for the step's 7 sigma points against its N training points, in torch and in numpy: the
@@ -75,8 +76,8 @@ def main() -> None:
     obs = sc.observations[:, :args.steps + 1]
 
     def run():
-        return run_usque(model=model, q_est0=sc.q_est0.reshape(1, 4), P0=P0, observations=obs, m_past0=obs[:, 0],
-                         increments=sc.increments[:args.steps], params=params)
+        return run_usque(model=model, q_est0=sc.q_est0[:1], P0=P0, observations=obs, m_past0=obs[:, 0],
+                         increments=sc.increments[0, :args.steps], params=params)
 
     first = time.perf_counter()
     run()

@@ -5,16 +5,17 @@ Seeds come in two blocks: the tuning block (default 1000-1099) may inform choice
 0-199, ``--paper-rho`` 0.7) is the paper's case: every seed the config's truth, the seeds differing by noise alone
 (:func:`lightcurve_gp.simulation.truths.paper_case_draw`). ``--error-angles`` adds the initial-error table:
 the same truths of ``--error-seeds`` (default 2000-2099) with a fixed initial-error angle (5, 10, 20, 30 deg, random
-axis, P0 matched). Truths: :mod:`lightcurve_gp.simulation.truths`; estimators and metrics:
-:mod:`lightcurve_gp.evaluation.suite`.
+axis, P0 matched). Truths: :mod:`lightcurve_gp.simulation.truths` (simulated by
+:func:`lightcurve_gp.simulation.scenario.simulate_truths`); estimators: :mod:`lightcurve_gp.evaluation.registry`
+(``robust_gpukf`` in these tables is the registry's ``gpukf`` of the robust config, the offset in its state);
+rows and summaries: :mod:`lightcurve_gp.evaluation.suite_summary`.
 
 Resumable: seeds run in blocks of ``--block-size``; each (block, estimator) is one case of the sweep's case store
-(:mod:`lightcurve_gp.sweep.store`), ``<runs>/generalization/cases/<case-id>.json``: a
+(:func:`lightcurve_gp.sweep.store.resume_case`), ``<runs>/generalization/cases/<case-id>.json``: a
 :class:`~lightcurve_gp.evaluation.reporting.CaseRecord` whose rows hold the metrics and whose summary holds the
-suite's per-seed
-rows. The id hashes what the estimator depends on, the seeds and the error mode (:func:`block_id`); a record is
-written atomically when its case finishes, and a rerun skips stored cases, so a killed run continues and a new
-candidate config reruns only what it changes (its GPUKF, for a new model). The GP comes from the model store
+suite's per-seed rows. The id hashes what the estimator depends on, the seeds and the error mode (:func:`block_id`);
+a record is written atomically when its case finishes, and a rerun skips stored cases, so a killed run continues and
+a new candidate config reruns only what it changes (its GPUKF, for a new model). The GP comes from the model store
 ``<runs>/models/`` (trained there when missing).
 Writes to ``--out`` (experiments/results/generalization/): summary.md/.csv (held-out and tuning blocks, per surface
 class, |omega0| bin and initial-error bin), initial_error.md/.csv, bar charts of the share below 10 deg and of the
@@ -27,55 +28,49 @@ NEES-consistent share, RMSE box plots; per-seed rows go to ``<runs>/generalizati
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 import time
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import torch
 from matplotlib.figure import Figure
 from tqdm.auto import tqdm
 
-from experiments.robust_gpukf import trained_model
+from experiments.common import (
+    ROBUST_CONFIG,
+    ROOT,
+    SUITE_ESTIMATORS,
+    command_line,
+    registry_name,
+    seed_range,
+    trained_model,
+    truth_draw,
+    truth_mode_label,
+    write_outputs,
+)
 from lightcurve_gp.config.load import ConfigError, config_hash, config_to_dict, load_config
+from lightcurve_gp.evaluation.harness import run_estimators
 from lightcurve_gp.evaluation.plots import rmse_boxplot, save_figure
-from lightcurve_gp.evaluation.reporting import CaseRecord, SeedRow, csv_text, markdown_table
-from lightcurve_gp.evaluation.suite import SUITE_ESTIMATORS, nees_band, run_suite
-from lightcurve_gp.evaluation.suite_summary import SUMMARY_COLUMNS, seed_rows, summarize, whitened_correlation
-from lightcurve_gp.files import write_json_atomic, write_text_atomic
+from lightcurve_gp.evaluation.reporting import SeedRow, csv_text, markdown_table
+from lightcurve_gp.evaluation.scoring import nees_band
+from lightcurve_gp.evaluation.suite_summary import SUMMARY_COLUMNS, suite_rows, summarize, whitened_correlation
 from lightcurve_gp.photometry.render import Scene
-from lightcurve_gp.simulation.truths import draw_truths, paper_case_draw, simulate_truths
-from lightcurve_gp.sweep.store import read_case, write_case
+from lightcurve_gp.simulation.scenario import Scenario, simulate_truths
+from lightcurve_gp.sweep.store import resume_case
 from lightcurve_gp.training.store import model_key
 
-ROOT = Path(__file__).resolve().parents[1]
 SUITE_FORMAT = 1
 
 
-def seed_range(text: str) -> range:
-    """``"2000:2300"`` → ``range(2000, 2300)``."""
-    try:
-        lo, hi = (int(v) for v in text.split(":"))
-    except ValueError:
-        raise ConfigError(f"seed block {text!r}: expected FIRST:END, e.g. 2000:2300") from None
-    if hi <= lo:
-        raise ConfigError(f"seed block {text!r}: END must exceed FIRST")
-    return range(lo, hi)
-
-
-def truth_mode_label(mode) -> str:
-    """``None`` (random truths) → ``"random"``, an angle → ``"10"``, ``("paper", 0.7)`` → ``"paper rho 0.7"``."""
-    if mode is None:
-        return "random"
-    return f"paper rho {mode[1]:g}" if isinstance(mode, tuple) else f"{mode:g}"
-
-
-def truth_draw(cfg, seeds: Sequence[int], mode):
-    """The truths of one block: random (``None``), random with a fixed initial-error angle, or the paper's case."""
-    if isinstance(mode, tuple):
-        return paper_case_draw(cfg, seeds, rho=mode[1])
-    return draw_truths(seeds, error_deg=mode)
+def suite_estimator_rows(cfg, truths: Scenario, name: str, *, model, scene, map_every: float,
+                         error_mode: str) -> list[dict[str, Any]]:
+    """The suite's per-seed rows of estimator ``name`` (a table name) on the drawn truths."""
+    result = run_estimators(cfg, truths, estimators=[registry_name(name)], model=model, scene=scene,
+                            map_every_s=map_every)
+    return [{**row, "estimator": name} for row in suite_rows(result, nees_band(), error_mode=error_mode)]
 
 
 def block_id(cfg, seeds: Sequence[int], error_deg, estimator: str, map_every: float) -> str:
@@ -95,37 +90,36 @@ def block_id(cfg, seeds: Sequence[int], error_deg, estimator: str, map_every: fl
         "model": model_key(cfg) if estimator == "robust_gpukf" else cfg.model.rho_reference})
 
 
-def case_record(case_id: str, seeds: Sequence[int], error_deg, name: str, rows: list[dict[str, Any]],
-                seconds: float, steps: int) -> CaseRecord:
-    """The store's record of one (block, estimator): its :class:`SeedRow` metrics, and the suite's per-seed rows
-    (truth descriptors, classes, bins, whitened errors) under ``summary["per_seed"]``."""
-    seed_metrics = [SeedRow(r["seed"], name, r["rmse_yaw_deg"], r["rmse_pitch_deg"], r["rmse_roll_deg"],
-                            nees_mean=r["nees_mean"], seconds_per_step=seconds / steps) for r in rows]
-    return CaseRecord(case_id=case_id, values={"suite": "generalization", "error_deg": truth_mode_label(error_deg)
-                                               if isinstance(error_deg, tuple) else error_deg},
-                      seeds=list(seeds), estimators=[name], rows=seed_metrics, summary={"per_seed": rows},
-                      seconds=seconds)
+def estimator_case(cfg, truths: Callable[[], Scenario], name: str, *, model, scene, map_every: float,
+                   error_deg) -> tuple[dict[str, Any], list[SeedRow]]:
+    """One (block, estimator) case for the store: the suite's per-seed rows (truth descriptors, classes, bins,
+    whitened errors) under ``summary["per_seed"]``, and their :class:`SeedRow` metrics. ``truths()`` gives the
+    block's truths (simulated once per block)."""
+    start = time.perf_counter()
+    sc = truths()
+    rows = suite_estimator_rows(cfg, sc, name, model=model, scene=scene, map_every=map_every,
+                                error_mode=truth_mode_label(error_deg))
+    seconds = time.perf_counter() - start
+    metrics = [SeedRow(r["seed"], name, r["rmse_yaw_deg"], r["rmse_pitch_deg"], r["rmse_roll_deg"],
+                       nees_mean=r["nees_mean"], seconds_per_step=seconds / sc.steps) for r in rows]
+    return {"per_seed": rows}, metrics
 
 
 def run_block(cfg, model, scene, seeds: Sequence[int], error_deg, estimators: Sequence[str],
-              map_every: float, store: Path) -> tuple[list[dict[str, Any]], int]:
-    """Rows of one block of seeds, each estimator read back from ``store`` or run and stored atomically there;
-    also the number of estimators that ran."""
-    truths, rows, ran = None, [], 0
+              map_every: float, root: Path) -> tuple[list[dict[str, Any]], int]:
+    """Rows of one block of seeds, each estimator read back from the case store of ``root`` or run and stored
+    there; also the number of estimators that ran."""
+    truths = functools.cache(lambda: simulate_truths(cfg, truth_draw(cfg, seeds, error_deg), scene))
+    values = {"suite": "generalization",
+              "error_deg": truth_mode_label(error_deg) if isinstance(error_deg, tuple) else error_deg}
+    rows, ran = [], 0
     for name in estimators:
-        path = store / f"{block_id(cfg, seeds, error_deg, name, map_every)}.json"
-        record = read_case(path)
-        if record is None or not record.ok:
-            start = time.perf_counter()
-            truths = truths or simulate_truths(cfg, truth_draw(cfg, seeds, error_deg), scene)
-            results = run_suite(cfg, truths, gp_model=model, estimators=[name], map_every_s=map_every, scene=scene)
-            block_rows = seed_rows(truths, results, nees_band(),
-                                   error_mode=truth_mode_label(error_deg))
-            record = case_record(path.stem, seeds, error_deg, name, block_rows, time.perf_counter() - start,
-                                 truths.increments.shape[1])
-            write_case(record, path)
-            ran += 1
+        compute = functools.partial(estimator_case, cfg, truths, name, model=model, scene=scene,
+                                    map_every=map_every, error_deg=error_deg)
+        record, now = resume_case(root, block_id(cfg, seeds, error_deg, name, map_every), compute, values=values,
+                                  seeds=seeds, estimators=[name])
         rows += record.summary["per_seed"]
+        ran += now
     return rows, ran
 
 
@@ -135,8 +129,8 @@ def run_blocks(cfg, model, scene, seeds: range, error_deg, estimators, args, lab
     blocks = [seeds[i:i + args.block_size] for i in range(0, len(seeds), args.block_size)]
     rows, ran = [], 0
     for block in tqdm(blocks, desc=label, unit="block"):
-        store = args.runs / "generalization" / "cases"
-        block_rows, block_ran = run_block(cfg, model, scene, block, error_deg, estimators, args.map_every, store)
+        block_rows, block_ran = run_block(cfg, model, scene, block, error_deg, estimators, args.map_every,
+                                          args.runs / "generalization")
         rows += [{**row, "block": label} for row in block_rows]
         ran += block_ran
     seconds = {}
@@ -214,7 +208,7 @@ def write_figures(rows, summary, out: Path, label: str) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--model-config", default=str(ROOT / "configs/boxwing_robust.yaml"),
+    p.add_argument("--model-config", default=str(ROBUST_CONFIG),
                    help="the robust config to evaluate (its model is trained into <runs>/models/ when missing)")
     p.add_argument("--tuning-seeds", default="1000:1100", type=seed_range, help="FIRST:END (choices allowed)")
     p.add_argument("--heldout-seeds", default="2000:2300", type=seed_range, help="FIRST:END (never for choices)")
@@ -241,16 +235,26 @@ def _names(text: str) -> list[str]:
     return names
 
 
+def checked(args) -> tuple[Any, list[str], list[str], list[str], list[float]]:
+    """The config, the estimators, the initial-error table's estimators, the blocks and the angles; a
+    :class:`ConfigError` naming the option when one is wrong."""
+    cfg = load_config(args.model_config)
+    estimators, error_estimators = _names(args.estimators), _names(args.error_estimators)
+    angles = [float(a) for a in args.error_angles.split(",") if a.strip()]
+    blocks = [b.strip() for b in args.blocks.split(",") if b.strip()]
+    if any(b not in ("tuning", "heldout", "paper") for b in blocks) or not (blocks or angles):
+        raise ConfigError(f"--blocks: {args.blocks!r} must name tuning, heldout and/or paper (or give "
+                          "--error-angles)")
+    if "robust_gpukf" in estimators + error_estimators and not cfg.filter.estimate_offset:
+        raise ConfigError(f"{args.model_config}: filter.estimate_offset: robust_gpukf needs the offset state "
+                          f"(true)")
+    return cfg, estimators, error_estimators, blocks, angles
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        cfg = load_config(args.model_config)
-        estimators, error_estimators = _names(args.estimators), _names(args.error_estimators)
-        angles = [float(a) for a in args.error_angles.split(",") if a.strip()]
-        blocks = [b.strip() for b in args.blocks.split(",") if b.strip()]
-        if any(b not in ("tuning", "heldout", "paper") for b in blocks) or not (blocks or angles):
-            raise ConfigError(f"--blocks: {args.blocks!r} must name tuning, heldout and/or paper (or give "
-                              "--error-angles)")
+        cfg, estimators, error_estimators, blocks, angles = checked(args)
     except (ConfigError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -259,8 +263,36 @@ def main(argv=None) -> int:
     needs_model = ("robust_gpukf" in estimators and blocks) or ("robust_gpukf" in error_estimators and angles)
     model = trained_model(cfg, args.runs) if needs_model else None
     scene = Scene.from_config(cfg).to(dtype=torch.float64)
+    command = command_line("generalization", sys.argv[1:] if argv is None else argv)
+    report, all_rows, all_summary, counts = suite_tables(cfg, model, scene, blocks, estimators, args, command)
+    error_summary, error_rows = [], []
+    for angle in angles:
+        rows, _, count = run_blocks(cfg, model, scene, args.error_seeds, angle, error_estimators, args,
+                                    f"error {angle:g}")
+        counts = [a + b for a, b in zip(counts, count)]
+        error_rows += rows
+        error_summary += [{"initial_error_deg": angle, **e} for e in summarize(rows, {"all": None})]
+    wall = time.perf_counter() - start
+    report.append(f"\nWall time of this command: {wall:.0f} s; it ran {counts[0]} of {counts[1]} (block, estimator) "
+                  "cases and read the others back from the store (the batch times above are those of the runs).")
+    if blocks:
+        write_outputs(args.out, {"summary.md": "\n".join(report) + "\n",
+                                 "summary.csv": csv_text(all_summary, ("block", *SUMMARY_COLUMNS)),
+                                 "summary.json": {"command": command, "wall_seconds": wall, "summary": all_summary}})
+        print("\n".join(report))
+    if error_summary:
+        write_error_table(error_summary, args, command, report[-1].strip())
+    for rows, name in ((all_rows, "per_seed.csv"), (error_rows, "per_seed_initial_error.csv")):
+        if rows:
+            columns = [k for k in rows[0] if k not in ("white_first", "white_last")]
+            write_outputs(args.runs / "generalization" / cfg.name, {name: csv_text(rows, columns)})
+    return 0
+
+
+def suite_tables(cfg, model, scene, blocks: Sequence[str], estimators, args, command: str):
+    """The report's lines, every row and the summary entries of the suite's blocks (their figures written), and
+    the numbers of (block, estimator) cases run and in all."""
     band = nees_band()
-    command = "python -m experiments.generalization " + " ".join(sys.argv[1:] if argv is None else argv)
     report = [f"# Generalisation suite: {cfg.name}\n",
               f"Command: `{command}`. Median RMSE in deg "
               f"over {cfg.evaluation.rmse_window_s[0]:g}-{cfg.evaluation.rmse_window_s[1]:g} s (MAP: its checkpoints "
@@ -277,29 +309,7 @@ def main(argv=None) -> int:
         all_rows += rows
         all_summary += [{"block": label, **e} for e in summary]
         write_figures(rows, summary, args.out, label)
-    error_summary, error_rows = [], []
-    for angle in angles:
-        rows, _, count = run_blocks(cfg, model, scene, args.error_seeds, angle, error_estimators, args,
-                                    f"error {angle:g}")
-        counts = [a + b for a, b in zip(counts, count)]
-        error_rows += rows
-        error_summary += [{"initial_error_deg": angle, **e} for e in summarize(rows, {"all": None})]
-    wall = time.perf_counter() - start
-    report.append(f"\nWall time of this command: {wall:.0f} s; it ran {counts[0]} of {counts[1]} (block, estimator) "
-                  "cases and read the others back from the store (the batch times above are those of the runs).")
-    if blocks:
-        write_text_atomic("\n".join(report) + "\n", args.out / "summary.md")
-        write_text_atomic(csv_text(all_summary, ("block", *SUMMARY_COLUMNS)), args.out / "summary.csv")
-        write_json_atomic({"command": command, "wall_seconds": wall, "summary": all_summary},
-                          args.out / "summary.json")
-        print("\n".join(report))
-    if error_summary:
-        write_error_table(error_summary, args, command, report[-1].strip())
-    for rows, name in ((all_rows, "per_seed.csv"), (error_rows, "per_seed_initial_error.csv")):
-        if rows:
-            columns = [k for k in rows[0] if k not in ("white_first", "white_last")]
-            write_text_atomic(csv_text(rows, columns), args.runs / "generalization" / cfg.name / name)
-    return 0
+    return report, all_rows, all_summary, counts
 
 
 def write_error_table(error_summary, args, command: str, timing: str) -> None:
@@ -308,8 +318,8 @@ def write_error_table(error_summary, args, command: str, timing: str) -> None:
              "truths at every angle, random axis, P0 = (angle / sqrt 3)^2 I)\n",
              f"Command: `{command}`. {timing} Median RMSE in deg; NEES band of one chi-square(3) sample.\n",
              summary_table([{**e, "group": f"{e['initial_error_deg']:g} deg"} for e in error_summary], "group")]
-    write_text_atomic("\n".join(lines) + "\n", args.out / "initial_error.md")
-    write_text_atomic(csv_text(error_summary, ("initial_error_deg", *SUMMARY_COLUMNS)), args.out / "initial_error.csv")
+    write_outputs(args.out, {"initial_error.md": "\n".join(lines) + "\n",
+                             "initial_error.csv": csv_text(error_summary, ("initial_error_deg", *SUMMARY_COLUMNS))})
     print("\n".join(lines))
 
 

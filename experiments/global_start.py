@@ -19,8 +19,9 @@ Pruning (``--prune-after-s S --prune-keep K``): all members run the first ``S`` 
 pruning of a small grid would have done: since a survivor's continuation is its uninterrupted run, the pruned
 ranking is the unpruned one restricted to the survivors, so one unpruned run scores every (S, K) exactly.
 
-Resumable: one case file per seed under ``<runs>/global_start/cases/`` (the sweep's case store); a rerun skips the
-stored seeds. Writes ``--out`` (experiments/results/global_start/): summary.md, summary.json, per_seed.csv.
+Resumable: one case file per seed under ``<runs>/global_start/cases/`` (the sweep's case store,
+:func:`lightcurve_gp.sweep.store.resume_case`); a rerun skips the stored seeds. Writes ``--out``
+(experiments/results/global_start/): summary.md, summary.json, per_seed.csv.
 
     python -m experiments.global_start --seeds 0:100 --prune-after-s 60 --prune-keep 64
 """
@@ -28,6 +29,7 @@ stored seeds. Writes ``--out`` (experiments/results/global_start/): summary.md, 
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import sys
 import time
@@ -36,23 +38,22 @@ from pathlib import Path
 import torch
 from tqdm.auto import tqdm
 
-from experiments._models import trained_model
-from experiments.generalization import seed_range
+from experiments.common import ROBUST_CONFIG, ROOT, command_line, seed_range, trained_model, write_outputs
 from lightcurve_gp.attitude.metrics import attitude_error_vector, attitude_errors_deg, nees
 from lightcurve_gp.attitude.rotations import quat_mul
 from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.config.load import ConfigError, config_hash, load_config
-from lightcurve_gp.evaluation.reporting import CaseRecord, csv_text, markdown_table, quantiles
-from lightcurve_gp.files import write_json_atomic, write_text_atomic
-from lightcurve_gp.filters.bank import bank_attitudes, innovation_log_likelihood, run_bank, run_filter
+from lightcurve_gp.evaluation.reporting import csv_text, markdown_table, quantiles
+from lightcurve_gp.filters.bank import bank_attitudes, run_bank
+from lightcurve_gp.filters.selection import innovation_log_likelihood, innovation_log_terms
+from lightcurve_gp.filters.setup import run_filter
 from lightcurve_gp.observed.run import nis_summary
 from lightcurve_gp.photometry.shapes import facets_from_config
 from lightcurve_gp.photometry.symmetry import symmetry_quaternions
 from lightcurve_gp.simulation.scenario import simulate_scenario
-from lightcurve_gp.sweep.store import read_case, write_case
+from lightcurve_gp.sweep.store import resume_case
 from lightcurve_gp.training.store import model_key
 
-ROOT = Path(__file__).resolve().parents[1]
 RHO_CYCLE = (0.3, 0.4, 0.6, 0.7)
 FORMAT = 3
 PRUNE_GRID_S = (30.0, 60.0, 120.0)
@@ -83,9 +84,7 @@ def symmetric_scores(q_true: torch.Tensor, q_est: torch.Tensor, times: torch.Ten
 def prune_study(bank, dt: float) -> dict:
     """For every pruning of the grid: whether its top-1 and its top five are the unpruned bank's (module docstring).
     Keys ``"<S>s_<K>"``."""
-    terms = torch.where(bank.bank_history.updated, -0.5 * (bank.bank_history.innovation ** 2 / bank.bank_history.y_var
-                                                          + torch.log(2 * torch.pi * bank.bank_history.y_var)), 0.0)
-    partial = terms.cumsum(-1)  # (N, T+1)
+    partial = innovation_log_terms(bank.bank_history).cumsum(-1)  # (N, T+1)
     out = {}
     for seconds in PRUNE_GRID_S:
         step = int(round(seconds / dt))
@@ -102,19 +101,20 @@ def run_seed(cfg_path: str, seed: int, model, args) -> dict:
     q0, rho = seed_truth(seed)
     cfg = load_config(cfg_path, [f"scenario.q0={q0}", f"device={args.device}"])
     sc = simulate_scenario(cfg, seeds=[seed], rho_true=rho)
+    q_true = sc.q_true[0]  # (T+1, 4): the one seed's truth
     prune = None if args.prune_after_s is None else int(round(args.prune_after_s / cfg.scenario.dt_s))
-    bank = run_bank(cfg, model, observations=sc.observations[0], increments=sc.increments,
+    bank = run_bank(cfg, model, observations=sc.observations[0], increments=sc.increments[0],
                     q0=bank_attitudes(args.bank_size, device=sc.observations.device), keep=args.keep,
                     prune_after=prune, prune_keep=args.prune_keep)
     window = cfg.evaluation.rmse_window_s
-    scores = window_scores(sc.q_true, bank.kept.q_est, sc.times, window)
+    scores = window_scores(q_true, bank.kept.q_est, sc.times, window)
     within = (scores["median_abs"] < 10).all(-1)
-    sym = symmetric_scores(sc.q_true, bank.kept.q_est, sc.times, window, symmetry_quaternions(facets_from_config(cfg)))
+    sym = symmetric_scores(q_true, bank.kept.q_est, sc.times, window, symmetry_quaternions(facets_from_config(cfg)))
     within_sym = (sym["median_abs"] < 10).all(-1)
     inside = (sc.times >= window[0]) & (sc.times <= window[1])
-    err = attitude_error_vector(sc.q_true, bank.kept.q_est[0], kind="grp")
+    err = attitude_error_vector(q_true, bank.kept.q_est[0], kind="grp")
     err_sym = attitude_error_vector(sym["truths"][sym["symmetry"][0]], bank.kept.q_est[0], kind="grp")
-    nearest = int(torch.argmin(attitude_errors_deg(sc.q_true[0].expand_as(bank.q0), bank.q0).norm(dim=-1)))
+    nearest = int(torch.argmin(attitude_errors_deg(q_true[0].expand_as(bank.q0), bank.q0).norm(dim=-1)))
     rank_of_nearest = int((bank.order == nearest).nonzero()[0, 0]) + 1
     row = {"seed": seed, "rho_true": rho, "q0_true": q0,
            "top1_within_10deg": bool(within[0]), "top5_within_10deg": bool(within[:5].any()),
@@ -132,9 +132,9 @@ def run_seed(cfg_path: str, seed: int, model, args) -> dict:
            "device": args.device}
     if args.prune_study:
         row["prune_study"] = prune_study(bank, cfg.scenario.dt_s)
-    guided = run_filter(cfg, model, q_est0=sc.q_est0[None], observations=sc.observations, increments=sc.increments)
+    guided = run_filter(cfg, model, q_est0=sc.q_est0, observations=sc.observations, increments=sc.increments[0])
     row["from_config_error_within_10deg"] = bool(
-        (window_scores(sc.q_true, guided.q_est, sc.times, window)["median_abs"][0] < 10).all())
+        (window_scores(q_true, guided.q_est, sc.times, window)["median_abs"][0] < 10).all())
     row.update(truth_start_scores(cfg, model, sc, bank, window))
     return row
 
@@ -143,21 +143,26 @@ def truth_start_scores(cfg, model, sc, bank, window) -> dict:
     """A bank member started at the true initial attitude (the bank's settings): its log-likelihood against the
     top-ranked member's, and whether it ends within 10°. Where the top-ranked member's ℓ is the higher, a wrong
     attitude explains the light curve better than the truth, and no ranking by likelihood can find the truth."""
-    truth = run_filter(cfg, model, q_est0=sc.q_true[:1], observations=sc.observations, increments=sc.increments,
+    truth = run_filter(cfg, model, q_est0=sc.q_true[:, 0], observations=sc.observations, increments=sc.increments[0],
                        variance="none")
     truth_ll, top_ll = float(innovation_log_likelihood(truth)[0]), float(bank.log_likelihood[bank.order[0]])
     return {"truth_start_log_likelihood": truth_ll, "top1_log_likelihood": top_ll,
             "top1_ll_above_truth_start": top_ll > truth_ll,
             "truth_start_within_10deg": bool(
-                (window_scores(sc.q_true, truth.q_est, sc.times, window)["median_abs"][0] < 10).all())}
+                (window_scores(sc.q_true[0], truth.q_est, sc.times, window)["median_abs"][0] < 10).all())}
 
 
-def case_path(args, cfg, seed: int) -> Path:
-    key = config_hash(cfg, "scenario", "filter", "evaluation", extra={
+def case_key(args, cfg, seed: int) -> str:
+    """Content hash of one seed's case: the sections it reads, the model, the seed and the bank's settings."""
+    return config_hash(cfg, "scenario", "filter", "evaluation", extra={
         "experiment": "global_start", "format": FORMAT, "seed": seed, "bank": args.bank_size, "keep": args.keep,
         "model": model_key(cfg), "prune": None if args.prune_after_s is None else [args.prune_after_s, args.prune_keep],
         "prune_study": args.prune_study})
-    return args.runs / "global_start" / "cases" / f"{key}.json"
+
+
+def seed_case(cfg_path: str, seed: int, model, args) -> tuple[dict, list]:
+    """One seed's case for the store: its row (:func:`run_seed`) as the summary, no per-seed metric rows."""
+    return {"row": run_seed(cfg_path, seed, model, args)}, []
 
 
 def report(rows: list[dict], args, command: str, wall: float) -> str:
@@ -205,7 +210,7 @@ def report(rows: list[dict], args, command: str, wall: float) -> str:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--config", default=str(ROOT / "configs/boxwing_robust.yaml"))
+    p.add_argument("--config", default=str(ROBUST_CONFIG))
     p.add_argument("--seeds", default="0:100", type=seed_range, help="FIRST:END")
     p.add_argument("--bank-size", type=int, default=1024)
     p.add_argument("--keep", type=int, default=5)
@@ -231,23 +236,17 @@ def main(argv=None) -> int:
         return 2
     torch.set_num_threads(args.threads)
     model = trained_model(cfg, args.runs).to(args.device)
-    command = "python -m experiments.global_start " + " ".join(sys.argv[1:] if argv is None else argv)
+    command = command_line("global_start", sys.argv[1:] if argv is None else argv)
     start, rows = time.perf_counter(), []
     for seed in tqdm(args.seeds, desc="seeds", unit="seed"):
-        path = case_path(args, cfg, seed)
-        record = read_case(path)
-        if record is None or not record.ok:
-            t0 = time.perf_counter()
-            row = run_seed(args.config, seed, model, args)
-            record = CaseRecord(case_id=path.stem, values={"experiment": "global_start"}, seeds=[seed],
-                                estimators=["bank"], summary={"row": row}, seconds=time.perf_counter() - t0)
-            write_case(record, path)
+        record, _ = resume_case(args.runs / "global_start", case_key(args, cfg, seed),
+                                functools.partial(seed_case, args.config, seed, model, args),
+                                values={"experiment": "global_start"}, seeds=[seed], estimators=["bank"])
         rows.append(record.summary["row"])
     text = report(rows, args, command, time.perf_counter() - start)
-    write_text_atomic(text, args.out / "summary.md")
-    write_json_atomic({"command": command, "rows": rows}, args.out / "summary.json")
-    write_text_atomic(csv_text([{k: v for k, v in r.items() if k not in ("q0_true", "prune_study")} for r in rows]),
-                      args.out / "per_seed.csv")
+    table = [{k: v for k, v in r.items() if k not in ("q0_true", "prune_study")} for r in rows]
+    write_outputs(args.out, {"summary.md": text, "summary.json": {"command": command, "rows": rows},
+                             "per_seed.csv": csv_text(table)})
     print(text)
     return 0
 

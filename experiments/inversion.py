@@ -35,8 +35,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from experiments._models import trained_model
-from experiments.generalization import seed_range
+from experiments.common import seed_range, trained_model
 from lightcurve_gp.attitude.dynamics import propagate
 from lightcurve_gp.attitude.metrics import attitude_errors_deg
 from lightcurve_gp.attitude.sampling import random_attitudes

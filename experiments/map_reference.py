@@ -1,7 +1,7 @@
 """What the prior and the light curve allow: a batch MAP estimate of the attitude from all observations so far.
 
 At each checkpoint ``t`` (every ``--every`` s inside the scoring window)
-:func:`lightcurve_gp.inference.attitude.batch_map`
+:func:`lightcurve_gp.inference.attitude.map_known_rate`
 maximises the posterior of the initial attitude (and, with an offset, the magnitude offset) given ``ỹ_1 … ỹ_t``,
 the known dynamics and the filters' prior, re-linearising every observation at every iteration.
 
@@ -21,12 +21,10 @@ from pathlib import Path
 
 import torch
 
-from experiments._cli import ROOT, robust_arguments
-from experiments._models import trained_model
+from experiments.common import ROOT, command_line, robust_arguments, seed_block, trained_model, write_outputs
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.evaluation.reporting import markdown_table
-from lightcurve_gp.files import write_json_atomic, write_text_atomic
-from lightcurve_gp.inference.attitude import MapPrior, batch_map, map_rmse_deg
+from lightcurve_gp.inference.attitude import MapPrior, map_known_rate, map_rmse_deg
 from lightcurve_gp.observation.parametric import Parametric
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import Scenario, simulate_scenario
@@ -36,9 +34,10 @@ def run_map(model, sc: Scenario, cfg, checkpoints: list[int], offset: bool) -> t
     """Batch MAP of one observation model on every seed: its summary and the per-seed RMSE (deg)."""
     start = time.perf_counter()
     prior = MapPrior(cfg.filter.p0_deg, cfg.filter.measurement_noise, cfg.filter.offset_prior_std)
-    est = batch_map(model, q_est0=sc.q_est0, increments=sc.increments, observations=sc.observations, prior=prior,
-                    checkpoints=checkpoints, offset=offset)
-    rmse = map_rmse_deg(est, q_true=sc.q_true, q_est0=sc.q_est0, increments=sc.increments)
+    q_est0, increments = sc.q_est0[0], sc.increments[0]  # the config's truth, shared by the seeds
+    est = map_known_rate(model, q_est0=q_est0, increments=increments, observations=sc.observations,
+                         prior=prior, checkpoints=checkpoints, offset=offset)
+    rmse = map_rmse_deg(est, q_true=sc.q_true[0], q_est0=q_est0, increments=increments)
     summary = {"rmse_deg_median": rmse.median(0).values.tolist(),
                "fraction_all_axes_below_10deg": float((rmse < 10).all(-1).double().mean()),
                "seconds": time.perf_counter() - start}
@@ -56,8 +55,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     cfg = load_config(args.config)
     scene = Scene.from_config(cfg)
-    sc = simulate_scenario(cfg, seeds=range(args.seed_start, args.seed_start + args.seeds), rho_true=args.rho_true,
-                           scene=scene)
+    sc = simulate_scenario(cfg, seeds=seed_block(args), rho_true=args.rho_true, scene=scene)
     lo, hi = cfg.evaluation.rmse_window_s
     dt = cfg.scenario.dt_s
     checkpoints = [int(round(t / dt)) for t in torch.arange(lo, hi + 1e-9, args.every, dtype=torch.float64).tolist()]
@@ -74,14 +72,12 @@ def main(argv=None) -> int:
         rows.append([name, *(f"{v:.2f}" for v in s["rmse_deg_median"]),
                      f"{100 * s['fraction_all_axes_below_10deg']:.0f} %", f"{s['seconds']:.0f}"])
         print("| " + " | ".join(rows[-1]) + " |", flush=True)
-    results["command"] = "python -m experiments.map_reference" + (" " + " ".join(argv) if argv else "")
+    results["command"] = command_line("map_reference", argv or [])
     head = (f"Batch MAP over all observations so far, rho_true = {args.rho_true:g}, {args.seeds} seeds from "
             f"{args.seed_start}; RMSE over the checkpoints {lo:g}, {lo + args.every:g}, ..., {hi:g} s (deg)\n\n")
-    write_json_atomic(results, args.out / "map_reference.json")
-    write_json_atomic({"seeds": results["seeds"], "per_seed_rmse_deg": per_seed},
-                      args.raw / "map_reference_per_seed.json")
-    write_text_atomic(head + markdown_table(
-        ["observation model", "yaw", "pitch", "roll", "< 10 deg all axes", "s"], rows), args.out / "map_reference.md")
+    table = markdown_table(["observation model", "yaw", "pitch", "roll", "< 10 deg all axes", "s"], rows)
+    write_outputs(args.out, {"map_reference.json": results, "map_reference.md": head + table})
+    write_outputs(args.raw, {"map_reference_per_seed.json": {"seeds": results["seeds"], "per_seed_rmse_deg": per_seed}})
     return 0
 
 

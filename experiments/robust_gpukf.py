@@ -25,19 +25,26 @@ import sys
 import time
 from pathlib import Path
 
-from experiments._cli import ROOT, robust_arguments
-from experiments._models import trained_model
+from experiments.common import (
+    ROOT,
+    command_line,
+    goal_check,
+    robust_arguments,
+    seed_block,
+    trained_model,
+    write_outputs,
+)
 from lightcurve_gp.attitude.metrics import model_error_on_trajectory
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.evaluation.estimators import ScenarioResult, run_estimators
+from lightcurve_gp.evaluation.harness import ScenarioResult, run_estimators
 from lightcurve_gp.evaluation.plots import rmse_boxplot
-from lightcurve_gp.evaluation.reporting import SUMMARY_HEADER, markdown_table, summary_row
-from lightcurve_gp.files import write_json_atomic, write_text_atomic
+from lightcurve_gp.evaluation.reporting import SUMMARY_HEADER, markdown_table, scenario_summary, summary_row
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario
 
-GOAL_RATIO = 1.25
-GOAL_FRACTION = 0.9
+#: the goal at each rho: the robust GPUKF's median RMSE per axis at most this many times the matched UKF's, and at
+#: least this share of seeds below 10 deg on all axes (and its mean NEES inside the 95 % band)
+GOAL_RATIO, GOAL_FRACTION = 1.25, 0.9
 #: the robust config with the paper's fixed GP hyperparameters and the process noise tuned for it
 FIXED_HYPERPARAMETERS = ["name=boxwing_robust_fixed_hyperparameters", "model.fit_hyperparameters=false",
                          "filter.process_noise=5e-6"]
@@ -50,51 +57,49 @@ def merged(robust: ScenarioResult, paper: ScenarioResult) -> ScenarioResult:
     return out
 
 
-def goal_check(summary: dict) -> dict:
-    """Ratios of the robust GPUKF's median RMSE to both matched UKFs, the fraction below 10 deg, NEES vs its band."""
+def goal(summary: dict) -> tuple[dict, list[str]]:
+    """The goal check of the robust GPUKF's summary (:data:`GOAL_RATIO`, :data:`GOAL_FRACTION`, NEES in band): its
+    ratios to both matched UKFs, one flag per criterion and ``met``; and the check's lines."""
     est = summary["estimators"]
     g = est["gpukf"]
-    lo, hi = summary["nees_band_95"]
     out = {f"ratio_to_{ref}": [a / b for a, b in zip(g["rmse_deg_median"], est[ref]["rmse_deg_median"])]
            for ref in ("matched_ukf", "paper_matched_ukf")}
-    out["ratio_met"] = all(x <= GOAL_RATIO for x in out["ratio_to_matched_ukf"])
-    out["fraction_met"] = g["fraction_all_axes_below_10deg"] >= GOAL_FRACTION
-    out["nees_met"] = lo <= g["nees_mean"] <= hi
-    out["met"] = out["ratio_met"] and out["fraction_met"] and out["nees_met"]
-    return out
+    check = goal_check({"ratio": out["ratio_to_matched_ukf"], "fraction": g["fraction_all_axes_below_10deg"],
+                        "nees": g["nees_mean"]},
+                       {"ratio": ("<=", GOAL_RATIO), "fraction": (">=", GOAL_FRACTION),
+                        "nees": ("in", tuple(summary["nees_band_95"]))})
+    return {**out, **check.flags, "met": check.met}, check.lines
 
 
 def gp_error_on_trajectory(cfg, model, scene: Scene) -> dict:
     """The GP's error against the renderer along the scenario's true trajectory (ρ0, noise-free), in mag."""
     sc = simulate_scenario(cfg, seeds=[0], rho_true=cfg.model.rho_reference, scene=scene)
-    return model_error_on_trajectory(model, q=sc.q_true, m_true=sc.m_clean, m_past=sc.m_clean,
+    return model_error_on_trajectory(model, q=sc.q_true[0], m_true=sc.m_clean[0], m_past=sc.m_clean[0],
                                      variance=cfg.model.variance)
 
 
-def _goal_line(goal: dict) -> str:
-    met = lambda flag: "met" if flag else "NOT met"  # noqa: E731
+def _goal_line(goal: dict, lines: list[str]) -> str:
     return ("\ngpukf / matched_ukf: " + ", ".join(f"{x:.2f}" for x in goal["ratio_to_matched_ukf"])
             + "; gpukf / paper_matched_ukf: " + ", ".join(f"{x:.2f}" for x in goal["ratio_to_paper_matched_ukf"])
-            + f". Goal: ratio {met(goal['ratio_met'])}, >= 90 % below 10 deg {met(goal['fraction_met'])}, "
-              f"NEES in band {met(goal['nees_met'])}.")
+            + ". Goal: " + "; ".join(lines) + ".")
 
 
 def rho_case(rho: float, cfg, paper, models: tuple, seeds: range, scene: Scene, args) -> tuple[dict, dict, list]:
     """Every estimator at one ``rho_true``: its summary with the goal check, the per-seed RMSE and table lines."""
     model, paper_model = models
-    robust = run_estimators(cfg, model, seeds=seeds, rho_true=rho, scene=scene,
-                            estimators=("gpukf", "joint_ukf", "matched_ukf", "no_update"))
-    ref = run_estimators(paper, paper_model, seeds=seeds, rho_true=rho, scene=scene,
-                         estimators=("gpukf", "ukf", "matched_ukf"))
+    robust = run_estimators(cfg, simulate_scenario(cfg, seeds=seeds, rho_true=rho, scene=scene), model=model,
+                            scene=scene, estimators=("gpukf", "joint_ukf", "matched_ukf", "no_update"))
+    ref = run_estimators(paper, simulate_scenario(paper, seeds=seeds, rho_true=rho, scene=scene), model=paper_model,
+                         scene=scene, estimators=("gpukf", "ukf", "matched_ukf"))
     res = merged(robust, ref)
-    s = res.summary()
-    s["goal"] = goal_check(s)
+    s = scenario_summary(res)
+    s["goal"], goal_lines = goal(s)
     s["offset_final_median"] = {n: float(res.results[n].history.offset[:, -1].median()) for n in ("gpukf", "joint_ukf")}
     lo, hi = s["nees_band_95"]
     lines = [f"\n### rho_true = {rho:g} ({args.seeds} seeds from {seeds.start}; median RMSE in deg over "
              f"{s['window_s'][0]:g}-{s['window_s'][1]:g} s; NEES band {lo:.2f}-{hi:.2f})\n",
              markdown_table(SUMMARY_HEADER, [summary_row(n, e) for n, e in s["estimators"].items()]).rstrip("\n"),
-             _goal_line(s["goal"])]
+             _goal_line(s["goal"], goal_lines)]
     rmse_boxplot({n: r.rmse_deg for n, r in res.results.items()}, args.out / f"rmse_boxplot_rho{rho:g}.png",
                  title=f"rho_true = {rho:g}, {args.seeds} seeds")
     return s, {n: r.rmse_deg.tolist() for n, r in res.results.items()}, lines
@@ -117,8 +122,9 @@ def ablation(args, model, fixed_model, scene: Scene) -> list[str]:
     rows = []
     for label, overrides, est, gp in steps:
         c = load_config(args.config, overrides)
-        r = run_estimators(c, gp, seeds=seeds, rho_true=args.ablation_rho, estimators=(est,), scene=scene)
-        rows.append(summary_row(label, r.summary()["estimators"][est]))
+        sc = simulate_scenario(c, seeds=seeds, rho_true=args.ablation_rho, scene=scene)
+        r = run_estimators(c, sc, estimators=(est,), model=gp, scene=scene)
+        rows.append(summary_row(label, scenario_summary(r)["estimators"][est]))
     return [f"\n### Ablation at rho_true = {args.ablation_rho:g}, {args.ablation_seeds} seeds from {seeds.start}\n",
             markdown_table(SUMMARY_HEADER, rows).rstrip("\n")]
 
@@ -138,7 +144,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     cfg = load_config(args.config)
     paper = load_config(args.paper_config, ["filter.add_model_variance=false"])  # the paper's GPUKF: GP mean only
-    seeds = range(args.seed_start, args.seed_start + args.seeds)
+    seeds = seed_block(args)
     scene = Scene.from_config(cfg)
     t0 = time.perf_counter()
     model, paper_model = trained_model(cfg, args.runs), trained_model(paper, args.runs)
@@ -161,11 +167,11 @@ def main(argv=None) -> int:
     abl = ablation(args, model, fixed_model, scene)
     print("\n".join(abl))
     results["wall_seconds"] = time.perf_counter() - t0
-    results["command"] = "python -m experiments.robust_gpukf" + (" " + " ".join(argv) if argv else "")
-    write_json_atomic(results, args.out / "results.json")
-    write_json_atomic({"seeds": results["seeds"], "per_seed_rmse_deg": per_seed}, args.raw / "per_seed_rmse.json")
-    write_text_atomic("# GPUKF with unknown rho\n" + "\n".join(lines) + "\n", args.out / "table.md")
-    write_text_atomic("\n".join(abl) + "\n", args.out / "ablation.md")
+    results["command"] = command_line("robust_gpukf", argv or [])
+    write_outputs(args.out, {"results.json": results,
+                             "table.md": "# GPUKF with unknown rho\n" + "\n".join(lines) + "\n",
+                             "ablation.md": "\n".join(abl) + "\n"})
+    write_outputs(args.raw, {"per_seed_rmse.json": {"seeds": results["seeds"], "per_seed_rmse_deg": per_seed}})
     return 0
 
 

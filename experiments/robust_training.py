@@ -26,13 +26,13 @@ import sys
 import time
 from pathlib import Path
 
+import gpytorch
 import torch
 
-from experiments._cli import ROOT, robust_arguments
+from experiments.common import ROOT, goal_check, robust_arguments, seed_block, write_outputs
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.evaluation.estimators import run_estimators
-from lightcurve_gp.evaluation.reporting import markdown_table
-from lightcurve_gp.files import write_json_atomic, write_text_atomic
+from lightcurve_gp.evaluation.harness import run_estimators
+from lightcurve_gp.evaluation.reporting import markdown_table, scenario_summary
 from lightcurve_gp.observation.fitting import (
     gpytorch_exact_model,
     gpytorch_sgpr_model,
@@ -43,6 +43,7 @@ from lightcurve_gp.observation.fitting import (
 )
 from lightcurve_gp.observation.gp_base import GPTrainingSet
 from lightcurve_gp.observation.sparse_gp import kmeans
+from lightcurve_gp.simulation.scenario import simulate_scenario
 from lightcurve_gp.training.sets import load_or_generate, model_targets
 from lightcurve_gp.training.store import get_or_train, model_key
 
@@ -119,7 +120,8 @@ def _bound(cfg, model, runs: Path) -> float:
 def _filter(cfg, model, seeds: range, rho: float) -> dict:
     """The robust GPUKF's summary on ``seeds`` at ``rho_true = rho``."""
     t0 = time.perf_counter()
-    s = run_estimators(cfg, model, seeds=seeds, rho_true=rho, estimators=("gpukf",)).summary()
+    sc = simulate_scenario(cfg, seeds=seeds, rho_true=rho)
+    s = scenario_summary(run_estimators(cfg, sc, estimators=("gpukf",), model=model))
     g = s["estimators"]["gpukf"]
     return {"rmse_deg_median": g["rmse_deg_median"], "fraction_below_10deg": g["fraction_all_axes_below_10deg"],
             "nees_mean": g["nees_mean"], "nees_band_95": s["nees_band_95"], "seconds": time.perf_counter() - t0}
@@ -128,13 +130,13 @@ def _filter(cfg, model, seeds: range, rho: float) -> dict:
 def verdict(entry: dict, today: dict | None) -> dict:
     """The issue's criteria: share below 10 deg, NEES inside its band, per-axis median within 5 % of today's."""
     f = entry["filter"]
-    lo, hi = f["nees_band_95"]
-    out = {"fraction_met": f["fraction_below_10deg"] >= MIN_FRACTION, "nees_met": lo <= f["nees_mean"] <= hi}
+    measured = {"fraction": f["fraction_below_10deg"], "nees": f["nees_mean"]}
+    goals = {"fraction": (">=", MIN_FRACTION), "nees": ("in", tuple(f["nees_band_95"]))}
     if today is not None:
-        ratios = [a / b for a, b in zip(f["rmse_deg_median"], today["filter"]["rmse_deg_median"])]
-        out["median_ratio_to_today"] = ratios
-        out["median_met"] = all(abs(x - 1.0) <= MEDIAN_TOLERANCE for x in ratios)
-    return out
+        measured["median"] = [a / b for a, b in zip(f["rmse_deg_median"], today["filter"]["rmse_deg_median"])]
+        goals["median"] = ("within", (1.0, MEDIAN_TOLERANCE))
+    out = goal_check(measured, goals).flags
+    return out if today is None else {**out, "median_ratio_to_today": measured["median"]}
 
 
 def table(results: dict) -> str:
@@ -172,8 +174,6 @@ def time_evaluations(cfg, runs: Path, evaluations: int) -> dict:
     """Seconds per evaluation of the objective and its gradient on the variant's fit problem (its objective, subset,
     inducing inputs and dtype; the paper's start), the median of ``evaluations``, and that times
     ``model.sparse.iterations`` (an extrapolation of the fit, not a measured fit)."""
-    import gpytorch
-
     data, _, _ = load_or_generate(cfg, runs / "cache", progress=False)
     data = model_targets(data, cfg.model)
     ts, sp = GPTrainingSet.prepare(data.q, data.m_past, data.y, cfg.model, None), cfg.model.sparse
@@ -226,7 +226,7 @@ def main(argv=None) -> int:
     torch.set_num_threads(args.threads)
     out = args.out / "training_variants.json"
     results = json.loads(out.read_text())["variants"] if out.is_file() else {}
-    seeds = range(args.seed_start, args.seed_start + args.seeds)
+    seeds = seed_block(args)
     if args.time_only:
         return _time_only(args, names)
     for name in names:
@@ -238,10 +238,11 @@ def main(argv=None) -> int:
         entry["verdict"] = verdict(entry, results.get("today") if name != "today" else None)
         results[name] = entry
         print(f"{name}: {json.dumps(entry)}", flush=True)
-        write_json_atomic({"seeds": [seeds.start, seeds.stop], "rho_true": args.rho, "config": _relative(args.config),
-                           "variants": results}, out)
-        write_text_atomic(table_page(results, seeds=seeds, rho=args.rho, config=_relative(args.config),
-                                     folder=args.out), args.out / "training_variants.md")
+        write_outputs(args.out, {
+            out.name: {"seeds": [seeds.start, seeds.stop], "rho_true": args.rho, "config": _relative(args.config),
+                       "variants": results},
+            "training_variants.md": table_page(results, seeds=seeds, rho=args.rho, config=_relative(args.config),
+                                               folder=args.out)})
     return 0
 
 
@@ -258,7 +259,7 @@ def _time_only(args, names: list[str]) -> int:
         timings[name] = {"overrides": VARIANTS[name],
                          **time_evaluations(load_config(args.config, VARIANTS[name]), args.runs, args.time_only)}
         print(f"{name}: {json.dumps(timings[name])}", flush=True)
-        write_json_atomic(timings, out)
+        write_outputs(out.parent, {out.name: timings})
     return 0
 
 

@@ -11,13 +11,12 @@ from __future__ import annotations
 
 import sys
 
-from experiments._cli import robust_arguments
-from experiments._models import trained_model
+from experiments.common import robust_arguments, seed_block, trained_model, write_outputs
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.evaluation.estimators import run_estimators
-from lightcurve_gp.evaluation.reporting import SUMMARY_HEADER, markdown_table, summary_row
-from lightcurve_gp.files import write_text_atomic
+from lightcurve_gp.evaluation.harness import run_estimators
+from lightcurve_gp.evaluation.reporting import SUMMARY_HEADER, markdown_table, scenario_summary, summary_row
 from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.simulation.scenario import simulate_scenario
 
 
 def main(argv=None) -> int:
@@ -28,11 +27,12 @@ def main(argv=None) -> int:
     cfg = load_config(args.config)
     scene = Scene.from_config(cfg)
     model = trained_model(cfg, args.runs)
-    seeds = range(args.seed_start, args.seed_start + args.seeds)
+    seeds = seed_block(args)
     rows, nees = [], {}
     for value in args.process_noise.split(","):
         c = load_config(args.config, [f"filter.process_noise={value}"])
-        s = run_estimators(c, model, seeds=seeds, rho_true=args.rho_true, estimators=("gpukf",), scene=scene).summary()
+        sc = simulate_scenario(c, seeds=seeds, rho_true=args.rho_true, scene=scene)
+        s = scenario_summary(run_estimators(c, sc, estimators=("gpukf",), model=model, scene=scene))
         nees[value] = s["estimators"]["gpukf"]["nees_mean"]
         rows.append(summary_row(f"process noise {value}", s["estimators"]["gpukf"]))
         print("| " + " | ".join(rows[-1]) + " |", flush=True)
@@ -40,7 +40,7 @@ def main(argv=None) -> int:
     best = min(nees, key=lambda v: abs(nees[v] - 0.5 * (lo + hi)))
     head = (f"Robust GPUKF on the tuning seeds {seeds.start}-{seeds.stop - 1}, rho_true = {args.rho_true:g}; mean NEES "
             f"band {lo:.2f}-{hi:.2f}; nearest its centre: process noise {best}\n")
-    write_text_atomic(head + "\n" + markdown_table(SUMMARY_HEADER, rows), args.out / "tuning.md")
+    write_outputs(args.out, {"tuning.md": head + "\n" + markdown_table(SUMMARY_HEADER, rows)})
     print(head, end="")
     return 0
 

@@ -29,31 +29,25 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-from experiments._cli import sweep_arguments
-from experiments.spin_unknown import case_overrides
+from experiments.common import ROBUST_CONFIG, ROOT, case_overrides, floats, seed_block, sweep_arguments, write_outputs
 from lightcurve_gp.commands.common import apply_threads
 from lightcurve_gp.config.load import apply_overrides, load_raw_config
 from lightcurve_gp.evaluation.reporting import format_quantiles, markdown_table, quantiles
-from lightcurve_gp.files import write_json_atomic, write_text_atomic
-from lightcurve_gp.sweep import make_executor, run_sweep
+from lightcurve_gp.sweep.executors import make_executor
+from lightcurve_gp.sweep.runner import run_sweep
 
-ROOT = Path(__file__).resolve().parents[1]
 HEADER = ("ω process noise ((rad/s)² per step)", "duration", "< 10° all axes", "NEES [δp, ω] (band)",
           "NEES δp (band)", "median RMSE yaw / pitch / roll (°)", "final ω error °/s", "score")
 
 
-def _floats(text: str) -> list[float]:
-    return [float(v) for v in text.split(",") if v.strip()]
-
-
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--config", type=Path, default=ROOT / "configs/boxwing_robust.yaml")
-    p.add_argument("--values", type=_floats, default=_floats("0,1e-11,1e-10,1e-9"),
+    p.add_argument("--config", type=Path, default=ROBUST_CONFIG)
+    p.add_argument("--values", type=floats, default=floats("0,1e-11,1e-10,1e-9"),
                    help="filter.omega_process_noise values ((rad/s)^2 per step)")
     p.add_argument("--sigma", type=float, default=0.03, help="prior rate std and initial rate error (deg/s)")
     p.add_argument("--rho-true", type=float, default=0.3)
-    p.add_argument("--durations", type=_floats, default=_floats("600,1800"))
+    p.add_argument("--durations", type=floats, default=floats("600,1800"))
     p.add_argument("--seeds", type=int, default=100)
     p.add_argument("--seed-start", type=int, default=100, help="first noise seed (default 100: the tuning seeds)")
     p.add_argument("--out", type=Path, default=ROOT / "runs")
@@ -93,7 +87,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     apply_threads(args.threads)
     start = time.perf_counter()
     raw = apply_overrides(load_raw_config(args.config), ["name=spin_tuning", f"scenario.rho_true={args.rho_true}"])
-    seeds = range(args.seed_start, args.seed_start + args.seeds)
+    seeds = seed_block(args)
     rows, scores, summaries = [], {v: {} for v in args.values}, {}
     with make_executor(args.executor, workers=args.workers, address=args.scheduler) as ex:
         for duration in args.durations:
@@ -119,11 +113,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                       f"(no value within a factor e of the band's centre): {', '.join(out_of_reach) or 'none'}; "
                       f"the smallest worst score over every duration: {worst_all:g}.\n"])
     seconds = time.perf_counter() - start
-    write_text_atomic(text, args.results / "omega_noise_tuning.md")
-    write_json_atomic({"chosen": chosen, "chosen_over_every_duration": worst_all, "durations_within_reach": reachable,
-                       "scores": {f"{v:g}": {f"{d:g}": x for d, x in s.items()} for v, s in scores.items()},
-                       "seconds": seconds,
-                       "argv": sys.argv[1:], "summaries": summaries}, args.results / "omega_noise_tuning.json")
+    report = {"chosen": chosen, "chosen_over_every_duration": worst_all, "durations_within_reach": reachable,
+              "scores": {f"{v:g}": {f"{d:g}": x for d, x in s.items()} for v, s in scores.items()},
+              "seconds": seconds, "argv": sys.argv[1:], "summaries": summaries}
+    write_outputs(args.results, {"omega_noise_tuning.md": text, "omega_noise_tuning.json": report})
     print(text)
     print(f"{seconds:.0f} s", file=sys.stderr)
     return 0

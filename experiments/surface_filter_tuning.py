@@ -22,15 +22,21 @@ from pathlib import Path
 
 import torch
 
-from experiments._models import trained_model
-from experiments.generalization import seed_range, truth_draw
+from experiments.common import (
+    ROBUST_CONFIG,
+    ROOT,
+    SUITE_ESTIMATORS,
+    registry_name,
+    seed_range,
+    trained_model,
+    truth_draw,
+)
 from lightcurve_gp.config.load import ConfigError, load_config
+from lightcurve_gp.evaluation.harness import run_estimators
 from lightcurve_gp.evaluation.reporting import markdown_table
-from lightcurve_gp.evaluation.suite import SUITE_ESTIMATORS, nees_band, run_suite
+from lightcurve_gp.evaluation.scoring import nees_band
 from lightcurve_gp.photometry.render import Scene
-from lightcurve_gp.simulation.truths import simulate_truths
-
-ROOT = Path(__file__).resolve().parents[1]
+from lightcurve_gp.simulation.scenario import simulate_truths
 
 
 def parse_candidate(text: str) -> tuple[str, list[str]]:
@@ -52,7 +58,7 @@ def candidate_row(scored, band) -> dict[str, float]:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("candidates", nargs="+", help="estimator[@key=value...] (config overrides of the candidate)")
-    p.add_argument("--config", default=str(ROOT / "configs/boxwing_robust.yaml"))
+    p.add_argument("--config", default=str(ROBUST_CONFIG))
     p.add_argument("--blocks", default="1000:1100", help="comma-separated FIRST:END seed ranges (tuning seeds)")
     p.add_argument("--paper-rho", type=float, default=None,
                    help="run the blocks on the paper's case with this true rho (the suite's paper block) instead of "
@@ -79,7 +85,8 @@ def main(argv=None) -> int:
         truths = simulate_truths(base, truth_draw(base, list(block), mode), scene)
         for text, name, _ in candidates:
             t0 = time.perf_counter()
-            scored = run_suite(configs[text], truths, gp_model=model, estimators=[name], scene=scene)[name]
+            scored = run_estimators(configs[text], truths, estimators=[registry_name(name)], model=model,
+                                    scene=scene).results[registry_name(name)]
             row = candidate_row(scored, band)
             pooled[text].append(row)
             cells.append(_cells(f"{block.start}-{block.stop - 1}", text, [row], time.perf_counter() - t0))

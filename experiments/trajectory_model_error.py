@@ -18,14 +18,12 @@ from pathlib import Path
 
 import torch
 
-from experiments._models import trained_model
+from experiments.common import ROOT, trained_model
 from lightcurve_gp.config.load import ConfigError, load_config
 from lightcurve_gp.evaluation.reporting import markdown_table
 from lightcurve_gp.observation.along_pass import bind_geometry
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def trajectory_error_row(cfg, model) -> list[str]:
@@ -34,8 +32,9 @@ def trajectory_error_row(cfg, model) -> list[str]:
     sc = simulate_scenario(cfg, seeds=[0], rho_true=cfg.model.rho_reference, scene=scene)
     with torch.no_grad():
         mean, var = prediction_along_truth(model, sc)
-    seen = torch.isfinite(sc.m_clean)  # along a pass: samples in shadow or below the horizon have no magnitude
-    mean, var, err = mean[seen], var[seen], (mean - sc.m_clean)[seen]
+    m_clean = sc.m_clean[0]
+    seen = torch.isfinite(m_clean)  # along a pass: samples in shadow or below the horizon have no magnitude
+    mean, var, err = mean[seen], var[seen], (mean - m_clean)[seen]
     within = (err.abs() <= 2.0 * var.sqrt()).double().mean()
     values = (err.mean(), (err - err.mean()).pow(2).mean().sqrt(), err.pow(2).mean().sqrt(), var.sqrt().mean())
     return [cfg.name, *(f"{float(v):+.3f}" if i == 0 else f"{float(v):.3f}" for i, v in enumerate(values)),
@@ -45,11 +44,12 @@ def trajectory_error_row(cfg, model) -> list[str]:
 def prediction_along_truth(model, sc) -> tuple[torch.Tensor, torch.Tensor]:
     """The model's mean and variance ``(T+1,)`` (mag, mag²) at the true attitudes; along a pass each sample under
     its own geometry (:func:`lightcurve_gp.observation.along_pass.bind_geometry`)."""
+    q_true, m_clean = sc.q_true[0], sc.m_clean[0]  # the first seed's truth
     if sc.geometry is None:
-        return model(q=sc.q_true, m_past=sc.m_clean, variance="exact")
-    g, past = sc.geometry, torch.nan_to_num(sc.m_clean)  # the pass models do not use m_past; unseen samples are NaN
+        return model(q=q_true, m_past=m_clean, variance="exact")
+    g, past = sc.geometry, torch.nan_to_num(m_clean)  # the pass models do not use m_past; unseen samples are NaN
     per_sample = [bind_geometry(model, sun=g.sun[t], observer=g.observer[t], range_m=float(g.range_m[t]))(
-        q=sc.q_true[t:t + 1], m_past=past[t:t + 1], variance="exact") for t in range(len(g))]
+        q=q_true[t:t + 1], m_past=past[t:t + 1], variance="exact") for t in range(len(g))]
     return torch.cat([p[0] for p in per_sample], -1), torch.cat([p[1] for p in per_sample], -1)
 
 

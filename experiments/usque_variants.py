@@ -23,13 +23,21 @@ from typing import Sequence
 
 import numpy as np
 
-from experiments._cli import sweep_arguments
-from experiments.spin_unknown import HEADER, ROOT, case_overrides, table_row
+from experiments.common import (
+    ROBUST_CONFIG,
+    ROOT,
+    SPIN_HEADER,
+    case_overrides,
+    seed_block,
+    spin_table_row,
+    sweep_arguments,
+    write_outputs,
+)
 from lightcurve_gp.commands.common import apply_threads
 from lightcurve_gp.config.load import apply_overrides, load_raw_config
 from lightcurve_gp.evaluation.reporting import CaseRecord, markdown_table
-from lightcurve_gp.files import write_json_atomic, write_text_atomic
-from lightcurve_gp.sweep import make_executor, run_sweep
+from lightcurve_gp.sweep.executors import make_executor
+from lightcurve_gp.sweep.runner import run_sweep
 
 PAIR = ((False, "both"), (True, "after"))  # (sigma_redraw, q_placement): the default, the paper
 AXES = [("filter.sigma_redraw", [False, True]), ("filter.q_placement", ["both", "after"])]
@@ -38,7 +46,7 @@ BASE = ["name=usque_variants", "filter.process_noise=1e-4"]
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m experiments.usque_variants", description=__doc__.split("\n\n")[0])
-    p.add_argument("--config", type=Path, default=ROOT / "configs/boxwing_robust.yaml")
+    p.add_argument("--config", type=Path, default=ROBUST_CONFIG)
     p.add_argument("--seeds", type=int, default=200)
     p.add_argument("--seed-start", type=int, default=0)
     p.add_argument("--sigma", type=float, default=0.03, help="prior rate std and initial rate error, deg/s")
@@ -73,7 +81,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     apply_threads(args.threads)
     start = time.perf_counter()
     raw = apply_overrides(load_raw_config(args.config), BASE)
-    seeds = range(args.seed_start, args.seed_start + args.seeds)
+    seeds = seed_block(args)
     lines, out = [], {}
     with make_executor(args.executor, workers=args.workers, address=args.scheduler) as ex:
         for sigma in (None, args.sigma):
@@ -81,10 +89,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             res = run_sweep(apply_overrides(raw, case_overrides(600.0, sigma)), AXES, seeds, out=args.out,
                             sweep_id=sweep_id, estimators=["matched_ukf"], workers=args.workers,
                             threads=args.threads, progress=not args.no_progress, executor=ex)
-            rows = [table_row(label(c.values), res.records[c.case_id], "matched_ukf") for c in res.cases]
+            rows = [spin_table_row(label(c.values), res.records[c.case_id], "matched_ukf") for c in res.cases]
             title = "ω known" if sigma is None else f"ω estimated, σ_ω = {sigma:g} °/s"
             lines += [f"\n#### Matched-ρ UKF, {title} ({args.seeds} seeds from {args.seed_start}; RMSE over "
-                      "400-600 s, median [q25, q75])\n", markdown_table(HEADER, rows).rstrip("\n")]
+                      "400-600 s, median [q25, q75])\n", markdown_table(SPIN_HEADER, rows).rstrip("\n")]
             out[sweep_id] = {label(c.values): res.records[c.case_id].summary for c in res.cases}
             by = {(c.values["filter.sigma_redraw"], c.values["filter.q_placement"]): res.records[c.case_id]
                   for c in res.cases}
@@ -96,8 +104,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                          f"{pair['total_rmse_ratio_median']:.3f}, lower on "
                          f"{100 * pair['paper_lower_total_rmse_fraction']:.0f} % of the seeds.")
     seconds = time.perf_counter() - start
-    write_text_atomic("\n".join(lines) + "\n", args.results / "variants.md")
-    write_json_atomic({"seconds": seconds, "argv": sys.argv[1:], "summaries": out}, args.results / "variants.json")
+    write_outputs(args.results, {"variants.md": "\n".join(lines) + "\n",
+                                 "variants.json": {"seconds": seconds, "argv": sys.argv[1:], "summaries": out}})
     print("\n".join(lines) + f"\n\n{seconds:.0f} s")
     return 0
 

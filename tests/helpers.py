@@ -3,7 +3,10 @@
 import torch
 
 from lightcurve_gp.attitude.rotations import attitude_matrix, euler321_to_quat, quat_conj, quat_mul, quat_to_rotvec
+from lightcurve_gp.evaluation.harness import run_estimators
+from lightcurve_gp.evaluation.registry import DEFAULT_ESTIMATORS
 from lightcurve_gp.observation.base import ObservationModule
+from lightcurve_gp.simulation.scenario import simulate_scenario
 
 DT = torch.float64
 
@@ -91,3 +94,9 @@ def simulate_file(config: str, tmp_path, sets: list[str], *extra: str):
     obs = tmp_path / "obs.ecsv"
     assert simulate.main([config, "--out", str(obs), "--seed", "2", "--no-progress", *sets, *extra]) == 0
     return obs
+
+
+def estimate_scenario(cfg, model=None, *, seeds=None, rho_true=None, estimators=DEFAULT_ESTIMATORS):
+    """The config's scenario simulated for ``seeds`` and the estimators run on it (the estimate command's core)."""
+    return run_estimators(cfg, simulate_scenario(cfg, seeds=seeds, rho_true=rho_true), estimators=estimators,
+                          model=model)

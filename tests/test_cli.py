@@ -78,7 +78,7 @@ def test_estimate_prints_the_table_and_writes_results(trained, tmp_path, capsys)
     printed = capsys.readouterr().out
     for name in ("gpukf", "ukf", "matched_ukf", "no_update", "rho_true = 0.7"):
         assert name in printed
-    folder = tmp_path / "tiny" / "estimate_rho0.7"
+    folder = tmp_path / "estimates" / "tiny" / "rho0.7"
     results = json.loads((folder / "results.json").read_text())
     assert set(results["estimators"]) == {"gpukf", "ukf", "matched_ukf", "no_update"}
     assert len(results["per_seed_rmse_deg"]["gpukf"]) == 3
@@ -98,7 +98,8 @@ def test_estimate_errors_are_clear(tmp_path, capsys):
     assert estimate.main([BOXWING, "--estimators", "ukf,kalman", "--seeds", "1", "--out", str(tmp_path),
                           *sets(TINY)]) == 2
     assert capsys.readouterr().err == ("error: --estimators: unknown estimator 'kalman'; choose from gpukf, ukf, "
-                                       "matched_ukf, joint_ukf, surface_ukf, surface_ukf_select, no_update\n")
+                                       "matched_ukf, joint_ukf, surface_ukf, surface_ukf_select, map_surface, "
+                                       "map_offset, no_update\n")
     assert list(tmp_path.iterdir()) == [bad]
 
 
@@ -131,7 +132,7 @@ def test_offset_config_trains_on_normalised_magnitudes_and_estimates_with_the_of
 
     assert estimate.main([ROBUST, "--model", str(run / "model.pt"), "--seeds", "3", "--rho-true", "0.3",
                           "--estimators", "gpukf,joint_ukf", "--out", str(tmp_path), *sets(ROBUST_TINY)]) == 0
-    result = json.loads((tmp_path / "robust_tiny" / "estimate_rho0.3" / "results.json").read_text())
+    result = json.loads((tmp_path / "estimates" / "robust_tiny" / "rho0.3" / "results.json").read_text())
     assert set(result["estimators"]) == {"gpukf", "joint_ukf"}
     assert "gpukf" in capsys.readouterr().out
 

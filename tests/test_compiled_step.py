@@ -1,7 +1,8 @@
 """The compiled filter step (``filter.compile: true``): the same estimates as the eager step on short runs of the
 paper's filter (the renderer traced into the graph, the exact GP's mean fused, a GP with a variance called eagerly
 between two compiled halves), the eager redo of a step whose square root falls back, the exported step compiled
-again when the model or the shapes change (and only then), and the config key."""
+again when the model or the shapes change (and only then), the models it fuses, the same estimates without torch's
+private API (its public fallbacks), and the config key."""
 
 import dataclasses
 import math
@@ -10,10 +11,13 @@ import pytest
 import torch
 
 import lightcurve_gp.filters.compiled as usque_compiled
-from lightcurve_gp.config.load import ConfigError, config_to_dict, load_config
+from lightcurve_gp.config.load import ConfigError, ExactModelConfig, ModelConfig, config_to_dict, load_config
+from lightcurve_gp.filters.compiled import Capabilities, capabilities, fuses
 from lightcurve_gp.filters.unscented import UNROLLED_CHOLESKY_MAX, SqrtFallbackWarning, cholesky_unrolled
 from lightcurve_gp.filters.usque import UsqueParams, initial_covariance, run_usque
-from lightcurve_gp.observation import ExactGP
+from lightcurve_gp.observation import ExactGP, SparseGP
+from lightcurve_gp.observation.along_pass import AlongPass
+from lightcurve_gp.observation.base import ObservationModule
 from lightcurve_gp.observation.kernels import blocked_kernel_sum, cross_kernel_cache, exp_neg_sqdist, weighted_blocks
 from lightcurve_gp.observation.parametric import Parametric
 from lightcurve_gp.photometry.render import Scene
@@ -50,8 +54,8 @@ def _both(model, params, truth, *, B=2, P0=None):
     """The eager and the compiled run of ``B`` filters over :data:`STEPS` steps."""
     obs = truth.observations[:B, :STEPS + 1]
     P0 = initial_covariance(10.0, dtype=torch.float64) if P0 is None else P0
-    runs = [run_usque(model=model, q_est0=truth.q_est0.expand(B, 4), P0=P0, observations=obs, m_past0=obs[:, 0],
-                      increments=truth.increments[:STEPS], params=dataclasses.replace(params, compile=c))
+    runs = [run_usque(model=model, q_est0=truth.q_est0[:1].expand(B, 4), P0=P0, observations=obs, m_past0=obs[:, 0],
+                      increments=truth.increments[0, :STEPS], params=dataclasses.replace(params, compile=c))
             for c in (False, True)]
     return runs
 
@@ -64,13 +68,21 @@ def _assert_same(eager, compiled):
     assert torch.equal(eager.fallbacks, compiled.fallbacks)
 
 
+def _counting_exports(monkeypatch) -> list:
+    """Calls of :func:`usque_compiled._export` (one per exported and compiled step), counted in the list returned."""
+    exports = []
+    export = usque_compiled._export
+    monkeypatch.setattr(usque_compiled, "_export", lambda *a, **k: exports.append(1) or export(*a, **k))
+    return exports
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("variance", ["none", "fast"])
 def test_compiled_gpukf_gives_the_eager_estimates(paper_case, variance):
     """Mean only: the GP's mean fused into the graph; fast variance: the GP called eagerly between the halves."""
     cfg, _, truth, gp = paper_case
     params = dataclasses.replace(UsqueParams.from_config(cfg), variance=variance)
-    assert gp.fuses_in_compiled_step(variance) == (variance == "none")
+    assert fuses(gp, variance) == (variance == "none")
     eager, compiled = _both(gp, params, truth)
     _assert_same(eager, compiled)
     assert bool(compiled.updated[:, 1:].all())
@@ -117,9 +129,7 @@ def test_the_exported_step_is_compiled_again_when_the_model_or_the_shapes_change
     """A Python attribute (a constant of the graph), a plain tensor changed in place (its version counter) and the
     batch size each compile a new step whose estimates are the eager ones; a buffer changed in place (an input of
     the graph) and a run like the one before reuse the compiled step."""
-    exports = []
-    export = usque_compiled._export
-    monkeypatch.setattr(usque_compiled, "_export", lambda *a, **k: exports.append(1) or export(*a, **k))
+    exports = _counting_exports(monkeypatch)
     _, y, q_est0, increments = scenario(B=3, T=STEPS)
     model = _ShiftedToy(m_past_gain=0.1)
     params = UsqueParams(Q=1e-6, R=1e-4, variance="none")
@@ -149,12 +159,76 @@ def test_the_exported_step_is_compiled_again_when_the_model_or_the_shapes_change
     assert len(exports) == count + 1
 
 
-def test_a_model_that_changes_its_python_state_when_called_is_refused():
-    _, y, q_est0, increments = scenario(B=1, T=2)
-    params = UsqueParams(Q=1e-6, R=1e-4, variance="none", compile=True)
-    with pytest.raises(ValueError, match=r"^filter\.compile: ToyModel changed its Python state when called "):
-        run_usque(model=ToyModel(), q_est0=q_est0, P0=initial_covariance(10.0, dtype=torch.float64), observations=y,
-                  m_past0=y[:, 0], increments=increments, params=params)
+@pytest.mark.slow
+def test_a_model_that_changes_its_python_state_when_called_runs_in_two_halves(monkeypatch):
+    """Its counter moves while the step is traced: no fused graph is kept (it would freeze the counter), the model
+    is called eagerly once per step between the compiled halves, and the estimates are the eager ones."""
+    _, y, q_est0, increments = scenario(B=2, T=STEPS)
+    P0 = initial_covariance(10.0, dtype=torch.float64)
+    params = UsqueParams(Q=1e-6, R=1e-4, variance="none")
+    models, runs = [ToyModel(), ToyModel()], []
+    for model, compile_ in zip(models, (False, True)):
+        runs.append(run_usque(model=model, q_est0=q_est0, P0=P0, observations=y, m_past0=y[:, 0],
+                              increments=increments, params=dataclasses.replace(params, compile=compile_)))
+    _assert_same(*runs)
+    assert models[1].calls == models[0].calls == STEPS
+    assert [e.fn for e in usque_compiled._EXPORTED[models[1]].values()] == [None]
+
+
+class _Holding(ObservationModule):
+    """A model that only holds another (a wrapper, like the geometry-bound GP)."""
+
+    def __init__(self, inner):
+        super().__init__()
+        self.inner = inner
+
+    def _predict(self, q, m_past, variance):
+        return self.inner(q=q, m_past=m_past, variance=variance)
+
+
+def test_the_compiled_step_fuses_the_models_it_recognises():
+    """Traced into one graph: the renderer, the exact GP's mean, a library-style module and a wrapper of those;
+    called eagerly: a GP asked for a variance, the sparse GP, a model along a pass (a per-call counter), a wrapper
+    of any of those, and a callable that is not a module."""
+    g = torch.Generator().manual_seed(0)
+    q, y = torch.randn(30, 4, generator=g, dtype=torch.float64), torch.randn(30, generator=g, dtype=torch.float64)
+    cfg = ModelConfig(kind="exact", theta1=1.0, theta2=0.25, noise_std=0.1, variance="fast",
+                      fit_hyperparameters=False, exact=ExactModelConfig(fast_variance_neighbors=8))
+    exact = ExactGP.from_data(q, torch.zeros(30, dtype=torch.float64), y, cfg)
+    sparse = SparseGP.from_data(q, torch.zeros(30, dtype=torch.float64), y, dataclasses.replace(
+        cfg, kind="sparse", sparse=dataclasses.replace(cfg.sparse, num_inducing=8, iterations=0)))
+    renderer = Parametric(Scene.from_config(load_config(CONFIG)), 0.5)
+    table = {"exact": (exact, "none", True), "exact fast": (exact, "fast", False), "sparse": (sparse, "none", False),
+             "renderer": (renderer, "fast", True), "toy": (_UncountedToy(), "exact", True),
+             "wrapped exact": (_Holding(exact), "none", True), "wrapped exact fast": (_Holding(exact), "fast", False),
+             "wrapped sparse": (_Holding(sparse), "none", False), "along a pass": (AlongPass(renderer, None), "none",
+                                                                                   False),
+             "plain callable": (lambda **kw: renderer(**kw), "none", False)}
+    assert {k: fuses(m, v) for k, (m, v, _) in table.items()} == {k: want for k, (_, _, want) in table.items()}
+
+
+def test_this_torch_has_the_private_entry_points_the_fast_path_uses():
+    """The probe finds them here (else the public fallbacks below would be all that runs)."""
+    assert capabilities() == Capabilities(inductor_compile=torch._inductor.compile, version_counter=True)
+
+
+@pytest.mark.slow
+def test_without_torchs_private_api_the_compiled_step_gives_the_eager_estimates(monkeypatch):
+    """With neither ``torch._inductor.compile`` nor ``Tensor._version``: a model without plain tensors is exported
+    and compiled by ``torch.compile``; one that holds a plain tensor (whose in-place changes could not be seen) is
+    not exported but runs in two halves; both give the eager estimates."""
+    monkeypatch.delattr(torch._inductor, "compile")  # the fallback must not need it
+    monkeypatch.setattr(usque_compiled, "capabilities", lambda: Capabilities())
+    exports = _counting_exports(monkeypatch)
+    _, y, q_est0, increments = scenario(B=2, T=STEPS)
+    P0 = initial_covariance(10.0, dtype=torch.float64)
+    params = UsqueParams(Q=1e-6, R=1e-4, variance="none")
+    for model, compiles in ((_UncountedToy(), 1), (_ShiftedToy(), 0)):
+        count = len(exports)
+        _assert_same(*[run_usque(model=model, q_est0=q_est0, P0=P0, observations=y, m_past0=y[:, 0],
+                                 increments=increments, params=dataclasses.replace(params, compile=c))
+                       for c in (False, True)])
+        assert len(exports) - count == compiles, type(model).__name__
 
 
 def test_blocked_kernel_sum_is_the_kernel_row_times_the_weights():

@@ -9,13 +9,8 @@ from lightcurve_gp.attitude.dynamics import propagate
 from lightcurve_gp.attitude.rotations import attitude_matrix, quat_canonical
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.photometry.render import Scene
-from lightcurve_gp.training.sets import (
-    drop_duplicate_attitudes,
-    generate_heldout_set,
-    generate_training_set,
-    initial_attitudes,
-    load_or_generate,
-)
+from lightcurve_gp.training.sets import generate_heldout_set, generate_training_set, load_or_generate
+from lightcurve_gp.training.windows import drop_duplicate_attitudes, initial_attitudes
 
 BOXWING = Path(__file__).resolve().parents[1] / "configs" / "boxwing.yaml"
 SMALL = ["data.icosphere_subdivisions=0", "data.phi_step_deg=120", "data.rho_grid=[0.2, 0.6]",

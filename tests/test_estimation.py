@@ -10,10 +10,12 @@ from lightcurve_gp.attitude.dynamics import propagate_only
 from lightcurve_gp.attitude.metrics import total_angle_deg
 from lightcurve_gp.attitude.rotations import euler321_to_quat, quat_mul
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.evaluation.estimators import run_estimators
+from lightcurve_gp.evaluation.reporting import scenario_summary
 from lightcurve_gp.observation.parametric import Parametric
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario
+
+from helpers import estimate_scenario
 
 BOXWING = Path(__file__).resolve().parents[1] / "configs" / "boxwing.yaml"
 
@@ -38,9 +40,9 @@ def test_initial_estimate_carries_the_configured_euler_error():
     cfg = load_config(BOXWING)
     sc = simulate_scenario(cfg, seeds=[0])
     error = euler321_to_quat(torch.deg2rad(torch.tensor(cfg.scenario.initial_error_deg, dtype=torch.float64)))
-    assert torch.allclose(quat_mul(error, sc.q_true[0]), sc.q_est0, atol=1e-15)
+    assert torch.allclose(quat_mul(error, sc.q_true[0, 0]), sc.q_est0[0], atol=1e-15)
     expected = math.degrees(2 * math.acos(abs(float(error[3]))))
-    assert float(total_angle_deg(sc.q_true[0], sc.q_est0)) == pytest.approx(expected, abs=1e-9)
+    assert float(total_angle_deg(sc.q_true[0, 0], sc.q_est0[0])) == pytest.approx(expected, abs=1e-9)
 
 
 def test_parametric_model_is_the_renderer_and_ignores_m_past():
@@ -65,10 +67,10 @@ def test_parametric_model_is_the_renderer_and_ignores_m_past():
 def test_no_update_baseline_reproduces_the_propagated_initial_error():
     cfg = load_config(BOXWING)
     sc = simulate_scenario(cfg, seeds=[0])
-    q = propagate_only(sc.q_est0, sc.increments)
+    q = propagate_only(sc.q_est0[0], sc.increments[0])
     # A(q_est) = A(err) A(q_true) at t0 and the dynamics act on the left: the error attitude is conjugated by the
     # motion, so its rotation angle is constant along the whole run
-    angles = total_angle_deg(sc.q_true, q)
+    angles = total_angle_deg(sc.q_true[0], q)
     assert float(angles.max() - angles.min()) < 1e-9
 
 
@@ -80,16 +82,16 @@ def test_matched_ukf_converges_with_noise_free_observations():
     """
     cfg = load_config(BOXWING, ["scenario.noise_var=0", "filter.measurement_noise=1e-3", "filter.process_noise=0",
                                 "scenario.initial_error_deg=[-2, 1, -2]", "filter.p0_deg=3"])
-    res = run_estimators(cfg, seeds=[0], estimators=("matched_ukf",))
-    final = total_angle_deg(res.scenario.q_true[-1], res.results["matched_ukf"].q_est[0, -1])
+    res = estimate_scenario(cfg, seeds=[0], estimators=("matched_ukf",))
+    final = total_angle_deg(res.scenario.q_true[0, -1], res.results["matched_ukf"].q_est[0, -1])
     assert float(final) < 1.0
 
 
 def test_conventional_ukf_suffers_from_a_rho_mismatch_that_the_matched_one_does_not_have():
     """The paper's Fig. 10 without noise: ρ_ukf = 0.5 on ρ_true = 0.7 loses the attitude."""
     cfg = load_config(BOXWING, ["scenario.noise_var=0", "filter.measurement_noise=0.02"])
-    res = run_estimators(cfg, seeds=[0], rho_true=0.7, estimators=("ukf", "matched_ukf"))
-    summary = res.summary()["estimators"]
+    res = estimate_scenario(cfg, seeds=[0], rho_true=0.7, estimators=("ukf", "matched_ukf"))
+    summary = scenario_summary(res)["estimators"]
     ukf, matched = summary["ukf"], summary["matched_ukf"]
     assert max(ukf["rmse_deg_median"]) > 3 * max(matched["rmse_deg_median"])
     assert ukf["lc_rmse_clean_median"] > 10 * matched["lc_rmse_clean_median"]
@@ -101,8 +103,8 @@ def test_rho_is_a_pure_offset_for_the_matched_filter():
     Not bit-identical: sigma points ~17° off the truth see a specular share of order 1e-6.
     """
     cfg = load_config(BOXWING, ["scenario.seeds=4"])
-    a = run_estimators(cfg, rho_true=0.7, estimators=("matched_ukf",)).results["matched_ukf"]
-    b = run_estimators(cfg, rho_true=0.5, estimators=("matched_ukf",)).results["matched_ukf"]
+    a = estimate_scenario(cfg, rho_true=0.7, estimators=("matched_ukf",)).results["matched_ukf"]
+    b = estimate_scenario(cfg, rho_true=0.5, estimators=("matched_ukf",)).results["matched_ukf"]
     assert float((a.q_est - b.q_est).abs().max()) < 1e-3
     assert float((a.rmse_deg - b.rmse_deg).abs().max()) < 0.02
 
@@ -110,9 +112,9 @@ def test_rho_is_a_pure_offset_for_the_matched_filter():
 def test_unknown_estimator_and_missing_model_are_reported():
     cfg = load_config(BOXWING)
     with pytest.raises(ValueError, match="unknown estimator 'kalman'"):
-        run_estimators(cfg, seeds=[0], estimators=("kalman",))
+        estimate_scenario(cfg, seeds=[0], estimators=("kalman",))
     with pytest.raises(ValueError, match="needs a trained GP model"):
-        run_estimators(cfg, seeds=[0], estimators=("gpukf",))
+        estimate_scenario(cfg, seeds=[0], estimators=("gpukf",))
 
 
 def test_joint_ukf_estimates_the_offset_of_an_unknown_rho():
@@ -122,7 +124,7 @@ def test_joint_ukf_estimates_the_offset_of_an_unknown_rho():
     from lightcurve_gp.filters.offset import rho_to_offset
 
     cfg = load_config(BOXWING, ["scenario.noise_var=0.01", "filter.measurement_noise=0.01"])
-    res = run_estimators(cfg, seeds=range(3), rho_true=0.3, estimators=("ukf", "matched_ukf", "joint_ukf"))
+    res = estimate_scenario(cfg, seeds=range(3), rho_true=0.3, estimators=("ukf", "matched_ukf", "joint_ukf"))
     joint = res.results["joint_ukf"]
     b_true = rho_to_offset(0.3, cfg.model.rho_reference)
     err_b = (joint.history.offset[:, -1] - b_true).abs()

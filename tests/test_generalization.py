@@ -11,12 +11,15 @@ import yaml
 from lightcurve_gp.attitude.dynamics import propagate_only
 from lightcurve_gp.attitude.metrics import total_angle_deg
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.evaluation.suite import nees_band, run_suite
-from lightcurve_gp.evaluation.suite_summary import ERROR_BINS, bin_label, seed_rows, summarize, whitened_correlation
-from lightcurve_gp.inference.surface import batch_map
+from lightcurve_gp.evaluation.harness import run_estimators
+from lightcurve_gp.evaluation.scoring import nees_band
+from lightcurve_gp.evaluation.suite_summary import ERROR_BINS, bin_label, suite_rows, summarize, whitened_correlation
+from lightcurve_gp.inference.surface import map_with_surface
+from lightcurve_gp.observation.surface_state import reference_surface
 from lightcurve_gp.photometry.brdf import Surface
 from lightcurve_gp.photometry.render import Scene
-from lightcurve_gp.simulation.truths import TruthDraw, draw_truths, simulate_truths
+from lightcurve_gp.simulation.scenario import simulate_truths
+from lightcurve_gp.simulation.truths import TruthDraw, draw_truths
 
 DT = torch.float64
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "boxwing_robust.yaml"
@@ -38,15 +41,14 @@ def truths(cfg, scene):
     return simulate_truths(cfg, draw_truths([21, 22, 23]), scene)
 
 
+def run_suite(cfg, truths, *, estimators, scene):
+    return run_estimators(cfg, truths, estimators=estimators, scene=scene).results
+
+
 def _subset(truths, i):
-    d = truths.draw
-    draw = dataclasses.replace(d, seeds=[d.seeds[i]], q0=d.q0[i:i + 1], omega0=d.omega0[i:i + 1],
-                               surface=d.surface.index(slice(i, i + 1)), error=d.error[i:i + 1],
-                               sigma0=d.sigma0[i:i + 1])
-    return dataclasses.replace(truths, draw=draw, q_true=truths.q_true[i:i + 1],
-                               increments=truths.increments[i:i + 1], m_clean=truths.m_clean[i:i + 1],
-                               observations=truths.observations[i:i + 1],
-                               specular_share=truths.specular_share[i:i + 1])
+    per_seed = {f.name: getattr(truths, f.name)[i:i + 1] for f in dataclasses.fields(truths)
+                if f.name not in ("times", "noise_var", "rho_true", "geometry", "unobservable", "surface")}
+    return dataclasses.replace(truths, **per_seed, surface=truths.surface.index(slice(i, i + 1)))
 
 
 def test_filters_with_per_seed_increments_and_surfaces_equal_one_seed_at_a_time(cfg, scene, truths):
@@ -55,6 +57,7 @@ def test_filters_with_per_seed_increments_and_surfaces_equal_one_seed_at_a_time(
     assert not torch.equal(truths.increments[0], truths.increments[1])
     for i in range(3):
         alone = run_suite(cfg, _subset(truths, i), estimators=estimators, scene=scene)
+        assert alone[estimators[0]].rmse_deg.shape == (1, 3)
         for name in estimators:
             assert torch.allclose(batched[name].rmse_deg[i], alone[name].rmse_deg[0], rtol=1e-9, atol=1e-10)
             assert torch.allclose(batched[name].nees_mean[i], alone[name].nees_mean[0], rtol=1e-9)
@@ -64,8 +67,8 @@ def test_no_update_nees_is_the_initial_error_against_p0(cfg, scene, truths):
     # the error keeps its angle while both turn with the known spin; P0 is isotropic, so the NEES of the GRP error
     # (a = 1, f = 4: |p| = 4 tan(angle / 4)) is constant in time
     r = run_suite(cfg, truths, estimators=("no_update",), scene=scene)["no_update"]
-    angle = truths.draw.error.norm(dim=-1)
-    expected = (4.0 * torch.tan(angle / 4.0)) ** 2 / truths.draw.sigma0 ** 2
+    angle = truths.error.norm(dim=-1)
+    expected = (4.0 * torch.tan(angle / 4.0)) ** 2 / truths.sigma0 ** 2
     assert torch.allclose(r.nees_mean, expected, rtol=1e-9)
     assert torch.allclose(r.white_first.norm(dim=-1), r.white_last.norm(dim=-1), rtol=1e-9)
 
@@ -80,13 +83,45 @@ def test_map_recovers_the_attitude_from_a_noise_free_curve_of_a_known_surface():
     draw = TruthDraw([0], t64([[0.0, 0.0, 0.0, 1.0]]), torch.deg2rad(t64([cfg.scenario.omega0_deg_s])), surface,
                      torch.deg2rad(t64([[5.0, -4.0, 6.0]])), t64([math.radians(10.0)]))
     truths = simulate_truths(cfg, draw, scene)
-    est = batch_map(scene, q_est0=draw.q_est0, sigma0=draw.sigma0 * 100, observations=truths.m_clean,
-                    increments=truths.increments, checkpoints=[400, 600], measurement_noise=0.5, reference=surface,
-                    offset_std=1.0, surface=False, iterations=30, warm_iterations=10)
+    est = map_with_surface(scene, q_est0=draw.q_est0, sigma0=draw.sigma0 * 100, observations=truths.m_clean,
+                           increments=truths.increments, checkpoints=[400, 600], measurement_noise=0.5,
+                           reference=surface, offset_std=1.0, surface=False, iterations=30, warm_iterations=10)
     start = propagate_only(draw.q_est0, truths.increments[0])[0, [400, 600]]
     assert float(total_angle_deg(truths.q_true[0, [400, 600]], start).min()) > 8.0
     assert float(total_angle_deg(truths.q_true[0, [400, 600]], est.q_est[0]).max()) < 0.5
     assert abs(float(est.x[0, -1, 3])) < 1e-2
+
+
+@pytest.mark.parametrize("surface", [True, False])
+def test_the_numbers_of_the_first_surface_map_are_kept(cfg, scene, truths, surface):
+    # computed by the solver this one replaced (commit 7be9713); the shared core reproduces them bit for bit
+    est = map_with_surface(scene, q_est0=truths.q_est0, sigma0=truths.sigma0,
+                           observations=truths.observations, increments=truths.increments, checkpoints=[20, 30],
+                           measurement_noise=cfg.filter.measurement_noise, reference=reference_surface(cfg),
+                           offset_std=cfg.filter.offset_prior_std, surface=surface)
+    x, var = MAP_REFERENCE["surface" if surface else "offset"]
+    torch.testing.assert_close(est.x[:, -1], torch.tensor(x, dtype=DT), rtol=0, atol=1e-12)
+    torch.testing.assert_close(est.P[:, -1].diagonal(dim1=-2, dim2=-1), torch.tensor(var, dtype=DT), rtol=1e-10,
+                               atol=0)
+
+
+MAP_REFERENCE = {
+    "surface": ([[0.005423367099117407, -0.02301992587270495, 0.016078796990197215, -2.1620579476378703,
+                  -0.8590741951550271, 5.756462732485115, 5.756462732485115],
+                 [0.00936763378090152, 0.012646751776099132, -0.004278146221810485, -0.4307268772495623,
+                  1.1260002167486838, 5.756462732485115, 5.756462732485115],
+                 [0.011117430452794577, 0.009651659378243185, 0.001749542706780922, -0.6444504589574762,
+                  0.040603096279672415, 5.756462732485115, 5.756462732485115]],
+                [[0.03226377559233697, 0.03187425295485204, 0.03218142374855307],
+                 [0.01854548282390917, 0.018666633972065014, 0.018871787324870146],
+                 [0.02956130784923121, 0.02962288726834861, 0.030283889329765647]]),
+    "offset": ([[0.004209455205125966, -0.024431860700797083, 0.02122363800075614, 1.234660473267517],
+                [0.03296517316546846, 0.03128621932700972, -0.004083429532570506, 0.4142577848331911],
+                [0.01043228900699496, 0.009017948791027283, 0.0016392591189212798, -0.03254950381401446]],
+               [[0.03225566531470198, 0.03178044541218737, 0.03213773901166695],
+                [0.017947494099322225, 0.018306560114664798, 0.018868607635655354],
+                [0.02901747147497689, 0.029118279587490952, 0.03027054766816922]]),
+}
 
 
 def test_nees_band_of_one_sample_holds_95_percent_of_chi_square_3():
@@ -103,8 +138,9 @@ def test_bins_are_half_open_and_complete():
 
 
 def test_summaries_count_every_seed_once_per_grouping(cfg, scene, truths):
-    results = run_suite(cfg, truths, estimators=("no_update",), scene=scene)
-    rows = seed_rows(truths, results, nees_band(), error_mode="random")
+    result = run_estimators(cfg, truths, estimators=("no_update",), scene=scene)
+    results = result.results
+    rows = suite_rows(result, nees_band(), error_mode="random")
     summary = summarize(rows)
     for grouping in ("all", "surface class", "|omega0| (deg/s)", "initial error (deg)"):
         assert sum(e["seeds"] for e in summary if e["grouping"] == grouping) == 3
@@ -133,7 +169,7 @@ def test_experiment_resumes_from_its_stored_blocks(tmp_path, monkeypatch):
     def refuse(*args, **kwargs):
         raise AssertionError("a stored block was run again")
 
-    monkeypatch.setattr(gen, "run_suite", refuse)
+    monkeypatch.setattr(gen, "run_estimators", refuse)
     assert gen.main(argv) == 0
     assert (tmp_path / "out" / "initial_error.csv").read_text() == first
     assert gen.main(["--model-config", str(config), "--estimators", "nope"]) == 2

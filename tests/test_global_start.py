@@ -7,13 +7,9 @@ import torch
 
 from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.filters.bank import (
-    bank_attitudes,
-    continue_filters,
-    innovation_log_likelihood,
-    run_bank,
-    run_filter,
-)
+from lightcurve_gp.filters.bank import bank_attitudes, continue_filters, run_bank
+from lightcurve_gp.filters.selection import innovation_log_likelihood
+from lightcurve_gp.filters.setup import run_filter
 
 from helpers import ToyModel, scenario
 

@@ -1,6 +1,8 @@
 """The batched least-squares core: Jacobians against closed forms, the exact posterior of a linear-Gaussian problem
 in one Gauss–Newton step, descent on nonlinear toys, the Laplace covariance against a numerical Hessian."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -108,8 +110,35 @@ def test_levenberg_marquardt_and_the_square_root_prior_reach_the_same_posterior(
     np.testing.assert_allclose(result.x.numpy(), mean, rtol=0, atol=1e-9)
     np.testing.assert_allclose(result.covariance.numpy(), cov, rtol=1e-9, atol=1e-14)
     assert bool(result.converged.all())
-    expected = least_squares_cost(residual(result.x, torch.arange(4)), result.x, prior.rows(torch.arange(4)))
+    expected = least_squares_cost(residual(result.x, torch.arange(4)), result.x, torch.arange(4), prior=prior)
     torch.testing.assert_close(result.cost, expected, rtol=1e-12, atol=0)
+
+
+def test_a_residual_variance_per_problem_equals_whitened_residuals():
+    residual, prior, mean, cov, _ = linear_gaussian(seed=7)
+    variance = torch.tensor([0.09, 0.5, 2.0, 0.01], dtype=DT)
+
+    def raw(x, rows):  # the same data term: r_raw² / v = (r √0.09)² / v, i.e. r² when v = 0.09
+        return residual(x, rows) * 0.3 * (variance[rows] / 0.09).sqrt().unsqueeze(-1)
+
+    options = LeastSquaresOptions(method="gauss_newton", iterations=1, jacobian="forward_mode")
+    scaled = batch_least_squares(raw, torch.zeros(4, 3, dtype=DT), prior=prior, variance=variance, options=options)
+    np.testing.assert_allclose(scaled.x.numpy(), mean, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(scaled.covariance.numpy(), cov, rtol=1e-10, atol=1e-14)
+    shared = batch_least_squares(lambda x, rows: residual(x, rows) * 0.3, torch.zeros(4, 3, dtype=DT), prior=prior,
+                                 variance=0.09, options=options)
+    np.testing.assert_allclose(shared.x.numpy(), mean, rtol=0, atol=1e-10)
+
+
+def test_stopping_together_iterates_every_problem_until_all_have_stopped():
+    a = torch.tensor([1.0, 1.0], dtype=DT)
+    x0 = torch.tensor([[1.0, 1.0], [-1.2, 1.0]], dtype=DT)  # the first starts at its minimum
+    options = LeastSquaresOptions(method="gauss_newton", halvings=30, tolerance=1e-10, iterations=100)
+    alone = batch_least_squares(rosenbrock(a), x0, options=options)
+    together = batch_least_squares(rosenbrock(a), x0, options=dataclasses.replace(options, stop_together=True))
+    assert alone.iterations[0] == 1 and together.iterations[0] == together.iterations[1] == alone.iterations[1]
+    torch.testing.assert_close(together.x, alone.x, rtol=0, atol=1e-12)
+    assert bool(together.converged.all())
 
 
 def rosenbrock(a: torch.Tensor):
@@ -139,7 +168,7 @@ def test_gauss_newton_with_halvings_never_raises_the_cost():
     a = torch.tensor([1.0, 2.0], dtype=DT)
     residual = rosenbrock(a)
     x0 = torch.tensor([[-1.2, 1.0], [3.0, -2.0]], dtype=DT)
-    start = least_squares_cost(residual(x0, torch.arange(2)), x0, None)
+    start = least_squares_cost(residual(x0, torch.arange(2)), x0, torch.arange(2))
     plain = batch_least_squares(residual, x0, options=LeastSquaresOptions(method="gauss_newton", iterations=1))
     halved = batch_least_squares(residual, x0, options=LeastSquaresOptions(method="gauss_newton", iterations=1,
                                                                            halvings=20))
@@ -159,7 +188,7 @@ def test_laplace_covariance_is_the_inverse_of_the_numerical_hessian_at_a_zero_re
     def residual(x, rows):
         return (y[rows] - model(x, rows)) / 0.1
 
-    prior = GaussianPrior.diagonal(truth, torch.tensor([2.0, 0.5], dtype=DT))
+    prior = GaussianPrior.independent(truth, torch.tensor([2.0, 0.5], dtype=DT))
     result = batch_least_squares(residual, truth + 0.05, prior=prior,
                                  options=LeastSquaresOptions(jacobian="forward_mode", tolerance=1e-13,
                                                              iterations=60))
@@ -168,7 +197,7 @@ def test_laplace_covariance_is_the_inverse_of_the_numerical_hessian_at_a_zero_re
     for b in range(3):
         def cost(x):
             xb = x.unsqueeze(0)
-            return float(least_squares_cost(residual(xb, torch.tensor([b])), xb, prior.rows(torch.tensor([b]))))
+            return float(least_squares_cost(residual(xb, torch.tensor([b])), xb, torch.tensor([b]), prior=prior))
 
         E = torch.eye(2, dtype=DT) * h
         hess = torch.tensor([[(cost(result.x[b] + E[i] + E[j]) - cost(result.x[b] + E[i] - E[j])
@@ -198,6 +227,21 @@ def test_missing_samples_are_left_out_and_each_problem_is_solved_as_if_alone():
     assert bool(torch.isfinite(full).all())
 
 
+def test_an_invalid_residual_penalty_keeps_steps_out_of_where_the_model_fails():
+    def residual(x, rows):  # the model fails (NaN) beyond x = 2.5; the data want x = 3
+        r = torch.cat([x - 3.0, 2 * (x - 3.0)], -1)
+        return torch.where(x < 2.5, r, torch.nan)
+
+    x0 = torch.zeros(1, 1, dtype=DT)
+    options = LeastSquaresOptions(damping=1e-6, iterations=1, covariance="none")
+    left_out = batch_least_squares(residual, x0, options=options)
+    assert float(left_out.x) == pytest.approx(3.0, abs=1e-5) and float(left_out.cost) == 0.0  # all samples lost
+    guarded = batch_least_squares(residual, x0, options=dataclasses.replace(options, invalid_residual=1e3,
+                                                                            iterations=30))
+    assert 0.0 < float(guarded.x) < 2.5
+    assert float(guarded.cost) < float(least_squares_cost(residual(x0, torch.arange(1)), x0, torch.arange(1)))
+
+
 def test_converged_problems_stop_costing():
     a = torch.tensor([1.0, 1.0], dtype=DT)
     residual, seen = rosenbrock(a), []
@@ -212,6 +256,22 @@ def test_converged_problems_stop_costing():
     assert result.iterations[0] == 1 and result.iterations[1] > 5 and bool(result.converged.all())
     late = seen[3:-1]  # after the first iteration, before the final evaluation of every problem
     assert late and all(bool((rows == 1).all()) for rows in late)
+
+
+def test_chunks_of_problems_give_the_same_solution():
+    a = torch.linspace(-1.0, 2.0, 7, dtype=DT)
+    x0 = torch.stack([torch.full_like(a, -1.2), torch.ones_like(a)], -1)
+    whole = batch_least_squares(rosenbrock(a), x0, options=LeastSquaresOptions(tolerance=1e-12, iterations=100))
+    sizes = []
+
+    def counting(x, rows):
+        sizes.append(rows.shape[0])
+        return rosenbrock(a)(x, rows)
+
+    pieces = batch_least_squares(counting, x0, options=LeastSquaresOptions(tolerance=1e-12, iterations=100, chunk=3))
+    torch.testing.assert_close(pieces.x, whole.x, rtol=0, atol=1e-14)
+    torch.testing.assert_close(pieces.covariance, whole.covariance, rtol=1e-12, atol=0)
+    assert max(sizes) == 3 * 5  # three problems, each at five points of the central differences
 
 
 def test_a_singular_information_gives_a_nan_covariance_not_an_error():
@@ -229,6 +289,7 @@ def test_a_singular_information_gives_a_nan_covariance_not_an_error():
     ({"method": "newton"}, "method: 'newton' is not 'gauss_newton' or 'levenberg_marquardt'"),
     ({"covariance": "full"}, "covariance: 'full' is not 'solution', 'last_linearization' or 'none'"),
     ({"iterations": -1}, "iterations: -1, halvings: 0 must be >= 0"),
+    ({"chunk": 0}, r"chunk: 0 must be >= 1 \(or None\)"),
 ])
 def test_bad_options_are_named(kwargs, message):
     with pytest.raises(ValueError, match=message):

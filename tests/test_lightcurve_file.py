@@ -99,7 +99,7 @@ def test_missing_column(tmp_path):
 def test_unparseable_time(tmp_path):
     rows = GOOD[:1] + [("2019-13-10T00:00:01", 13.1)] + GOOD[2:]
     path = write(tmp_path, iso_file(rows))
-    assert message(path) == (f"{path}: line 9: time '2019-13-10T00:00:01' is not an ISO UTC time "
+    assert message(path) == (f"{path}: line 9: time '2019-13-10T00:00:01' is not a UTC time astropy reads "
                              f"(e.g. 2025-01-01T00:00:00.000)")
 
 
@@ -142,9 +142,9 @@ def test_text_in_a_number_column(tmp_path):
 
 def test_time_outside_the_tle_validity(tmp_path):
     meta = f"# - {{tle_line1: '{TLE1}'}}\n# - {{tle_line2: '{TLE2}'}}\n"
-    rows = GOOD[:2] + [("2020-01-10T00:00:00", 13.2)]
+    rows = [("2019-12-20T00:00:00", 13.0), ("2019-12-22T00:00:00", 13.1), ("2019-12-24T00:00:00", 13.2)]
     path = write(tmp_path, iso_file(rows, meta))
-    assert message(path) == (f"{path}: line 13: time 2020-01-10T00:00:00 is +31.3 days from the TLE epoch "
+    assert message(path) == (f"{path}: line 13: time 2019-12-24T00:00:00 is +14.3 days from the TLE epoch "
                              f"2019-12-09T16:38:29.363, outside its validity (±14 days)")
 
 
@@ -178,3 +178,79 @@ def test_unknown_suffix_and_missing_file(tmp_path):
 def test_not_a_table(tmp_path):
     path = write(tmp_path, b"\x00\x01garbage".decode("latin-1"), "bad.fits")
     assert message(path).startswith(f"{path}: not a readable FITS table (")
+
+
+# ---------------------------------------------------------------- times a user writes by hand (issue 30, items 1-2)
+
+SECONDS = "time,mag\n0,13.0\n1,13.1\n2.5,13.2\n"
+
+
+def test_numeric_times_without_an_epoch_are_refused_naming_the_column(tmp_path):
+    path = write(tmp_path, SECONDS, "obs.csv")
+    assert message(path) == (f"{path}: column time: numbers without an epoch (the first is 0); give the UTC time "
+                             f"of t = 0 as an epoch metadata line (CSV: '# epoch: 2025-01-01T00:00:00', ECSV: "
+                             f"meta epoch, FITS: header card EPOCH) for seconds from it, or say 'time_format: mjd' "
+                             f"if the numbers are MJD (UTC)")
+
+
+@pytest.mark.parametrize("epoch", ["2025-01-01T00:00:00", "'2025-01-01T00:00:00'", "2025-01-01 00:00:00",
+                                   "\"2025-01-01 00:00:00.000\"", "2025-01-01", "2025-01-01T00:00:00Z"])
+def test_an_iso_epoch_in_any_form_astropy_reads_is_accepted_in_a_csv_header(tmp_path, epoch):
+    path = write(tmp_path, f"# epoch: {epoch}\n" + SECONDS, "obs.csv")
+    lc = read_light_curve(path)
+    assert lc.start.isot == "2025-01-01T00:00:00.000" and lc.time_format == "seconds"
+    np.testing.assert_array_equal(lc.t, [0.0, 1.0, 2.5])
+    assert lc.meta["epoch"] == "2025-01-01T00:00:00.000000"
+
+
+def test_an_unquoted_epoch_in_the_ecsv_meta_is_accepted(tmp_path):
+    text = ("# %ECSV 1.0\n# ---\n# datatype:\n# - {name: time, datatype: float64}\n# - {name: mag, datatype: "
+            "float64}\n# meta: !!omap\n# - {epoch: 2025-01-01T00:00:10}\n# schema: astropy-2.0\ntime mag\n"
+            "0 13.0\n1 13.1\n")
+    lc = read_light_curve(write(tmp_path, text))
+    assert lc.start.isot == "2025-01-01T00:00:10.000" and lc.time_format == "seconds"
+
+
+def test_a_fits_epoch_card_is_accepted(tmp_path):
+    lc = LightCurve(start=Time("2025-01-01T00:00:00", scale="utc"), t=np.array([0.0, 1.0]), mag=np.array([13.0, 13.1]))
+    path = write_light_curve(lc, tmp_path / "obs.fits", time_format="seconds")
+    assert read_light_curve(path).start.isot == "2025-01-01T00:00:00.000"
+
+
+def test_a_bad_epoch_names_the_metadata_and_what_is_accepted(tmp_path):
+    path = write(tmp_path, "# epoch: yesterday\n" + SECONDS, "obs.csv")
+    assert message(path) == (f"{path}: metadata epoch: 'yesterday' is not a UTC time astropy reads (e.g. "
+                             f"2025-01-01T00:00:00 or 2025-01-01 00:00:00)")
+
+
+def test_time_format_mjd_states_the_numbers_are_mjd(tmp_path):
+    path = write(tmp_path, "# time_format: mjd\ntime,mag\n60676.0,13.0\n60676.5,13.1\n", "obs.csv")
+    lc = read_light_curve(path)
+    assert lc.start.isot == "2025-01-01T00:00:00.000" and lc.time_format == "mjd"
+    np.testing.assert_array_equal(lc.t, [0.0, 43200.0])
+
+
+def test_seconds_declared_as_mjd_are_refused_before_any_geometry(tmp_path):
+    path = write(tmp_path, "# time_format: mjd\n" + SECONDS, "obs.csv")
+    assert message(path) == (f"{path}: line 3: time 0 as MJD is 1858-11-17, outside 1957-2100: are these seconds? "
+                             f"Then give an epoch instead of time_format: mjd")
+
+
+def test_an_implausibly_long_span_is_refused(tmp_path):
+    path = write(tmp_path, "# epoch: 2025-01-01T00:00:00\ntime,mag\n0,13.0\n1,13.1\n2000000,13.2\n", "obs.csv")
+    assert message(path) == (f"{path}: line 5: time 2000000 is 23.1 days after the first sample; a light curve "
+                             f"longer than 14 days is refused (check the unit of the time column: seconds from "
+                             f"the epoch, or MJD days with time_format: mjd)")
+
+
+def test_unknown_time_format_is_named(tmp_path):
+    path = write(tmp_path, "# time_format: jd\n" + SECONDS, "obs.csv")
+    assert message(path) == f"{path}: metadata time_format: 'jd' is not one of seconds, mjd"
+
+
+@pytest.mark.parametrize("text", ["2019-12-10 00:00:00", "2019-12-10T00:00:00Z"])
+def test_iso_time_columns_in_any_form_astropy_reads(tmp_path, text):
+    rows = [(f'"{text[:17]}0{i}{text[19:]}"', 13.0 + i) for i in range(3)]
+    lc = read_light_curve(write(tmp_path, "time,mag\n" + "".join(f"{t},{m}\n" for t, m in rows), "obs.csv"))
+    np.testing.assert_array_equal(lc.t, [0.0, 1.0, 2.0])
+    assert lc.start.isot == "2019-12-10T00:00:00.000"

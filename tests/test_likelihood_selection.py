@@ -6,9 +6,14 @@ import math
 import torch
 
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.evaluation.estimators import SELECTED_LAM_RULES, run_surface_filter, run_surface_filter_selected
-from lightcurve_gp.filters.bank import innovation_log_likelihood
-from lightcurve_gp.filters.selection import select_by_likelihood, select_rows
+from lightcurve_gp.evaluation.registry import SELECTED_LAM_RULES, run_surface_filter_selected
+from lightcurve_gp.filters.selection import (
+    innovation_log_likelihood,
+    innovation_log_terms,
+    select_by_likelihood,
+    select_rows,
+)
+from lightcurve_gp.filters.setup import run_surface_filter
 from lightcurve_gp.filters.usque import UsqueParams, run_usque
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario
@@ -49,6 +54,9 @@ def test_the_true_noise_wins_and_the_criterion_is_the_gaussian_log_density():
     independent = torch.where(used, normal.log_prob(h.innovation[:, 1:]), 0.0).sum(-1)
     assert bool(used.all())
     assert torch.allclose(innovation_log_likelihood(h), independent, rtol=0, atol=1e-9)
+    terms = innovation_log_terms(h)
+    assert torch.equal(terms[:, 0], torch.zeros(5, dtype=DT))  # step 0 has no innovation
+    assert torch.allclose(terms[:, 1:], normal.log_prob(h.innovation[:, 1:]), rtol=0, atol=1e-12)
 
 
 def test_surface_filter_under_two_rules_keeps_one_of_them_per_seed():
@@ -57,13 +65,11 @@ def test_surface_filter_under_two_rules_keeps_one_of_them_per_seed():
     julier = load_config("configs/boxwing_robust.yaml", short + ["filter.lam_rule=julier"])
     scene = Scene.from_config(cfg)
     sc = simulate_scenario(cfg, seeds=[0, 1, 2])
-    q_est0 = sc.q_est0.expand(3, 4)
-    P0 = (math.radians(10.0) ** 2) * torch.eye(3, dtype=DT)
     assert SELECTED_LAM_RULES == ("given", "julier")
-    kept, index = run_surface_filter_selected(cfg, scene, observations=sc.observations, q_est0=q_est0,
-                                              increments=sc.increments, P0_attitude=P0)
-    alone = [run_surface_filter(c, scene, observations=sc.observations, q_est0=q_est0, increments=sc.increments,
-                                P0_attitude=P0) for c in (cfg, julier)]
+    kept, index = run_surface_filter_selected(cfg, scene, observations=sc.observations, q_est0=sc.q_est0,
+                                              increments=sc.increments, sigma0=sc.sigma0)
+    alone = [run_surface_filter(c, scene, observations=sc.observations, q_est0=sc.q_est0, increments=sc.increments,
+                                sigma0=sc.sigma0) for c in (cfg, julier)]
     ll = torch.stack([innovation_log_likelihood(h) for h in alone])
     assert torch.equal(index, ll.argmax(0))
     for b, k in enumerate(index.tolist()):

@@ -7,16 +7,15 @@ import math
 import pytest
 import torch
 
-from lightcurve_gp.commands.train import heldout_metrics
 from lightcurve_gp.config.load import ConfigError, config_to_dict, load_config
-from lightcurve_gp.evaluation.estimators import run_estimators
 from lightcurve_gp.filters.usque import UsqueParams, model_error_variance
 from lightcurve_gp.observation.parametric import Parametric
 from lightcurve_gp.observation.serialization import load_model
 from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.training.fit import heldout_metrics
 from lightcurve_gp.training.store import model_key
 
-from helpers import tiny_training, train_tiny
+from helpers import estimate_scenario, tiny_training, train_tiny
 
 ROBUST = "configs/boxwing_robust.yaml"
 
@@ -81,7 +80,7 @@ def test_the_gpukf_with_heldout_is_the_gpukf_with_that_larger_r(tiny_model_file)
     base = [*tiny_training("tiny_model_error"), "filter.measurement_noise=0.5"]
     on = load_config(ROBUST, [*base, "filter.model_error=heldout"])
     by_r = load_config(ROBUST, [*base[:-1], f"filter.measurement_noise={0.5 + excess!r}"])
-    runs = [run_estimators(c, model, seeds=[0, 1], estimators=["gpukf", "matched_ukf"]) for c in (on, by_r)]
+    runs = [estimate_scenario(c, model, seeds=[0, 1], estimators=["gpukf", "matched_ukf"]) for c in (on, by_r)]
     torch.testing.assert_close(runs[0].results["gpukf"].q_est, runs[1].results["gpukf"].q_est, rtol=0, atol=1e-12)
     if excess > 0:  # the matched UKF keeps R = 0.5 under heldout, so it differs from the run with the larger R
         assert not torch.equal(runs[0].results["matched_ukf"].q_est, runs[1].results["matched_ukf"].q_est)

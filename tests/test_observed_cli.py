@@ -12,13 +12,13 @@ from scipy.stats import norm
 
 from lightcurve_gp.commands import estimate, simulate
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.evaluation.estimators import run_estimators
-from lightcurve_gp.filters.bank import innovation_log_likelihood, run_filter
+from lightcurve_gp.filters.selection import innovation_log_likelihood
+from lightcurve_gp.filters.setup import run_filter
 from lightcurve_gp.observed.lightcurve_file import read_light_curve, write_light_curve
 from lightcurve_gp.observed.run import file_inputs
 from lightcurve_gp.training.store import open_model
 
-from helpers import as_sets, simulate_file, tiny_training, train_tiny
+from helpers import as_sets, estimate_scenario, simulate_file, tiny_training, train_tiny
 
 ROBUST = str(Path(__file__).resolve().parents[1] / "configs" / "boxwing_robust.yaml")
 TINY = tiny_training("tiny_robust")
@@ -40,7 +40,7 @@ def estimated(tmp_path, model_file, obs, *extra):
     out = tmp_path / "out"
     code = estimate.main([ROBUST, "--model", str(model_file), "--light-curve", str(obs), "--out", str(out),
                           "--no-progress", *SETS, *extra])
-    return code, out / "tiny_robust" / f"light_curve_{obs.stem}"
+    return code, out / "estimates" / "tiny_robust" / f"light_curve_{obs.stem}"
 
 
 def test_round_trip_reproduces_the_in_memory_run_exactly(tmp_path, model_file):
@@ -49,7 +49,7 @@ def test_round_trip_reproduces_the_in_memory_run_exactly(tmp_path, model_file):
     code, folder = estimated(tmp_path, model_file, obs, "--initial-attitude=" + ",".join(repr(v) for v in q_est0))
     assert code == 0
     cfg = load_config(ROBUST, TINY)
-    memory = run_estimators(cfg, open_model(model_file), seeds=[2], rho_true=0.7, estimators=["gpukf"])
+    memory = estimate_scenario(cfg, open_model(model_file), seeds=[2], rho_true=0.7, estimators=["gpukf"])
     h = memory.results["gpukf"].history
     table = Table.read(folder / "attitude_history.ecsv")
     q_file = np.stack([table[f"q{i}"] for i in range(1, 5)], -1)

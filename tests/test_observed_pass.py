@@ -12,13 +12,12 @@ from astropy.table import Table
 
 from lightcurve_gp.commands import estimate, simulate
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.evaluation.estimators import run_estimators
 from lightcurve_gp.observed.lightcurve_file import read_light_curve, write_light_curve
 from lightcurve_gp.observed.run import file_geometry
 from lightcurve_gp.passes.geometry import pass_geometry
 from lightcurve_gp.training.store import open_model
 
-from helpers import as_sets, simulate_file, tiny_training, train_tiny
+from helpers import as_sets, estimate_scenario, simulate_file, tiny_training, train_tiny
 
 ROOT = Path(__file__).resolve().parents[1]
 GEO = str(ROOT / "configs" / "geo_pass.yaml")
@@ -69,9 +68,9 @@ def test_file_along_a_pass_reproduces_the_in_memory_run_exactly(tmp_path, model_
     q_est0 = Table.read(tmp_path / "obs.truth.ecsv").meta["q_est0"]
     code, out = estimated(tmp_path, model_file, obs, "--initial-attitude=" + ",".join(repr(v) for v in q_est0))
     assert code == 0
-    folder = out / "tiny_geo" / "light_curve_obs"
+    folder = out / "estimates" / "tiny_geo" / "light_curve_obs"
     cfg = load_config(GEO, TINY)
-    memory = run_estimators(cfg, open_model(model_file), seeds=[2], estimators=["gpukf"])
+    memory = estimate_scenario(cfg, open_model(model_file), seeds=[2], estimators=["gpukf"])
     h = memory.results["gpukf"].history
     table = Table.read(folder / "attitude_history.ecsv")
     np.testing.assert_array_equal(np.stack([table[f"q{i}"] for i in range(1, 5)], -1), h.q_est[0].numpy())
@@ -91,7 +90,7 @@ def test_the_geometry_changes_the_prediction(tmp_path, model_file):
     frozen = write_light_curve(lc, tmp_path / "frozen.ecsv")
     assert estimated(tmp_path, model_file, obs, start)[0] == 0
     assert estimated(tmp_path, model_file, frozen, start)[0] == 0
-    tables = [Table.read(tmp_path / "out" / "tiny_geo" / f"light_curve_{n}" / "attitude_history.ecsv")
+    tables = [Table.read(tmp_path / "out" / "estimates" / "tiny_geo" / f"light_curve_{n}" / "attitude_history.ecsv")
               for n in ("obs", "frozen")]
     assert tables[0]["offset_mag"][0] == tables[1]["offset_mag"][0]  # b0: sample 0's geometry in both ...
     assert float(np.abs(tables[0]["mag_pred"][1:] - tables[1]["mag_pred"][1:]).min()) > 1e-6  # ... each step its own
@@ -102,7 +101,7 @@ def test_the_bank_runs_along_the_pass_with_pruning(tmp_path, model_file):
     code, out = estimated(tmp_path, model_file, obs, "--bank-size", "16", "--bank-keep", "2",
                           "--bank-prune-after-s", "20", "--bank-prune-keep", "4")
     assert code == 0
-    folder = out / "tiny_geo" / "light_curve_obs"
+    folder = out / "estimates" / "tiny_geo" / "light_curve_obs"
     summary = json.loads((folder / "summary.json").read_text())
     assert summary["bank"]["pruned_to"] == 4 and summary["bank"]["size"] == 16
     bank = Table.read(folder / "bank.ecsv")

@@ -17,7 +17,7 @@ from lightcurve_gp.evaluation.reporting import (
     format_quantiles,
     markdown_table,
     quantiles,
-    write_table,
+    write_report_table,
 )
 
 
@@ -50,7 +50,7 @@ def test_tables_are_markdown_and_full_precision_csv(tmp_path):
     assert list(csv.DictReader(io.StringIO(text))) == [{"a": repr(1 / 3), "b": ""}, {"a": "2", "b": "y"}]
     assert float(next(csv.DictReader(io.StringIO(text)))["a"]) == 1 / 3
     assert csv_text([]) == ""
-    assert write_table(tmp_path, "t", ["a"], [[1]], [{"a": 1}]) == (tmp_path / "t.md").read_text()
+    assert write_report_table(tmp_path, "t", ["a"], [[1]], [{"a": 1}]) == (tmp_path / "t.md").read_text()
     assert (tmp_path / "t.csv").read_text() == "a\n1\n"
 
 

@@ -51,7 +51,7 @@ def estimate_args(out: Path, *extra: str) -> list[str]:
     (["--estimators", "gpukf"], "error: --model: the gpukf estimator needs a trained model file "
                                 "(python -m lightcurve_gp.train)\n"),
     (["--estimators", ","], "error: --estimators: ',' names no estimator; choose from gpukf, ukf, matched_ukf, "
-                            "joint_ukf, surface_ukf, surface_ukf_select, no_update\n"),
+                            "joint_ukf, surface_ukf, surface_ukf_select, map_surface, map_offset, no_update\n"),
 ])
 def test_estimator_list_is_checked_before_anything_is_written(tmp_path, capsys, args, message):
     assert estimate.main(estimate_args(tmp_path, *args)) == 2
@@ -63,7 +63,7 @@ def test_estimator_list_is_checked_before_anything_is_written(tmp_path, capsys, 
 def test_estimate_refuses_an_existing_folder_and_records_its_inputs(model_file, tmp_path, capsys):
     args = estimate_args(tmp_path, "--model", str(model_file), "--estimators", "gpukf,no_update")
     assert estimate.main(args) == 0
-    folder = tmp_path / "tiny" / "estimate_rho0.5"
+    folder = tmp_path / "estimates" / "tiny" / "rho0.5"
     before = tree(folder)
     run = json.loads((folder / "results.json").read_text())["run"]
     assert run["model_file"] == str(model_file.resolve())
@@ -77,7 +77,7 @@ def test_estimate_refuses_an_existing_folder_and_records_its_inputs(model_file, 
     assert tree(folder) == before
     assert estimate.main(args[:2] + ["1"] + args[3:] + ["--force"]) == 0
     assert json.loads((folder / "results.json").read_text())["seeds"] == 1
-    assert sorted(p.name for p in folder.parent.iterdir()) == ["estimate_rho0.5"]  # no temporary left
+    assert sorted(p.name for p in folder.parent.iterdir()) == ["rho0.5"]  # no temporary left
 
 
 # 3. a model trained with other settings is refused with the first differing key, unless overridden (recorded)
@@ -90,7 +90,7 @@ def test_a_model_of_another_t_span_past_is_refused_unless_allowed(model_file, tm
                                        f"--allow-model-mismatch\n")
     assert list(tmp_path.iterdir()) == []
     assert estimate.main(args + ["--allow-model-mismatch"]) == 0
-    run = json.loads((tmp_path / "tiny" / "estimate_rho0.5" / "results.json").read_text())["run"]
+    run = json.loads((tmp_path / "estimates" / "tiny" / "rho0.5" / "results.json").read_text())["run"]
     assert run["allow_model_mismatch"] is True
     assert run["model_mismatch"] == "data.t_span_past: the model was trained with 20.0, the config says 10.0"
 
@@ -174,7 +174,7 @@ def test_threads_option_is_applied_and_recorded(model_file, tmp_path):
         assert torch.get_num_threads() == 2
     finally:
         torch.set_num_threads(1)
-    run = json.loads((tmp_path / "tiny" / "estimate_rho0.5" / "results.json").read_text())["run"]
+    run = json.loads((tmp_path / "estimates" / "tiny" / "rho0.5" / "results.json").read_text())["run"]
     assert run["torch_threads"] == 2
 
 
@@ -188,7 +188,8 @@ def test_threads_below_one_are_refused(tmp_path, capsys):
 def test_unsafe_names_write_nothing(tmp_path, capsys, name):
     out = tmp_path / "out"
     out.mkdir()
-    assert train.main([BOXWING, "--out", str(out), *sets(TINY), "--set", f"name={name}"]) == 2
+    unnamed = [o for o in TINY if not o.startswith("name=")]  # a --set key given twice is refused on its own
+    assert train.main([BOXWING, "--out", str(out), *sets(unnamed), "--set", f"name={name}"]) == 2
     shown = yaml.safe_load(name)
     assert capsys.readouterr().err.startswith(f"error: name: {shown!r} is not a safe folder name")
     assert list(tmp_path.rglob("*")) == [out]

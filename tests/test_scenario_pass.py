@@ -28,9 +28,10 @@ def test_pass_with_gaps_samples_the_truth_and_its_increments():
     grid, _ = propagate(quat_normalize(torch.tensor(cfg.scenario.q0, dtype=torch.float64)),
                         torch.deg2rad(torch.tensor(cfg.scenario.omega0_deg_s, dtype=torch.float64)),
                         torch.tensor(cfg.shape.inertia_kg_m2, dtype=torch.float64), 1.0, 300)
-    assert torch.allclose(sc.q_true, grid[sc.times.long()], atol=1e-14)
-    carried = quat_normalize(quat_mul(sc.increments, sc.q_true[:-1]))
-    assert torch.allclose(carried, sc.q_true[1:], atol=1e-12)
+    assert sc.q_true.shape == (2, len(sc.times), 4) and sc.increments.shape == (2, len(sc.times) - 1, 4)
+    assert torch.allclose(sc.q_true, grid[sc.times.long()].expand(2, -1, -1), atol=1e-14)
+    carried = quat_normalize(quat_mul(sc.increments, sc.q_true[:, :-1]))
+    assert torch.allclose(carried, sc.q_true[:, 1:], atol=1e-12)
 
 
 def test_pass_renders_each_sample_with_its_geometry():
@@ -39,7 +40,7 @@ def test_pass_renders_each_sample_with_its_geometry():
     geometry = pass_geometry(cfg)
     scene = Scene.from_config(cfg, rho=cfg.scenario.rho_true)
     for k in (0, 150, 300):
-        assert torch.allclose(sc.m_clean[k], scene.sample(k).magnitude(sc.q_true[k]), atol=1e-12)
+        assert torch.allclose(sc.m_clean[0, k], scene.sample(k).magnitude(sc.q_true[0, k]), atol=1e-12)
     assert float(geometry.phase_angle_deg[0] - geometry.phase_angle_deg[-1]) > 0.5  # the geometry moves
     assert sc.unobservable == 0 and bool(torch.isfinite(sc.observations).all())
 
@@ -50,5 +51,5 @@ def test_unobservable_samples_are_missing_observations():
     sc = simulate_scenario(cfg, seeds=[0, 3])
     hidden = ~geometry.observable
     assert 0 < int(hidden.sum()) < len(geometry) and sc.unobservable == int(hidden.sum())
-    assert bool(torch.isnan(sc.observations[:, hidden]).all()) and bool(torch.isnan(sc.m_clean[hidden]).all())
+    assert bool(torch.isnan(sc.observations[:, hidden]).all()) and bool(torch.isnan(sc.m_clean[:, hidden]).all())
     assert bool(torch.isfinite(sc.observations[:, ~hidden]).all())

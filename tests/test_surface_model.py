@@ -11,11 +11,11 @@ from lightcurve_gp.attitude.rotations import attitude_matrix
 from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.config.load import ConfigError, load_config
 from lightcurve_gp.observation import SurfaceMarginalGP, load_model, save_model
+from lightcurve_gp.observation.surface_marginal import attitude_spread
 from lightcurve_gp.photometry.brdf import Surface
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.training.sets import model_targets, normalised_targets
 from lightcurve_gp.training.surfaces import (
-    attitude_spread,
     draw_surfaces,
     equivalent_reflectance,
     render_over_surfaces,

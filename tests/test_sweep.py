@@ -9,16 +9,11 @@ import pytest
 import yaml
 
 from lightcurve_gp.config.load import ConfigError, apply_overrides, config_from_dict, content_hash
-from lightcurve_gp.sweep import (
-    RESULT_COLUMNS,
-    SUMMARY_COLUMNS,
-    expand_grid,
-    main,
-    make_cases,
-    parse_grid,
-    run_case,
-    run_sweep,
-)
+from lightcurve_gp.evaluation.reporting import RESULT_COLUMNS
+from lightcurve_gp.sweep.cli import main
+from lightcurve_gp.sweep.grid import expand_grid, make_cases, parse_grid
+from lightcurve_gp.sweep.runner import run_case, run_sweep
+from lightcurve_gp.sweep.tables import SUMMARY_COLUMNS
 
 BOXWING = Path(__file__).resolve().parents[1] / "configs" / "boxwing.yaml"
 TINY = ["name=tiny", "data.icosphere_subdivisions=0", "data.phi_step_deg=120", "data.heldout_size=10",
@@ -163,10 +158,13 @@ def test_cli_ctrl_c_is_one_line_exit_130_and_keeps_finished_cases(tmp_path, caps
     code = main([str(config), "--out", str(tmp_path), "--grid", "scenario.rho_true=0.3,0.7", "--seeds", "1",
                  "--estimators", "ukf", "--no-progress"])
     assert code == 130
-    err = capsys.readouterr().err
-    assert err == (f"interrupted; finished cases are stored in {tmp_path / 'tiny' / 'cases'}; rerun the same "
-                   f"command to resume\n")
-    assert [p.stem for p in (tmp_path / "tiny" / "cases").glob("*.json")] == seen
+    out, err = capsys.readouterr()
+    cases = tmp_path / "sweeps" / "tiny" / "cases"  # beside the training runs, not in OUT/tiny/
+    assert err.startswith(f"interrupted; 1 of 2 cases stored in {cases} (partial tables in "
+                          f"{tmp_path / 'sweeps' / 'tiny' / 'sweep'}")
+    assert err.endswith("); rerun the same command to resume\n") and err.count("\n") == 1
+    assert out.startswith("kept so far: 1 of 2 cases\n") and "written:" not in out
+    assert [p.stem for p in cases.glob("*.json")] == seen and not (tmp_path / "tiny").exists()
 
 
 # ----------------------------------------------------------------------------------------------- tables

@@ -17,8 +17,9 @@ import pytest
 import yaml
 
 from lightcurve_gp.config.load import apply_overrides
-from lightcurve_gp.sweep import main, run_case, run_sweep
+from lightcurve_gp.sweep.cli import main
 from lightcurve_gp.sweep.executors import CLUSTER_EXTRA, make_executor
+from lightcurve_gp.sweep.runner import run_case, run_sweep
 
 BOXWING = Path(__file__).resolve().parents[1] / "configs" / "boxwing.yaml"
 TINY = ["name=tiny", "data.icosphere_subdivisions=0", "data.phi_step_deg=120", "data.heldout_size=10",

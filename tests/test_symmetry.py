@@ -1,6 +1,7 @@
 """Symmetries of a facet model: the box-wing's four rotations, checked against the mesh's own vertices and against
 the renderer's light curves along the paper's trajectory."""
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -8,9 +9,12 @@ import pytest
 import torch
 import trimesh
 
-from lightcurve_gp.attitude.rotations import matrix_to_quat, quat_mul
+from experiments.global_start import symmetric_scores, window_scores
+from lightcurve_gp.attitude.dynamics import propagate
+from lightcurve_gp.attitude.rotations import attitude_matrix, matrix_to_quat, quat_mul
 from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.config.load import load_config
+from lightcurve_gp.evaluation.scoring import Estimate, score
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.photometry.shapes import box_wing_mesh, facets_from_config, facets_from_mesh
 from lightcurve_gp.photometry.symmetry import cube_rotations, symmetry_quaternions, symmetry_rotations
@@ -87,22 +91,19 @@ def test_anisotropic_cube_symmetries_agree_with_the_renderer():
 
 def test_symmetry_quaternions_give_the_rotations(paper_case):
     facets = paper_case[1]
-    from lightcurve_gp.attitude.rotations import attitude_matrix
-
     assert torch.allclose(attitude_matrix(symmetry_quaternions(facets)), symmetry_rotations(facets), atol=1e-15)
 
 
 def test_the_experiments_score_modulo_symmetry_finds_the_symmetric_truth(paper_case):
     cfg, facets = paper_case
     """An estimate that follows q_R ⊗ q_true is off by 180° strictly and by nothing modulo the symmetry."""
-    from experiments.global_start import symmetric_scores, window_scores
-
     sc = simulate_scenario(cfg, seeds=[0])
+    q_true = sc.q_true[0]
     q_sym = symmetry_quaternions(facets)
-    q_est = torch.stack([quat_mul(q_sym[2], sc.q_true), sc.q_true])  # (2, T+1, 4)
+    q_est = torch.stack([quat_mul(q_sym[2], q_true), q_true])  # (2, T+1, 4)
     window = (400.0, 600.0)
-    strict = window_scores(sc.q_true, q_est, sc.times, window)["median_abs"]
-    scores = symmetric_scores(sc.q_true, q_est, sc.times, window, q_sym)
+    strict = window_scores(q_true, q_est, sc.times, window)["median_abs"]
+    scores = symmetric_scores(q_true, q_est, sc.times, window, q_sym)
     assert float(strict[0].amax()) > 170.0 and float(strict[1].amax()) < 1e-9
     assert float(scores["median_abs"].amax()) < 1e-9
     assert scores["symmetry"].tolist() == [2, 0]
@@ -112,12 +113,6 @@ def test_mirrored_rate_trajectory_renders_the_same_light_curve_and_scores_zero_m
     """``(q_R ⊗ q(t), A(q_R) ω(t))`` is a torque-free trajectory of the box-wing (its symmetries are 180° turns
     about the principal axes) with the truth's light curve: the scores modulo symmetry find it, the strict ones
     see a 180° error."""
-    import dataclasses
-
-    from lightcurve_gp.attitude.dynamics import propagate
-    from lightcurve_gp.attitude.rotations import attitude_matrix
-    from lightcurve_gp.evaluation.estimators import score_estimator
-
     cfg, facets = paper_case
     cfg = dataclasses.replace(cfg, scenario=dataclasses.replace(cfg.scenario, duration_s=60.0),
                               evaluation=dataclasses.replace(cfg.evaluation, rmse_window_s=[0.0, 60.0]))
@@ -125,15 +120,15 @@ def test_mirrored_rate_trajectory_renders_the_same_light_curve_and_scores_zero_m
     q_sym = symmetry_quaternions(facets)
     k = 3  # the 180° turn about body z: a yaw flip
     R = attitude_matrix(q_sym[k])
-    inertia = torch.tensor(cfg.shape.inertia_kg_m2, dtype=sc.q_true.dtype)
-    q_m, omega_m = propagate(quat_mul(q_sym[k], sc.q_true[0]), R @ sc.omega_true[0], inertia, cfg.scenario.dt_s,
-                             sc.q_true.shape[0] - 1)
-    assert torch.allclose(q_m, quat_mul(q_sym[k], sc.q_true).expand_as(q_m), atol=1e-10)  # a trajectory
-    assert torch.allclose(omega_m, sc.omega_true @ R.mT, atol=1e-12)
+    q_true, omega_true = sc.q_true[0], sc.omega_true[0]  # both seeds share the config's truth
+    inertia = torch.tensor(cfg.shape.inertia_kg_m2, dtype=q_true.dtype)
+    q_m, omega_m = propagate(quat_mul(q_sym[k], q_true[0]), R @ omega_true[0], inertia, cfg.scenario.dt_s, sc.steps)
+    assert torch.allclose(q_m, quat_mul(q_sym[k], q_true).expand_as(q_m), atol=1e-10)  # a trajectory
+    assert torch.allclose(omega_m, omega_true @ R.mT, atol=1e-12)
     scene = Scene.from_config(cfg, rho=0.5)
-    assert torch.allclose(scene.magnitude(q_m), scene.magnitude(sc.q_true), atol=1e-9)  # the same light curve
-    q_est = torch.stack([sc.q_true, q_m])  # seed 0 on the truth, seed 1 on its mirror
-    r = score_estimator(sc, q_est, (0.0, 60.0), None, 1.0, q_sym=q_sym)
+    assert torch.allclose(scene.magnitude(q_m), scene.magnitude(q_true), atol=1e-9)  # the same light curve
+    q_est = torch.stack([q_true, q_m])  # seed 0 on the truth, seed 1 on its mirror
+    r = score(sc, Estimate(q_est, None), window=(0.0, 60.0), q_sym=q_sym, grp=(1.0, 4.0), seconds=1.0)
     assert r.symmetry_index.tolist() == [0, k]
     assert torch.allclose(r.rmse_mod_symmetry_deg, torch.zeros(2, 3, dtype=q_est.dtype), atol=1e-6)
     assert r.rmse_deg[1].max() > 170.0 and r.rmse_deg[0].max() < 1e-6

@@ -8,8 +8,8 @@ import torch
 
 from lightcurve_gp.config.load import ConfigError, SpinRangeConfig, config_from_dict, config_to_dict, load_config
 from lightcurve_gp.photometry.render import Scene
-from lightcurve_gp.training.sets import training_rates, window_samples
 from lightcurve_gp.training.store import model_key
+from lightcurve_gp.training.windows import training_rates, window_samples
 
 PAPER = "configs/boxwing.yaml"
 SMALL = ["data.icosphere_subdivisions=0", "data.phi_step_deg=120", "data.rho_grid=[0.5]"]

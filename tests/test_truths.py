@@ -13,13 +13,12 @@ from lightcurve_gp.inference.surface import cumulative_increments
 from lightcurve_gp.photometry.brdf import Surface, ashikhmin_shirley
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.photometry.shapes import box_wing
-from lightcurve_gp.simulation.scenario import simulate_scenario
+from lightcurve_gp.simulation.scenario import simulate_scenario, simulate_truths
 from lightcurve_gp.simulation.truths import (
     SPECULAR_CLASSES,
     TruthRanges,
     draw_truths,
     paper_case_draw,
-    simulate_truths,
     specular_class,
     specular_share,
 )
@@ -153,6 +152,9 @@ def test_simulated_truths_follow_their_own_spin_and_noise():
     assert torch.allclose(quat_mul(cumulative_increments(truths.increments), d.q0.unsqueeze(1)), truths.q_true,
                           atol=1e-13)
     assert truths.P0.shape == (2, 3, 3) and torch.allclose(truths.P0[1], d.sigma0[1] ** 2 * torch.eye(3, dtype=DT))
+    # ω is known exactly: the rate the filters assume is the truth's
+    assert torch.equal(truths.increments_assumed, truths.increments) and torch.equal(truths.omega_est0, d.omega0)
+    assert truths.rho_true is None and truths.specular_share.shape == (2,) and truths.steps == 20
 
 
 def test_conjugation_by_an_increment_turns_a_rotation_vector_by_its_attitude_matrix():
@@ -167,10 +169,17 @@ def test_the_paper_case_draw_is_the_scenario_command_seed_by_seed():
     seeds = [3, 0]
     truths = simulate_truths(cfg, paper_case_draw(cfg, seeds, rho=0.7))
     sc = simulate_scenario(cfg, seeds=seeds, rho_true=0.7)
-    assert torch.allclose(truths.q_true, sc.q_true.expand(2, -1, -1), atol=1e-12, rtol=0)
+    assert truths.seeds == sc.seeds and torch.equal(truths.times, sc.times)
+    for name in ("q_true", "omega_true", "increments", "increments_assumed", "omega_assumed"):
+        assert getattr(sc, name).shape == getattr(truths, name).shape, name
+        assert torch.allclose(getattr(truths, name), getattr(sc, name), atol=1e-12, rtol=0), name
     assert torch.allclose(truths.observations, sc.observations, atol=1e-10, rtol=0)
-    assert torch.allclose(truths.draw.q_est0, sc.q_est0.expand(2, 4), atol=1e-12, rtol=0)
+    assert torch.allclose(truths.q_est0, sc.q_est0, atol=1e-12, rtol=0)
+    assert torch.allclose(truths.error, sc.error, atol=1e-15, rtol=0)
+    assert all(torch.allclose(a, b, atol=0, rtol=1e-15) for a, b in zip(truths.surface, sc.surface))
+    assert torch.equal(truths.sigma0, sc.sigma0)
     assert torch.allclose(truths.P0, torch.deg2rad(torch.tensor(cfg.filter.p0_deg, dtype=DT)) ** 2
                           * torch.eye(3, dtype=DT).expand(2, 3, 3), atol=1e-15, rtol=0)
+    assert sc.rho_true == 0.7 and truths.rho_true is None
     with pytest.raises(ValueError, match=r"rho: 0 must lie in \(0, 1\]"):
         paper_case_draw(cfg, seeds, rho=0)

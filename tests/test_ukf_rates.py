@@ -13,7 +13,7 @@ from lightcurve_gp.attitude.rotations import euler321_to_quat, grp_to_quat, quat
 from lightcurve_gp.filters.rates import rate_prior
 from lightcurve_gp.filters.state import FilterState, StateLayout
 from lightcurve_gp.filters.unscented import sqrt_psd_with_zero_rows
-from lightcurve_gp.filters.usque import UsqueParams, _run_constants, initial_covariance, run_usque
+from lightcurve_gp.filters.usque import UsqueParams, initial_covariance, run_constants, run_usque
 
 from helpers import DT, ToyModel, err_deg
 
@@ -102,7 +102,7 @@ def test_every_sigma_point_moves_as_dynamics_propagate_moves_it():
     omega_hat = OMEGA0 * (1 + 0.3 * torch.rand(B, 1, generator=g, dtype=DT))
     P = block_diag_P0(initial_covariance(5.0, dtype=DT), math.radians(0.5) ** 2)
     params = UsqueParams(Q=0.0, variance="none", dt=2.0)
-    run, _ = _run_constants(params, StateLayout(omega=True), ToyModel(), B, 1, q_hat)
+    run, _ = run_constants(params, StateLayout(omega=True), ToyModel(), B, 1, q_hat)
     state = FilterState(q_hat, None, P.expand(B, 6, 6), torch.zeros(B, dtype=DT), omega=omega_hat)
     prior = rate_prior(run, state)
     # the sigma points before propagation, as the prior draws them

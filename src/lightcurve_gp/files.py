@@ -1,9 +1,14 @@
-"""Atomic file writes and run folders: a killed run never leaves a half-written artifact that a later run would load."""
+"""Atomic file writes and run folders: a killed run never leaves a half-written artifact that a later run would load.
+
+JSON is written as JSON proper (RFC 8259): a NaN or an infinity, which Python's ``json`` would write as the bare
+tokens ``NaN``/``Infinity`` that other parsers (``JSON.parse``, ``jq``) refuse, is written as ``null``.
+"""
 
 from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import shutil
 import tempfile
@@ -13,7 +18,8 @@ from typing import Any, Iterator
 
 import torch
 
-__all__ = ["RunFolder", "atomic_path", "file_sha256", "save_torch_atomic", "write_json_atomic", "write_text_atomic"]
+__all__ = ["RunFolder", "atomic_path", "file_sha256", "json_ready", "save_torch_atomic", "write_json_atomic",
+           "write_text_atomic"]
 
 
 @contextmanager
@@ -54,9 +60,21 @@ def write_text_atomic(text: str, path: str | Path) -> None:
         tmp.write_text(text)
 
 
+def json_ready(obj: Any) -> Any:
+    """``obj`` with every non-finite float (NaN, ±inf, in any nesting of dicts, lists and tuples) replaced by
+    ``None``, which JSON writes as ``null``; tuples become lists."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: json_ready(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_ready(v) for v in obj]
+    return obj
+
+
 def write_json_atomic(obj: Any, path: str | Path) -> None:
-    """Write ``obj`` as indented JSON to ``path`` atomically."""
-    write_text_atomic(json.dumps(obj, indent=2, sort_keys=False) + "\n", path)
+    """Write ``obj`` as indented JSON to ``path`` atomically; NaN and infinities as ``null`` (module docstring)."""
+    write_text_atomic(json.dumps(json_ready(obj), indent=2, sort_keys=False, allow_nan=False) + "\n", path)
 
 
 def file_sha256(path: str | Path, chunk: int = 1 << 20) -> str:

@@ -1,7 +1,16 @@
-"""``python -m lightcurve_gp.train``: the command of :mod:`lightcurve_gp.commands.train`."""
+"""``python -m lightcurve_gp.train``: the command of :mod:`lightcurve_gp.commands.train`.
 
-from lightcurve_gp.commands.common import exit_process
-from lightcurve_gp.commands.train import main
+The command's imports (torch: seconds) run inside the interrupt handler, so Ctrl-C while they load is the one line
+and exit code 130 of every interrupt (:mod:`lightcurve_gp.commands.common`), not a traceback.
+"""
+
+import sys
 
 if __name__ == "__main__":
+    try:
+        from lightcurve_gp.commands.common import exit_process
+        from lightcurve_gp.commands.train import main
+    except KeyboardInterrupt:
+        print("interrupted; nothing written", file=sys.stderr)
+        sys.exit(130)
     exit_process(main())

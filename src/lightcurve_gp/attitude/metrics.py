@@ -21,7 +21,6 @@ __all__ = [
     "total_angle_deg",
     "attitude_error_vector",
     "rmse_over_window",
-    "nearest_symmetric_rmse",
     "lightcurve_rmse",
     "nees",
     "nis",
@@ -102,27 +101,6 @@ def rmse_over_window(values: Tensor, times: Tensor, window: Sequence[float] = (4
     sq = torch.where(ok, v * v, torch.zeros_like(v)).sum(-1)
     cnt = ok.sum(-1)
     return torch.where(cnt > 0, (sq / cnt.clamp_min(1)).sqrt(), torch.full_like(sq, math.nan))
-
-
-def nearest_symmetric_rmse(q_true: Tensor, q_est: Tensor, q_sym: Tensor, times: Tensor,
-                           window: Sequence[float]) -> tuple[Tensor, Tensor]:
-    """The Euler-angle RMSE of each estimate against the nearest of the truths ``q_R ⊗ q_true`` that give the same
-    light curve (``q_sym (K, 4)``, the shape's symmetries,
-    :func:`lightcurve_gp.photometry.symmetry.symmetry_quaternions`;
-    the identity first).
-
-    Args:
-        q_true: true attitudes ``(T, 4)`` or ``(S, T, 4)``; q_est: estimates ``(S, T, 4)``.
-        times: ``(T,)`` s; window: inclusive ``(start, end)`` s of the RMSE.
-
-    Returns:
-        The RMSE (yaw, pitch, roll) against the nearest symmetric truth ``(S, 3)`` (deg) — the one with the smallest
-        sum of squared per-axis RMSEs, the identity on ties — and its index into ``q_sym`` ``(S,)``.
-    """
-    truths = quat_mul(q_sym[:, None, None, :], q_true.expand_as(q_est).unsqueeze(0))  # (K, S, T, 4)
-    rmse = rmse_over_window(attitude_errors_deg(truths, q_est.unsqueeze(0)).transpose(-1, -2), times, window)
-    best = rmse.pow(2).sum(-1).argmin(0)  # (S,): argmin returns the first of equal values
-    return rmse[best, torch.arange(q_est.shape[0], device=q_est.device)], best
 
 
 def lightcurve_rmse(pred: Tensor, reference: Tensor, times: Tensor,

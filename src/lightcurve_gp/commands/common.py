@@ -22,7 +22,9 @@ from __future__ import annotations
 import argparse
 import os
 import shlex
+import shutil
 import sys
+import tempfile
 import threading
 import time
 from dataclasses import dataclass
@@ -33,8 +35,8 @@ import torch
 from tqdm.auto import tqdm
 
 __all__ = ["DEFAULT_THREADS", "UserError", "Interrupted", "add_common_arguments", "apply_threads",
-           "progress_enabled", "check_output_root", "check_new_folder", "run_interruptible", "run_command",
-           "exit_process", "provenance"]
+           "progress_enabled", "check_output_root", "check_new_folder", "check_overrides", "available_memory",
+           "format_bytes", "run_interruptible", "run_command", "exit_process", "provenance"]
 
 #: torch intra-op threads of every command unless ``--threads`` says otherwise (see the module docstring)
 DEFAULT_THREADS = 1
@@ -51,8 +53,12 @@ class Interrupted(Exception):
     kept: str = ""
 
 
-def add_common_arguments(parser: argparse.ArgumentParser, *, force: bool = True) -> None:
-    """Add ``--threads``, ``--no-progress``, ``--debug`` and (with ``force``) ``--force`` to ``parser``."""
+FORCE_HELP = "replace an existing output folder (the old one is removed only when the new one is complete)"
+
+
+def add_common_arguments(parser: argparse.ArgumentParser, *, force: bool = True, force_help: str = FORCE_HELP) -> None:
+    """Add ``--threads``, ``--no-progress``, ``--debug`` and (with ``force``) ``--force``, described by
+    ``force_help``, to ``parser``."""
     parser.add_argument("--threads", type=int, default=DEFAULT_THREADS,
                         help=f"torch threads (default {DEFAULT_THREADS}: the filter's small per-step tensors run "
                              f"fastest on one thread, and one thread stays fast when other jobs share the cores)")
@@ -60,9 +66,7 @@ def add_common_arguments(parser: argparse.ArgumentParser, *, force: bool = True)
                         help="hide progress bars and status lines (also hidden when stderr is not a terminal)")
     parser.add_argument("--debug", action="store_true", help="show the traceback of an error instead of one line")
     if force:
-        parser.add_argument("--force", action="store_true",
-                            help="replace an existing output folder (the old one is removed only when the new one "
-                                 "is complete)")
+        parser.add_argument("--force", action="store_true", help=force_help)
 
 
 def apply_threads(threads: int) -> int:
@@ -79,16 +83,21 @@ def progress_enabled(no_progress: bool) -> bool:
 
 
 def check_output_root(out: Path) -> None:
-    """``out`` is (or can be created as) a writable folder; raises :class:`UserError` naming ``--out``."""
+    """``out`` is a writable folder or can be created as one: a temporary folder is made (and removed) in its
+    deepest existing ancestor, so nothing is left behind; raises :class:`UserError` naming ``--out``."""
+    out = Path(out)
     probe = out
-    while not probe.exists():
-        if probe.parent == probe:
-            break
+    while not probe.exists() and probe.parent != probe:
         probe = probe.parent
     if not probe.is_dir():
         raise UserError(f"--out: {str(probe)!r} is not a folder")
-    if not os.access(probe, os.W_OK | os.X_OK):
-        raise UserError(f"--out: {str(probe)!r} is not writable")
+    try:
+        shutil.rmtree(tempfile.mkdtemp(prefix=".lightcurve-gp-probe-", dir=probe))
+    except OSError as exc:
+        reason = exc.strerror or str(exc)
+        if probe == out:
+            raise UserError(f"--out: cannot write in {out} ({reason})") from None
+        raise UserError(f"--out: cannot create {out} (cannot write in {probe}: {reason})") from None
 
 
 def check_new_folder(folder: Path, force: bool) -> None:
@@ -98,6 +107,40 @@ def check_new_folder(folder: Path, force: bool) -> None:
                         f"--out or name")
     if folder.exists() and not folder.is_dir():
         raise UserError(f"{folder} exists and is not a folder")
+
+
+def check_overrides(overrides: list[str]) -> None:
+    """Refuse a ``--set`` key given twice (the last would win without a word): :class:`UserError` naming both."""
+    seen: dict[str, str] = {}
+    for text in overrides:
+        key = text.partition("=")[0].strip()
+        if key in seen:
+            raise UserError(f"--set: {key} given twice ({seen[key]!r}, then {text!r}); give it once")
+        seen[key] = text
+
+
+def available_memory(device: str) -> float:
+    """Bytes the run can still allocate on ``device``: free device memory on a CUDA device, else the system's
+    ``MemAvailable`` (Linux), else its physical memory."""
+    if str(device).startswith("cuda") and torch.cuda.is_available():
+        return float(torch.cuda.mem_get_info(torch.device(device))[0])
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024.0
+    except OSError:
+        pass
+    return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+
+
+def format_bytes(n: float) -> str:
+    """``n`` bytes in decimal units: ``512 B``, ``2.0 kB``, ``3.5 GB``..."""
+    for unit in ("B", "kB", "MB", "GB", "TB"):
+        if n < 1000.0:
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1000.0
+    return f"{n:.1f} PB"
 
 
 def run_interruptible(fn: Callable[[], Any], *, status: str = "", progress: bool = False) -> Any:

@@ -5,7 +5,8 @@ With ``--light-curve FILE`` it runs the GPUKF on a light-curve file instead
 
 Runs the GPUKF (trained model), the conventional UKF (renderer with ``filter.rho_assumed``), the matched-ρ UKF
 (an oracle knowing ``rho_true``) and the no-update baseline over ``--seeds`` noise realisations, prints median
-and inter-quartile RMSE per axis, and writes to ``<out>/<name>/estimate_rho<rho>/``: ``results.json``,
+and inter-quartile RMSE per axis, and writes to ``OUT/estimates/<name>/rho<rho>/`` (beside the training run
+``OUT/<name>/``, never inside it: :mod:`lightcurve_gp.commands.layout`): ``results.json``,
 ``euler_errors.png`` and ``light_curves.png`` (seed 0, paper style: GPUKF blue, UKF red, observations black) and
 ``rmse_boxplot.png`` (all seeds).
 
@@ -28,25 +29,37 @@ from lightcurve_gp.commands.common import (
     UserError,
     add_common_arguments,
     apply_threads,
+    available_memory,
     check_new_folder,
     check_output_root,
+    check_overrides,
     exit_process,
+    format_bytes,
     progress_enabled,
     provenance,
     run_command,
     run_interruptible,
 )
-from lightcurve_gp.commands.estimate_file import add_file_arguments, run_on_file
+from lightcurve_gp.commands.estimate_file import add_file_arguments, check_options, run_on_file
+from lightcurve_gp.commands.layout import estimate_folder
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.evaluation.estimators import DEFAULT_ESTIMATORS, ESTIMATORS, ScenarioResult, run_estimators
+from lightcurve_gp.evaluation.harness import ScenarioResult, check_estimators, run_estimators
 from lightcurve_gp.evaluation.plots import euler_errors, light_curves, rmse_boxplot
+from lightcurve_gp.evaluation.registry import DEFAULT_ESTIMATORS, ESTIMATORS
+from lightcurve_gp.evaluation.reporting import scenario_summary
 from lightcurve_gp.files import RunFolder, write_json_atomic
 from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.simulation.scenario import simulate_scenario
 from lightcurve_gp.training.store import check_model_matches, model_file_record, open_model, training_mismatch
 
-__all__ = ["format_table", "write_outputs", "main"]
+__all__ = ["format_table", "write_outputs", "run_bytes_per_seed", "main"]
 
 PAPER_STEP_SECONDS = {"gpukf": "0.83-0.88", "ukf": "0.003-0.007"}
+#: bytes one estimator keeps per seed and time step (history, scenario, scoring); measured: the peak RSS of this
+#: command with the conventional UKF over 600 s grew by 1.2-1.7 MB per seed (100-300 seeds), 2.0-2.8 kB per step
+BYTES_PER_STEP = 2048.0
+#: float64 arrays of (sigma points x model points) one prediction holds at once (kernel row, exp, variance)
+PREDICTION_ARRAYS = 3
 
 
 def format_table(summary: dict) -> str:
@@ -95,14 +108,14 @@ def write_outputs(result: ScenarioResult, folder: Path, title: str = "", record:
     ``record`` (the run's provenance: command line, config, model file and its hash...) is stored under ``"run"``.
     """
     sc = result.scenario
-    summary = result.summary()
+    summary = scenario_summary(result)
     summary["seed_values"] = list(sc.seeds)
     summary["per_seed_rmse_deg"] = {n: r.rmse_deg.tolist() for n, r in result.results.items()}
     summary["columns"] = list(COLUMN_NOTES)
     summary["run"] = record or {}
     write_json_atomic(summary, folder / "results.json")
     first = ", ".join(filter(None, (title, f"noise seed {sc.seeds[0]}")))
-    errors = {n: r.errors_deg[0] for n, r in result.results.items()}
+    errors = {n: r.errors_deg[0] for n, r in result.results.items() if r.trajectory}  # not the MAP's checkpoints
     euler_errors(sc.times, errors, folder / "euler_errors.png", title=first, window=result.window)
     predictions = {n: r.history.y_pred[0] for n, r in result.results.items() if r.history is not None}
     light_curves(sc.times, sc.observations[0], predictions, folder / "light_curves.png", title=first)
@@ -116,8 +129,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Estimate the attitude of the config's simulated scenario with the GPUKF (a trained model file), "
                     "the conventional UKF (renderer with filter.rho_assumed), a matched-rho UKF and the no-update "
                     "baseline, over many noise seeds batched in one filter run each. Writes the new folder "
-                    "OUT/<name>/estimate_rho<rho>/ (results.json, three figures) atomically; an existing one is "
-                    "refused unless --force.",
+                    "OUT/estimates/<name>/rho<rho>/ (results.json, three figures) atomically, beside the training "
+                    "run OUT/<name>/ (never inside it); an existing one is refused unless --force. With "
+                    "--light-curve: OUT/estimates/<name>/light_curve_<file stem>/.",
     )
     parser.add_argument("config", help="YAML config, e.g. configs/boxwing.yaml")
     parser.add_argument("--model", type=Path, help="trained model file (runs/<name>/model.pt); required by the "
@@ -171,14 +185,36 @@ def _load_checked_model(args: argparse.Namespace, cfg) -> tuple[object | None, d
                    "allow_model_mismatch": args.allow_model_mismatch, "model_mismatch": mismatch}
 
 
+def run_bytes_per_seed(*, steps: int, estimators: int, state_dim: int, model_points: int) -> float:
+    """A lower bound of the memory (bytes) one seed adds to the batched run: every estimator's record of ``steps``
+    time steps (:data:`BYTES_PER_STEP`) and one prediction of the ``2 state_dim + 1`` sigma points against the
+    GP's ``model_points`` training or inducing points (:data:`PREDICTION_ARRAYS` float64 arrays)."""
+    return steps * estimators * BYTES_PER_STEP + PREDICTION_ARRAYS * 8.0 * (2 * state_dim + 1) * model_points
+
+
+def _check_memory(cfg, model, seeds: int, estimators: list[str]) -> None:
+    """Refuse, before anything is allocated, a batch of ``seeds`` that cannot fit in the device's free memory."""
+    steps = round(cfg.scenario.duration_s / cfg.scenario.dt_s) + 1
+    state_dim = 3 + 3 * int(cfg.filter.estimate_omega) + int(cfg.filter.estimate_offset)
+    points = int(getattr(model, "num_train", 0) or getattr(model, "num_inducing", 0)) if model is not None else 0
+    per_seed = run_bytes_per_seed(steps=steps, estimators=len(estimators), state_dim=state_dim, model_points=points)
+    free = available_memory(cfg.device)
+    if seeds * per_seed > free:
+        raise UserError(f"--seeds: {seeds} seeds need about {format_bytes(seeds * per_seed)} for the batched run "
+                        f"({format_bytes(per_seed)} per seed), more than the {format_bytes(free)} available; use "
+                        f"--seeds {int(free // per_seed)} or fewer")
+
+
 def _run_all(cfg, model, estimators: list[str], args: argparse.Namespace, progress: bool) -> ScenarioResult:
-    """Each estimator in turn (a progress bar over them), interruptible, merged into one result."""
+    """The scenario, then each estimator in turn (a progress bar over them), interruptible, merged into one
+    result."""
     seeds = None if args.seeds is None else range(args.seeds)
     scene = Scene.from_config(cfg)
+    sc = simulate_scenario(cfg, seeds=seeds, rho_true=args.rho_true, scene=scene)
+    check_estimators(cfg, estimators, model, along_pass=sc.geometry is not None)
     merged: ScenarioResult | None = None
     for name in tqdm(estimators, desc="estimators", unit="filter", disable=not progress):
-        part = run_interruptible(lambda n=name: run_estimators(cfg, model, seeds=seeds, rho_true=args.rho_true,
-                                                                  estimators=[n], scene=scene),
+        part = run_interruptible(lambda n=name: run_estimators(cfg, sc, estimators=[n], model=model, scene=scene),
                                  status=f"running {name}", progress=progress)
         merged = part if merged is None else merged
         merged.results.update(part.results)
@@ -188,6 +224,8 @@ def _run_all(cfg, model, estimators: list[str], args: argparse.Namespace, progre
 
 def _run(args: argparse.Namespace) -> int:
     apply_threads(args.threads)
+    check_overrides(args.overrides)
+    check_options(args)
     _check_numbers(args)
     cfg = load_config(args.config, args.overrides)
     if args.light_curve is not None:  # an observed light curve: the GPUKF alone (estimate_file)
@@ -198,9 +236,11 @@ def _run(args: argparse.Namespace) -> int:
     model, model_info = _load_checked_model(args, cfg)
     check_output_root(args.out)
     rho = args.rho_true if args.rho_true is not None else cfg.scenario.rho_true
-    folder = args.out / cfg.name / f"estimate_rho{rho:g}"
+    folder = estimate_folder(args.out, cfg.name, rho)
     check_new_folder(folder, args.force)
-    seeds = list(range(args.seeds if args.seeds is not None else cfg.scenario.seeds))
+    n_seeds = args.seeds if args.seeds is not None else cfg.scenario.seeds
+    _check_memory(cfg, model, n_seeds, estimators)
+    seeds = list(range(n_seeds))
     record = provenance(cfg, seeds=seeds, config_file=str(args.config), estimators=estimators, rho_true=rho,
                         **model_info)
     try:

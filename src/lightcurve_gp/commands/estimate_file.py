@@ -1,12 +1,21 @@
 """``python -m lightcurve_gp.estimate CONFIG --model M --light-curve obs.ecsv``: the GPUKF on a light-curve file.
 
-Writes the new folder ``OUT/<name>/light_curve_<file stem>/`` atomically (an existing one is refused unless
+Writes the new folder ``OUT/estimates/<name>/light_curve_<file stem>/`` atomically (an existing one is refused unless
 ``--force``): ``attitude_history.ecsv`` (:func:`lightcurve_gp.observed.run.history_table`), ``summary.json`` (the NIS
 against its χ² band, the bank's size, time and best members with their posterior weights, the run's provenance),
 ``bank.ecsv`` (every bank member, ranked) when the global start ran, ``light_curve.png`` and ``attitude.png``.
 Without ``--initial-attitude`` the run starts from the global-start bank (``--bank-size`` filters over SO(3); with
-``--bank-prune-after-s`` only the best ``--bank-prune-keep`` run past that time). A file with per-sample geometry or
-a TLE and site runs along its pass (:func:`lightcurve_gp.observed.run.file_geometry`) with a model that takes geometry.
+``--bank-prune-after-s`` only the best ``--bank-prune-keep`` run past that time), and the bank's posterior is judged
+(:mod:`lightcurve_gp.observed.verdict`): ``summary.json``'s ``verdict`` is ``"unique"`` or ``"ambiguous"`` (``null``
+without a bank) and an ambiguous answer is printed as a warning in words; the exit code stays 0.
+
+Options that do not apply are refused before anything is read (:func:`check_options`): ``--seeds``, ``--rho-true``
+and ``--estimators`` with ``--light-curve``; ``--initial-attitude`` and the bank options without it; the bank
+options with ``--initial-attitude``. A light curve too short for the filter's state, or too long for the known-spin
+propagation, is refused before the filter runs (:func:`lightcurve_gp.observed.run.check_light_curve`).
+
+A file with per-sample geometry or a TLE and site runs along its pass
+(:func:`lightcurve_gp.observed.run.file_geometry`) with a model that takes geometry.
 ``--solutions solutions.ecsv`` (from ``python -m lightcurve_gp.invert``) starts the filter from the best family of the
 inversion instead: its attitude at the first sample and its body rate (which replaces ``scenario.omega0_deg_s``).
 """
@@ -28,6 +37,7 @@ from lightcurve_gp.commands.common import (
     provenance,
     run_interruptible,
 )
+from lightcurve_gp.commands.layout import light_curve_folder
 from lightcurve_gp.files import RunFolder, write_json_atomic
 from lightcurve_gp.observed.lightcurve_file import read_light_curve, write_table
 from lightcurve_gp.observed.plots import attitude_with_uncertainty, light_curve_band
@@ -35,6 +45,7 @@ from lightcurve_gp.observed.run import (
     FileGeometryError,
     ObservedRun,
     bank_table,
+    check_light_curve,
     check_model_takes_geometry,
     estimate_light_curve,
     file_geometry,
@@ -42,30 +53,63 @@ from lightcurve_gp.observed.run import (
     nis_summary,
 )
 from lightcurve_gp.observed.solutions import SolutionsFileError, best_solution, read_solutions
+from lightcurve_gp.observed.verdict import BankVerdict, ambiguity_images, bank_verdict
 
-__all__ = ["add_file_arguments", "parse_quaternion", "run_on_file", "summary"]
+__all__ = ["BANK_DEFAULTS", "add_file_arguments", "check_options", "parse_quaternion", "run_on_file", "summary"]
+
+#: the bank options' values when not given
+BANK_DEFAULTS = {"bank_size": 1024, "bank_keep": 5, "bank_prune_after_s": None, "bank_prune_keep": 64}
+#: options of a simulated scenario, and why a file has no use for them
+SCENARIO_OPTIONS = {
+    "seeds": "the file is one observed light curve",
+    "rho_true": "the file's magnitudes are what they are; filter.estimate_offset estimates their offset",
+    "estimators": "a file runs the GPUKF alone"}
 
 
 def add_file_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of a run on a light-curve file."""
     parser.add_argument("--light-curve", type=Path, default=None,
-                        help="run the GPUKF on this light-curve file (.ecsv, .csv, .fits) instead of simulating")
+                        help="run the GPUKF on this light-curve file (.ecsv, .csv, .fits) instead of simulating; "
+                             "writes OUT/estimates/<name>/light_curve_<file stem>/")
     parser.add_argument("--initial-attitude", default=None, metavar="Q1,Q2,Q3,Q4",
                         help="with --light-curve: start from this quaternion (scalar last) instead of the bank; write "
                              "--initial-attitude=Q1,... when Q1 is negative")
     parser.add_argument("--solutions", type=Path, default=None,
                         help="with --light-curve: start from the best family of this invert solutions file (its "
                              "attitude and body rate) instead of the bank")
-    parser.add_argument("--bank-size", type=int, default=1024,
+    parser.add_argument("--bank-size", type=int, default=None,
                         help="with --light-curve and no --initial-attitude: filters in the global-start bank "
                              "(default 1024)")
-    parser.add_argument("--bank-keep", type=int, default=5,
+    parser.add_argument("--bank-keep", type=int, default=None,
                         help="bank members rerun with the config's settings and reported (default 5)")
     parser.add_argument("--bank-prune-after-s", type=float, default=None, metavar="SECONDS",
                         help="run every bank member over the first SECONDS of the file, then only the best "
                              "--bank-prune-keep (default: no pruning)")
-    parser.add_argument("--bank-prune-keep", type=int, default=64,
+    parser.add_argument("--bank-prune-keep", type=int, default=None,
                         help="bank members that continue after --bank-prune-after-s (default 64)")
+
+
+def _option(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def check_options(args: argparse.Namespace) -> None:
+    """Refuse an option the run would ignore (module docstring), naming it; then fill in :data:`BANK_DEFAULTS`."""
+    given = lambda name: getattr(args, name) is not None  # noqa: E731
+    if args.light_curve is not None:
+        for name, why in SCENARIO_OPTIONS.items():
+            if given(name):
+                raise UserError(f"{_option(name)}: does not apply with --light-curve ({why})")
+    for name in ("initial_attitude", *BANK_DEFAULTS):
+        if given(name) and args.light_curve is None:
+            raise UserError(f"{_option(name)}: applies only with --light-curve")
+        if given(name) and name != "initial_attitude" and given("initial_attitude"):
+            raise UserError(f"{_option(name)}: does not apply with --initial-attitude (no bank runs)")
+    if given("bank_prune_keep") and not given("bank_prune_after_s"):
+        raise UserError("--bank-prune-keep: applies only with --bank-prune-after-s")
+    for name, value in BANK_DEFAULTS.items():
+        if not given(name):
+            setattr(args, name, value)
 
 
 def parse_quaternion(text: str) -> torch.Tensor:
@@ -81,9 +125,11 @@ def parse_quaternion(text: str) -> torch.Tensor:
     return q
 
 
-def summary(run: ObservedRun, record: dict) -> dict:
-    """``summary.json``: NIS statistics, timing, the bank's best members and the provenance ``record``."""
-    out = {"light_curve": run.lc.source, "samples": int(run.lc.t.size), "span_s": float(run.lc.t[-1]),
+def summary(run: ObservedRun, record: dict, verdict: BankVerdict | None = None) -> dict:
+    """``summary.json``: the bank's verdict (``null`` without a bank), NIS statistics, timing, the bank's best
+    members and its posterior's shape, and the provenance ``record``."""
+    out = {"verdict": None if verdict is None else verdict.verdict,
+           "light_curve": run.lc.source, "samples": int(run.lc.t.size), "span_s": float(run.lc.t[-1]),
            "per_sample_noise": run.lc.mag_err is not None, "nis": nis_summary(run.history),
            "geometry": "per-sample columns" if run.lc.geometry is not None else "TLE and site" if run.lc.has_tle
            else "config (fixed)",
@@ -97,6 +143,8 @@ def summary(run: ObservedRun, record: dict) -> dict:
                        "best": [{"member": int(i), "q0": b.q0[i].tolist(),
                                  "log_likelihood": float(b.log_likelihood[i]), "weight": float(b.weights[i])}
                                 for i in best]}
+        if verdict is not None:
+            out["bank"]["posterior"] = verdict.as_dict()
     out["run"] = record
     return out
 
@@ -132,13 +180,14 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
     if getattr(args, "solutions", None) is not None:
         cfg, q0 = _from_solutions(args, cfg)
     lc = read_light_curve(args.light_curve)
+    check_light_curve(cfg, lc)
     try:
         check_model_takes_geometry(model, lc)
         file_geometry(lc)
     except FileGeometryError as exc:
         raise UserError(str(exc)) from None
     check_output_root(args.out)
-    folder = args.out / cfg.name / f"light_curve_{args.light_curve.stem}"
+    folder = light_curve_folder(args.out, cfg.name, args.light_curve)
     check_new_folder(folder, args.force)
     record = provenance(cfg, config_file=str(args.config), light_curve=str(args.light_curve),
                         initial_attitude=args.initial_attitude,
@@ -156,7 +205,8 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
                                                          prune_keep=args.bank_prune_keep),
                             status=f"running the {status}", progress=progress_enabled(args.no_progress))
     table = history_table(run, cfg.model.rho_reference if cfg.filter.estimate_offset else None)
-    result = summary(run, record)
+    verdict = None if run.bank is None else bank_verdict(run.bank, ambiguity_images(cfg))
+    result = summary(run, record, verdict)
     with RunFolder(folder, force=args.force) as tmp:
         write_table(table, tmp / "attitude_history.ecsv", fmt="ascii.ecsv")
         if run.bank is not None:
@@ -174,5 +224,6 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
         best = result["bank"]["best"][0]
         print(f"bank: {result['bank']['size']} filters in {run.bank.seconds:.1f} s; best member {best['member']} "
               f"(weight {best['weight']:.3f}, log-likelihood {best['log_likelihood']:.1f})")
+        print("\n".join(verdict.sentences(result["bank"]["size"])))
     print(f"written: {folder}")
     return 0

@@ -40,12 +40,13 @@ from lightcurve_gp.commands.common import (
     add_common_arguments,
     apply_threads,
     check_output_root,
+    check_overrides,
     exit_process,
     provenance,
     run_command,
 )
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.files import atomic_path
+from lightcurve_gp.files import atomic_path, json_ready
 from lightcurve_gp.observed.lightcurve_file import (
     LightCurve,
     iso_times,
@@ -96,13 +97,13 @@ def truth_path(out: Path) -> Path:
 def truth_table(sc: Scenario, lc: LightCurve, record: dict, rows: np.ndarray) -> Table:
     """The truth of one simulated light curve at its samples ``rows`` of the scenario: time (ISO UTC), ``q1…q4``,
     ``omega_x…z`` (rad/s), ``mag_clean``."""
-    q, w = sc.q_true.cpu().numpy()[rows], sc.omega_true.cpu().numpy()[rows]
+    q, w = sc.q_true[0].cpu().numpy()[rows], sc.omega_true[0].cpu().numpy()[rows]
     table = Table({"time": iso_times(lc.times), **{f"q{i + 1}": q[:, i] for i in range(4)},
                    **{f"omega_{a}": w[:, i] for i, a in enumerate("xyz")},
-                   "mag_clean": sc.m_clean.cpu().numpy()[rows]})
+                   "mag_clean": sc.m_clean[0].cpu().numpy()[rows]})
     table.meta.update({"seed": sc.seeds[0], "rho_true": sc.rho_true, "noise_var": sc.noise_var,
-                       "q_est0": [float(v) for v in sc.q_est0.tolist()],
-                       "simulation": json.dumps(record, default=str)})
+                       "q_est0": [float(v) for v in sc.q_est0[0].tolist()],
+                       "simulation": json.dumps(json_ready(record), default=str, allow_nan=False)})
     return table
 
 
@@ -113,7 +114,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "(.ecsv, .csv or .fits) with the truth in <stem>.truth.ecsv beside it.")
     parser.add_argument("config", help="YAML config, e.g. configs/boxwing_robust.yaml")
     parser.add_argument("--out", required=True, type=Path, help="the light-curve file to write (.ecsv, .csv, .fits)")
-    parser.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    parser.add_argument("--seed", type=int, default=0, help="noise seed, an integer >= 0 (default 0)")
     parser.add_argument("--rho-true", type=float, default=None, help="true rho in (0, 1] (default scenario.rho_true)")
     parser.add_argument("--start", default=None,
                         help="UTC time of the first sample (ISO; default 2025-01-01T00:00:00; a pass config starts "
@@ -129,7 +130,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--truth-seed", type=int, default=None, help="seed of the random truth (default --seed)")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY.PATH=VALUE",
                         help="override a config value (repeatable)")
-    add_common_arguments(parser)
+    add_common_arguments(parser, force_help="replace an existing light-curve file and its truth sidecar (both are "
+                                            "replaced together at the end, or neither)")
     return parser
 
 
@@ -167,6 +169,11 @@ def _observed_light_curve(sc: Scenario, start: Time, with_err: bool, meta: dict)
 
 def _run(args: argparse.Namespace) -> int:
     apply_threads(args.threads)
+    check_overrides(args.overrides)
+    if args.seed < 0:
+        raise UserError(f"--seed: {args.seed} must be >= 0")
+    if args.seed >= 2**64:
+        raise UserError(f"--seed: {args.seed} must be < 2**64 (torch's seed range)")
     q0, rate = random_truth(args.seed if args.truth_seed is None else args.truth_seed,
                             attitude=args.random_attitude, rate_range_deg_s=_rate_range(args.random_rate))
     drawn = ([f"scenario.q0={q0}"] if q0 else []) + ([f"scenario.omega0_deg_s={rate}"] if rate else [])

@@ -1,7 +1,17 @@
 """The sections of an experiment's configuration: typed dataclasses whose field metadata states each constraint.
 
-:mod:`lightcurve_gp.config.load` reads YAML into these classes and checks the constraints; this module only declares
-them (names, types, defaults, ranges, allowed strings, list lengths).
+:mod:`lightcurve_gp.config.validate` reads a mapping into these classes and checks the constraints; this module only
+declares them (names, types, defaults, ranges, allowed strings, list lengths) and, beside each field that has one,
+its *hash rule*: when :func:`lightcurve_gp.config.hashing.config_to_dict` leaves the field out. Every cache, model
+and case key hashes that dict, so a setting added after those keys were first written is left out while it is off,
+and configs that do not use it keep their keys:
+
+* ``omit_default=True``: left out at its default value;
+* ``omit_when={key: value, ...}``: left out when every named field has that value;
+* ``omit_unless={key: value, ...}``: left out unless every named field has that value.
+
+A key is the name of a field of the same section, or a dotted path from the whole config (``model.inputs``), which
+is not known when a section is serialised alone (the field is then kept).
 """
 
 from __future__ import annotations
@@ -9,6 +19,8 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
+
+import torch
 
 __all__ = [
     "ConfigError",
@@ -37,16 +49,35 @@ class ConfigError(ValueError):
 
 def _spec(default: Any = dataclasses.MISSING, *, lo: float | None = None, hi: float | None = None,
           lo_open: bool = False, choices: tuple | None = None, length: int | None = None,
-          min_length: int | None = None, doc: str = "") -> Any:
-    """A dataclass field with its validation rule stored in ``metadata``.
+          min_length: int | None = None, doc: str = "", omit_default: bool = False, omit_when: dict | None = None,
+          omit_unless: dict | None = None) -> Any:
+    """A dataclass field with its validation rule and its hash rule stored in ``metadata``.
 
     ``lo``/``hi`` bound numbers (and every element of number lists); ``lo_open`` makes the lower bound
-    strict; ``choices`` lists allowed strings; ``length``/``min_length`` constrain lists.
+    strict; ``choices`` lists allowed strings; ``length``/``min_length`` constrain lists. ``omit_default``,
+    ``omit_when`` and ``omit_unless`` are the hash rule (module docstring).
     """
-    meta = dict(lo=lo, hi=hi, lo_open=lo_open, choices=choices, length=length, min_length=min_length, doc=doc)
+    meta = dict(lo=lo, hi=hi, lo_open=lo_open, choices=choices, length=length, min_length=min_length, doc=doc,
+                **_hash_rule(omit_default=omit_default, omit_when=omit_when, omit_unless=omit_unless))
     if isinstance(default, list):
         return field(default_factory=lambda d=tuple(default): list(d), metadata=meta)
     return field(default=default, metadata=meta)
+
+
+def _hash_rule(*, omit_default: bool = False, omit_when: dict | None = None,
+               omit_unless: dict | None = None) -> dict[str, Any]:
+    """The metadata of a hash rule (module docstring): only the rules given."""
+    rule = {"omit_default": omit_default, "omit_when": omit_when, "omit_unless": omit_unless}
+    return {k: v for k, v in rule.items() if v}
+
+
+#: the geometry keys of one ``geometry.kind`` only
+_ORBIT_ONLY = {"omit_when": {"kind": "fixed"}}
+_FIXED_ONLY = {"omit_when": {"kind": "orbit"}}
+#: the keys of the body-rate state, left out while ``filter.estimate_omega`` is off
+_RATE_STATE = {"omit_when": {"estimate_omega": False}}
+#: the paper's USQUE variant (``sigma_redraw`` true, ``q_placement`` after) was added after Crassidis & Markley's
+_DEFAULT_USQUE = {"omit_when": {"sigma_redraw": False, "q_placement": "both"}}
 
 
 @dataclass(kw_only=True)
@@ -80,19 +111,24 @@ class GeometryConfig:
     samples dropped at random; samples below ``min_elevation_deg`` or in the Earth's shadow are missing observations.
     """
 
-    kind: str = _spec("fixed", choices=("fixed", "orbit"))
-    observer_km: list[float] | None = _spec(None, length=3, doc="fixed: observer position (km)")
-    sun_km: list[float] | None = _spec(None, length=3, doc="fixed: Sun position (km)")
-    tle: list[str] | None = _spec(None, length=2, doc="orbit: the two lines of a TLE (propagated with SGP4)")
-    elements: OrbitElementsConfig | None = _spec(None, doc="orbit: Keplerian elements instead of a TLE")
-    site: SiteConfig | None = _spec(None, doc="orbit: the observer's site")
-    start_utc: str | None = _spec(None, doc="orbit: UTC time of the first sample (ISO 8601)")
+    kind: str = _spec("fixed", choices=("fixed", "orbit"), omit_default=True)
+    observer_km: list[float] | None = _spec(None, length=3, doc="fixed: observer position (km)", **_FIXED_ONLY)
+    sun_km: list[float] | None = _spec(None, length=3, doc="fixed: Sun position (km)", **_FIXED_ONLY)
+    tle: list[str] | None = _spec(None, length=2, doc="orbit: the two lines of a TLE (propagated with SGP4)",
+                                  **_ORBIT_ONLY)
+    elements: OrbitElementsConfig | None = _spec(None, doc="orbit: Keplerian elements instead of a TLE",
+                                                 **_ORBIT_ONLY)
+    site: SiteConfig | None = _spec(None, doc="orbit: the observer's site", **_ORBIT_ONLY)
+    start_utc: str | None = _spec(None, doc="orbit: UTC time of the first sample (ISO 8601)", **_ORBIT_ONLY)
     timestamps_s: list[float] | None = _spec(None, lo=0.0, min_length=2,
                                              doc="orbit: sample times after start_utc (s), on the scenario.dt_s "
-                                                 "grid; null: every scenario.dt_s up to scenario.duration_s")
-    gap_fraction: float = _spec(0.0, lo=0.0, hi=0.9, doc="orbit: share of the samples dropped at random (gaps)")
-    gap_seed: int = _spec(0, lo=0, doc="orbit: seed of the dropped samples")
-    min_elevation_deg: float = _spec(10.0, lo=-90.0, hi=90.0, doc="orbit: lowest usable elevation at the site")
+                                                 "grid; null: every scenario.dt_s up to scenario.duration_s",
+                                             **_ORBIT_ONLY)
+    gap_fraction: float = _spec(0.0, lo=0.0, hi=0.9, doc="orbit: share of the samples dropped at random (gaps)",
+                                **_ORBIT_ONLY)
+    gap_seed: int = _spec(0, lo=0, doc="orbit: seed of the dropped samples", **_ORBIT_ONLY)
+    min_elevation_deg: float = _spec(10.0, lo=-90.0, hi=90.0, doc="orbit: lowest usable elevation at the site",
+                                     **_ORBIT_ONLY)
 
 
 @dataclass(kw_only=True)
@@ -168,10 +204,11 @@ class DataConfig:
     t_span_past: float = _spec(lo=0.0, lo_open=True, doc="seconds averaged into m_app_past")
     heldout_size: int = _spec(2000, lo=1)
     phase_angle_deg: list[float] = _spec([0.0, 120.0], lo=0.0, hi=179.0, length=2,
-                                         doc="model.inputs body_geometry: range of training phase angles (deg)")
+                                         doc="model.inputs body_geometry: range of training phase angles (deg)",
+                                         omit_unless={"model.inputs": "body_geometry"})
     surfaces: TrainingSurfacesConfig | None = _spec(None, doc="render each attitude with many surfaces "
                                                               "(model.target: surface_normalised); null: the "
-                                                              "surface section and rho_grid")
+                                                              "surface section and rho_grid", omit_default=True)
 
 
 @dataclass(kw_only=True)
@@ -191,18 +228,20 @@ class SparseModelConfig:
     optimize_inducing: bool = _spec(False, doc="move the inducing inputs to maximise the collapsed bound")
     iterations: int = _spec(200, lo=0, doc="evaluations of the fit's objective (inducing inputs and/or "
                                            "hyperparameters): Adam steps, or the most L-BFGS evaluations")
-    optimizer: str = _spec("adam", choices=("adam", "lbfgs"),
+    optimizer: str = _spec("adam", choices=("adam", "lbfgs"), omit_default=True,
                            doc="adam: model.fit_lr steps; lbfgs: L-BFGS with a strong-Wolfe line search")
-    fit_dtype: str = _spec("float64", choices=("float64", "float32"),
+    fit_dtype: str = _spec("float64", choices=("float64", "float32"), omit_default=True,
                            doc="precision of the fit; the final conditioning is float64 either way")
-    fit_objective: str = _spec("sparse_bound", choices=("sparse_bound", "exact_subset"),
+    fit_objective: str = _spec("sparse_bound", choices=("sparse_bound", "exact_subset"), omit_default=True,
                                doc="sparse_bound: the collapsed SGPR bound; exact_subset: the exact GP evidence on "
                                    "fit_subset points (hyperparameters only), then the SGPR conditioned on all")
-    fit_subset: int | None = _spec(None, lo=1, doc="fit on this seeded random subset of the training points, then "
-                                                   "condition on all of them; null: fit on all")
-    fit_inducing: int | None = _spec(None, lo=1, doc="fit with this many k-means inducing inputs, then condition "
-                                                     "with num_inducing; null: num_inducing")
-    fit_form: str = _spec("gpytorch", choices=("gpytorch", "gram"),
+    fit_subset: int | None = _spec(None, lo=1, omit_default=True,
+                                   doc="fit on this seeded random subset of the training points, then condition on "
+                                       "all of them; null: fit on all")
+    fit_inducing: int | None = _spec(None, lo=1, omit_default=True,
+                                     doc="fit with this many k-means inducing inputs, then condition with "
+                                         "num_inducing; null: num_inducing")
+    fit_form: str = _spec("gpytorch", choices=("gpytorch", "gram"), omit_default=True,
                           doc="how the collapsed bound is computed: gpytorch (its InducingPointKernel); gram: from "
                               "K_uf K_fu (the same bound and Adam path, half the arithmetic; float64, fixed "
                               "inducing inputs and model.ard false only)")
@@ -226,7 +265,7 @@ class ModelConfig:
     inputs: str = _spec("quaternion", choices=("quaternion", "attitude_matrix", "body_geometry"),
                         doc="GP input map: quaternion = [q, m_past] (paper); attitude_matrix = A(q), sign-invariant; "
                             "body_geometry = [A(q) s, A(q) v], trained over geometries (data.phase_angle_deg)")
-    reference_range_km: float = _spec(36000.0, lo=0.0, lo_open=True,
+    reference_range_km: float = _spec(36000.0, lo=0.0, lo_open=True, omit_unless={"inputs": "body_geometry"},
                                       doc="body_geometry: range the target is normalised to, "
                                           "y = m + 5 log10(r_ref / r)")
     target: str = _spec("magnitude", choices=("magnitude", "rho_normalised", "surface_normalised"),
@@ -245,8 +284,10 @@ class ModelConfig:
     fit_lr: float = _spec(0.05, lo=0.0, lo_open=True, doc="Adam learning rate of either fit")
     variance: str = _spec("fast", choices=("fast", "exact", "none"),
                           doc="variance the filter asks of the model: fast differs from exact for the exact GP only")
-    exact: ExactModelConfig = field(default_factory=ExactModelConfig)
-    sparse: SparseModelConfig = field(default_factory=SparseModelConfig)
+    exact: ExactModelConfig = field(default_factory=ExactModelConfig,
+                                    metadata=_hash_rule(omit_unless={"kind": "exact"}))
+    sparse: SparseModelConfig = field(default_factory=SparseModelConfig,
+                                      metadata=_hash_rule(omit_unless={"kind": "sparse"}))
 
 
 @dataclass(kw_only=True)
@@ -260,7 +301,7 @@ class ScenarioConfig:
     rho_true: float = _spec(lo=0.0, lo_open=True, hi=1.0, doc="a reflectance of 0 renders no diffuse light")
     noise_var: float = _spec(lo=0.0, doc="variance of the magnitude noise (mag^2)")
     initial_error_deg: list[float] = _spec(length=3)
-    initial_omega_error_deg_s: list[float] = _spec([0.0, 0.0, 0.0], length=3,
+    initial_omega_error_deg_s: list[float] = _spec([0.0, 0.0, 0.0], length=3, omit_default=True,
                                                    doc="body-rate error of the filters' initial rate (deg/s): "
                                                        "omega_est,0 = omega0 + this; the omega-known filters "
                                                        "propagate with it")
@@ -283,38 +324,40 @@ class FilterConfig:
     process_noise: float = _spec(lo=0.0)
     measurement_noise: float = _spec(lo=0.0)
     surface_measurement_noise: float | None = _spec(
-        None, lo=0.0, lo_open=True,
+        None, lo=0.0, lo_open=True, omit_default=True,
         doc="R of the surface-state filters surface_ukf and surface_ukf_select (mag^2); null: measurement_noise")
     p0_deg: float = _spec(lo=0.0, lo_open=True)
     add_model_variance: bool = _spec(True)
-    model_error: str = _spec("none", choices=("none", "heldout"),
+    model_error: str = _spec("none", choices=("none", "heldout"), omit_default=True,
                              doc="GP filters: none = R as given; heldout = R plus the GP's held-out excess variance "
                                  "(the mean squared error its predictive variance misses, stored with the model)")
     rho_assumed: float = _spec(lo=0.0, lo_open=True, hi=1.0)
     estimate_offset: bool = _spec(False, doc="carry a magnitude offset b in the state: y = h(q) + b")
     offset_prior_std: float = _spec(1.0, lo=0.0, lo_open=True, doc="prior std of b around y_0 - h(q_0) (mag)")
     offset_process_noise: float = _spec(0.0, lo=0.0, doc="random-walk variance of b per step (mag^2)")
-    adaptive_noise: str = _spec("none", choices=("none", "innovation"),
+    adaptive_noise: str = _spec("none", choices=("none", "innovation"), omit_default=True,
                                 doc="measurement noise: none = R fixed; innovation = R_k = max(R, EMA of "
                                     "nu^2 - (Pyy - R)), from past innovations only")
-    adaptive_noise_time_s: float = _spec(100.0, lo=0.0, lo_open=True,
+    adaptive_noise_time_s: float = _spec(100.0, lo=0.0, lo_open=True, omit_when={"adaptive_noise": "none"},
                                          doc="forgetting time tau of the innovation average (s); rate dt / tau")
-    estimate_omega: bool = _spec(False, doc="carry the body rate omega in the state: [GRP error, omega, b?], every "
-                                            "sigma point propagated with its own rate (RK4, torque-free)")
-    p0_omega_deg_s: float = _spec(0.03, lo=0.0, doc="prior std of each omega component (deg/s)")
+    estimate_omega: bool = _spec(False, omit_default=True,
+                                 doc="carry the body rate omega in the state: [GRP error, omega, b?], every sigma "
+                                     "point propagated with its own rate (RK4, torque-free)")
+    p0_omega_deg_s: float = _spec(0.03, lo=0.0, doc="prior std of each omega component (deg/s)", **_RATE_STATE)
     omega_process_noise: float = _spec(0.0, lo=0.0, doc="variance added to each omega component per step "
-                                                        "((rad/s)^2, a torque noise)")
-    inertia_kg_m2: list[float] | None = _spec(None, lo=0.0, lo_open=True, length=3,
+                                                        "((rad/s)^2, a torque noise)", **_RATE_STATE)
+    inertia_kg_m2: list[float] | None = _spec(None, lo=0.0, lo_open=True, length=3, omit_default=True,
                                               doc="principal moments the rate filter assumes; null: "
                                                   "shape.inertia_kg_m2 (the truth's)")
-    sigma_redraw: bool = _spec(False, doc="update with sigma points drawn again from the prior (the paper) "
-                                          "instead of the propagated ones (Crassidis & Markley)")
-    q_placement: str = _spec("both", choices=("both", "after"),
+    sigma_redraw: bool = _spec(False, **_DEFAULT_USQUE,
+                               doc="update with sigma points drawn again from the prior (the paper) instead of the "
+                                   "propagated ones (Crassidis & Markley)")
+    q_placement: str = _spec("both", choices=("both", "after"), **_DEFAULT_USQUE,
                              doc="process noise added to P+ before the sigma points and to P- (both; Crassidis & "
                                  "Markley) or once to P- after the propagation (after; the paper)")
-    compile: bool = _spec(False, doc="run each omega-known filter step as compiled graphs (inductor): the "
-                                     "same estimates to rounding, faster per step; the first step of a shape "
-                                     "compiles (seconds)")
+    compile: bool = _spec(False, omit_default=True,
+                          doc="run each omega-known filter step as compiled graphs (inductor): the same estimates to "
+                              "rounding, faster per step; the first step of a shape compiles (seconds)")
 
 
 @dataclass(kw_only=True)
@@ -341,8 +384,6 @@ class Config:
     evaluation: EvaluationConfig
 
     @property
-    def torch_dtype(self):
+    def torch_dtype(self) -> torch.dtype:
         """The ``torch.dtype`` named by :attr:`dtype`."""
-        import torch
-
         return getattr(torch, self.dtype)

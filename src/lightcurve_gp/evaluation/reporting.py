@@ -2,10 +2,16 @@
 
 Every table the project writes (sweeps, the paper reproduction, the robust experiments) is built from these:
 
-* :class:`SeedRow` — one estimator on one noise seed: RMSE per Euler axis (deg), light-curve RMSE (mag), mean NEES;
+* :class:`SeedRow` — one estimator on one noise seed: RMSE per Euler axis (deg), light-curve RMSE (mag), mean NEES
+  (:func:`seed_rows` of a :class:`~lightcurve_gp.evaluation.harness.ScenarioResult`);
+* :func:`scenario_summary` — per estimator the median and IQR over the seeds (what the estimate command prints);
 * :class:`CaseRecord` — one sweep case (one config, all seeds batched), stored as JSON by the sweep's case store;
 * :func:`quantiles` — median and interquartile range over seeds (NaN and missing values ignored);
-* :func:`markdown_table`, :func:`csv_text` and :func:`write_table` — a Markdown table and its full-precision CSV.
+* :func:`markdown_table`, :func:`csv_text` and :func:`write_report_table` — a Markdown table and its full-precision
+  CSV.
+
+These tables report the NEES of estimators that use the observations: the no-update baseline's covariance is its
+unchanged prior, scored by the generalisation suite's rows (:mod:`lightcurve_gp.evaluation.suite_summary`) only.
 """
 
 from __future__ import annotations
@@ -15,17 +21,20 @@ import io
 import math
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple, Sequence
+from typing import Any, NamedTuple, Sequence
 
 import numpy as np
+import torch
+from torch import Tensor
 
+from lightcurve_gp.attitude.metrics import chi2_band
+from lightcurve_gp.evaluation.harness import ScenarioResult
+from lightcurve_gp.evaluation.scoring import EstimatorResult
 from lightcurve_gp.files import write_text_atomic
 
-if TYPE_CHECKING:
-    from lightcurve_gp.evaluation.estimators import ScenarioResult
-
-__all__ = ["Quantiles", "quantiles", "format_quantiles", "SeedRow", "RESULT_COLUMNS", "CaseRecord", "CASE_FORMAT",
-           "seed_rows", "markdown_table", "csv_text", "write_table", "SUMMARY_HEADER", "summary_row"]
+__all__ = ["Quantiles", "quantiles", "format_quantiles", "finite_or_none", "SeedRow", "RESULT_COLUMNS", "CaseRecord",
+           "CASE_FORMAT", "seed_rows", "scenario_summary", "markdown_table", "csv_text", "write_report_table",
+           "SUMMARY_HEADER", "summary_row"]
 
 #: version of the stored case-record layout; a record of another version is rerun
 CASE_FORMAT = 1
@@ -102,41 +111,91 @@ class SeedRow:
 RESULT_COLUMNS = tuple(f.name for f in fields(SeedRow))
 
 
-def _finite(x: float) -> float | None:
+def finite_or_none(x: float) -> float | None:
+    """``x``, or ``None`` when it is not finite (tables and JSON hold no NaN)."""
     return x if math.isfinite(x) else None
+
+
+def _reported_nees(r: EstimatorResult, values: Tensor | None) -> Tensor | None:
+    """``values`` of an estimator that uses the observations, ``None`` for the no-update baseline (module
+    docstring)."""
+    return values if r.uses_observations else None
 
 
 def seed_rows(result: ScenarioResult) -> list[SeedRow]:
     """One :class:`SeedRow` per (estimator, seed) of a scenario result, estimators outermost."""
     rows = []
     for name, r in result.results.items():
+        nees_mean, nees_full = _reported_nees(r, r.nees_mean), _reported_nees(r, r.nees_full_mean)
         for i, seed in enumerate(result.scenario.seeds):
+            cell = lambda values: None if values is None else finite_or_none(float(values[i]))  # noqa: E731
             yaw, pitch, roll = (float(v) for v in r.rmse_deg[i])
-            rows.append(SeedRow(int(seed), name, _finite(yaw), _finite(pitch), _finite(roll),
-                                _finite(float(r.lc_rmse_noisy[i])), _finite(float(r.lc_rmse_clean[i])),
-                                _finite(float(r.nees_mean[i])), r.seconds / result.steps,
-                                omega_rmse_deg_s=_finite(float(r.omega_rmse_deg_s[i])),
-                                omega_error_final_deg_s=_finite(float(r.omega_error_final_deg_s[i])),
-                                nees_full_mean=_finite(float(r.nees_full_mean[i])), **_symmetric_cells(r, i)))
+            rows.append(SeedRow(int(seed), name, finite_or_none(yaw), finite_or_none(pitch), finite_or_none(roll),
+                                cell(r.lc_rmse_noisy), cell(r.lc_rmse_clean), cell(nees_mean),
+                                r.seconds / result.steps, omega_rmse_deg_s=cell(r.omega_rmse_deg_s),
+                                omega_error_final_deg_s=cell(r.omega_error_final_deg_s),
+                                nees_full_mean=cell(nees_full), **_symmetric_cells(r, i)))
     return rows
 
 
-def _symmetric_cells(r, i: int) -> dict[str, Any]:
-    """The :class:`SeedRow` fields modulo symmetry of seed ``i`` of an estimator result (none when not scored)."""
-    if r.rmse_mod_symmetry_deg is None:
-        return {}
-    yaw, pitch, roll = (_finite(float(v)) for v in r.rmse_mod_symmetry_deg[i])
+def _symmetric_cells(r: EstimatorResult, i: int) -> dict[str, Any]:
+    """The :class:`SeedRow` fields modulo symmetry of seed ``i`` of an estimator result."""
+    yaw, pitch, roll = (finite_or_none(float(v)) for v in r.rmse_mod_symmetry_deg[i])
     return {"rmse_yaw_mod_symmetry_deg": yaw, "rmse_pitch_mod_symmetry_deg": pitch, "rmse_roll_mod_symmetry_deg": roll,
             "symmetry": int(r.symmetry_index[i]),
-            "omega_error_final_mod_symmetry_deg_s": _finite(float(r.omega_error_final_mod_symmetry_deg_s[i])),
+            "omega_error_final_mod_symmetry_deg_s": finite_or_none(float(r.omega_error_final_mod_symmetry_deg_s[i])),
             "nees_full_mean_mod_symmetry": None if r.nees_full_mean_mod_symmetry is None
-            else _finite(float(r.nees_full_mean_mod_symmetry[i]))}
+            else finite_or_none(float(r.nees_full_mean_mod_symmetry[i]))}
+
+
+def _nanmean(x: Tensor | None) -> float:
+    return float(torch.nanmean(x)) if x is not None and x.numel() else float("nan")
+
+
+def _estimator_summary(r: EstimatorResult, steps: int, seeds: int) -> dict[str, Any]:
+    """One estimator's entry of :func:`scenario_summary`."""
+    per_axis = [quantiles(r.rmse_deg[:, i]) for i in range(3)]
+    h = r.history
+    return {
+        "rmse_deg_median": [q.median for q in per_axis],
+        "rmse_deg_q25": [q.q25 for q in per_axis],
+        "rmse_deg_q75": [q.q75 for q in per_axis],
+        "fraction_all_axes_below_10deg": float((r.rmse_deg < 10).all(-1).double().mean()),
+        "lc_rmse_noisy_median": quantiles(r.lc_rmse_noisy).median,
+        "lc_rmse_clean_median": quantiles(r.lc_rmse_clean).median,
+        "nees_mean": _nanmean(_reported_nees(r, r.nees_mean)),
+        "nees_full_mean": _nanmean(_reported_nees(r, r.nees_full_mean)),
+        "nees_full_band_95": list(chi2_band(r.nees_full_dof, seeds)),
+        "omega_rmse_deg_s_median": quantiles(r.omega_rmse_deg_s).median,
+        "omega_error_final_deg_s_median": quantiles(r.omega_error_final_deg_s).median,
+        "seconds": r.seconds,
+        "seconds_per_step": r.seconds / steps,
+        "seconds_per_filter_step": r.seconds / (steps * seeds),
+        "sqrt_fallbacks": int(h.fallbacks.sum()) if h is not None else 0,
+        "rejected_updates": int(h.rejected.sum()) if h is not None else 0,
+        "rmse_deg_median_mod_symmetry": [quantiles(r.rmse_mod_symmetry_deg[:, i]).median for i in range(3)],
+        "fraction_all_axes_below_10deg_mod_symmetry": float((r.rmse_mod_symmetry_deg < 10).all(-1).double().mean()),
+        "fraction_nearest_symmetric_not_truth": float((r.symmetry_index != 0).double().mean()),
+        "omega_error_final_mod_symmetry_deg_s_median": quantiles(r.omega_error_final_mod_symmetry_deg_s).median,
+        "nees_full_mean_mod_symmetry": _nanmean(r.nees_full_mean_mod_symmetry),
+    }
+
+
+def scenario_summary(result: ScenarioResult) -> dict[str, Any]:
+    """Plain-python summary: per estimator the median and IQR of the RMSE per axis over the seeds
+    (:func:`quantiles`, NaN ignored), light-curve RMSE, NEES, the scores modulo symmetry and timing."""
+    S = len(result.scenario.seeds)
+    return {"rho_true": result.scenario.rho_true, "seeds": S, "window_s": list(result.window),
+            "nees_band_95": list(result.nees_band()),
+            "estimators": {name: _estimator_summary(r, result.steps, S) for name, r in result.results.items()},
+            "omega_estimated": any(r.history is not None and r.history.omega is not None
+                                   for r in result.results.values())}
 
 
 @dataclass
 class CaseRecord:
     """One sweep case: its grid values, seeds and estimators, status, per-seed rows, the estimators' summary
-    (:meth:`ScenarioResult.summary`) and the first seed's traces for figures (``times``, ``observed``, ``clean``,
+    (:func:`scenario_summary`) and the first seed's traces for figures (``times``, ``observed``, ``clean``,
     ``errors_deg`` and ``y_pred`` per estimator)."""
 
     case_id: str
@@ -210,7 +269,7 @@ def csv_text(rows: Sequence[dict[str, Any]], columns: Sequence[str] | None = Non
     return buf.getvalue()
 
 
-def write_table(folder: Path, stem: str, header: Sequence[str], rows: Sequence[Sequence[Any]],
+def write_report_table(folder: Path, stem: str, header: Sequence[str], rows: Sequence[Sequence[Any]],
                 csv_rows: Sequence[dict[str, Any]], note: str = "") -> str:
     """Write ``<stem>.md`` (:func:`markdown_table`) and ``<stem>.csv`` (full-precision ``csv_rows``) atomically
     into ``folder``; returns the Markdown."""
@@ -225,7 +284,7 @@ SUMMARY_HEADER = ("estimator", "yaw", "pitch", "roll", "< 10 deg all axes", "mea
 
 
 def summary_row(name: str, entry: dict[str, Any]) -> list[str]:
-    """Cells of :data:`SUMMARY_HEADER` for one estimator's entry of :meth:`ScenarioResult.summary`."""
+    """Cells of :data:`SUMMARY_HEADER` for one estimator's entry of :func:`scenario_summary`."""
     return [name, *(f"{m:.2f}" for m in entry["rmse_deg_median"]),
             f"{100 * entry['fraction_all_axes_below_10deg']:.0f} %", f"{entry['nees_mean']:.2f}",
             f"{entry['seconds']:.1f}"]

@@ -1,10 +1,11 @@
-"""Per-seed rows and grouped summaries of the generalisation suite (:mod:`lightcurve_gp.evaluation.suite`).
+"""Per-seed rows and grouped summaries of the generalisation suite: the estimators on random truths
+(:func:`~lightcurve_gp.simulation.scenario.simulate_truths`, :func:`~lightcurve_gp.evaluation.harness.run_estimators`).
 
 A row is one (seed, estimator): its truth (surface, specular share and class, |ω0|, initial error) and its metrics.
 A summary groups rows by estimator and by one of :data:`GROUPINGS` — all seeds, the surface class (specular share of
 the flux along the truth), the |ω0| bin, the initial-error bin — and gives per group: the seed count, the share of
 seeds below 10° on all axes, the median RMSE per axis, the share of seeds whose time-averaged NEES lies in the
-single-run band (:func:`~lightcurve_gp.evaluation.suite.nees_band`) and the mean and median NEES.
+single-run band (:func:`~lightcurve_gp.evaluation.scoring.nees_band`) and the mean and median NEES.
 """
 
 from __future__ import annotations
@@ -15,10 +16,11 @@ from typing import Any, Sequence
 import numpy as np
 import torch
 
-from lightcurve_gp.evaluation.suite import Scored
-from lightcurve_gp.simulation.truths import SPECULAR_CLASSES, TruthBatch, specular_class
+from lightcurve_gp.evaluation.harness import ScenarioResult
+from lightcurve_gp.evaluation.reporting import finite_or_none
+from lightcurve_gp.simulation.truths import SPECULAR_CLASSES, specular_class
 
-__all__ = ["OMEGA_BINS", "ERROR_BINS", "GROUPINGS", "SUMMARY_COLUMNS", "seed_rows", "bin_label", "summarize",
+__all__ = ["OMEGA_BINS", "ERROR_BINS", "GROUPINGS", "SUMMARY_COLUMNS", "suite_rows", "bin_label", "summarize",
            "whitened_correlation"]
 
 #: |ω0| bins (deg/s): (label, lower, upper)
@@ -40,36 +42,34 @@ def bin_label(value: float, bins: Sequence[tuple[str, float, float]]) -> str:
     raise ValueError(f"{value!r} lies in no bin of {[b[0] for b in bins]}")
 
 
-def _finite(x: float) -> float | None:
-    return x if math.isfinite(x) else None
-
-
-def seed_rows(truths: TruthBatch, results: dict[str, Scored], band: tuple[float, float], *,
-              error_mode: str) -> list[dict[str, Any]]:
-    """One plain-python row per (seed, estimator); ``error_mode`` is ``"random"`` or the fixed angle as text."""
-    d = truths.draw
-    classes = specular_class(truths.specular_share).tolist()
-    omega = torch.rad2deg(torch.linalg.vector_norm(d.omega0, dim=-1)).tolist()
-    error = torch.rad2deg(torch.linalg.vector_norm(d.error, dim=-1)).tolist()
+def suite_rows(result: ScenarioResult, band: tuple[float, float], *, error_mode: str) -> list[dict[str, Any]]:
+    """One plain-python row per (seed, estimator) of a result on drawn truths (their ``specular_share`` known);
+    ``error_mode`` is ``"random"`` or the fixed angle as text."""
+    sc = result.scenario
+    if sc.specular_share is None:
+        raise ValueError("suite_rows: the scenario's truths were not drawn (simulate_truths); no specular share")
+    classes = specular_class(sc.specular_share).tolist()
+    omega = torch.rad2deg(torch.linalg.vector_norm(sc.omega_true[:, 0], dim=-1)).tolist()
+    error = torch.rad2deg(torch.linalg.vector_norm(sc.error, dim=-1)).tolist()
     rows = []
-    for name, r in results.items():
-        for i, seed in enumerate(d.seeds):
+    for name, r in result.results.items():
+        for i, seed in enumerate(sc.seeds):
             rmse = [float(v) for v in r.rmse_deg[i]]
             nees = float(r.nees_mean[i])
             rows.append({
                 "seed": seed, "estimator": name, "error_mode": error_mode,
-                "rmse_yaw_deg": _finite(rmse[0]), "rmse_pitch_deg": _finite(rmse[1]), "rmse_roll_deg": _finite(rmse[2]),
-                "below_10deg": bool(all(v < 10.0 for v in rmse)), "nees_mean": _finite(nees),
-                "nees_in_band": bool(band[0] <= nees <= band[1]),
-                "specular_share": float(truths.specular_share[i]), "surface_class": SPECULAR_CLASSES[classes[i]][0],
+                "rmse_yaw_deg": finite_or_none(rmse[0]), "rmse_pitch_deg": finite_or_none(rmse[1]),
+                "rmse_roll_deg": finite_or_none(rmse[2]), "below_10deg": bool(all(v < 10.0 for v in rmse)),
+                "nees_mean": finite_or_none(nees), "nees_in_band": bool(band[0] <= nees <= band[1]),
+                "specular_share": float(sc.specular_share[i]), "surface_class": SPECULAR_CLASSES[classes[i]][0],
                 "omega_deg_s": omega[i], "omega_bin": bin_label(omega[i], OMEGA_BINS),
                 "initial_error_deg": error[i], "error_bin": bin_label(error[i], ERROR_BINS),
-                "sigma0_deg": math.degrees(float(d.sigma0[i])),
-                "rho": float(d.surface.rho[i]), "f0": float(d.surface.f0[i]), "n_u": float(d.surface.n_u[i]),
-                "n_v": float(d.surface.n_v[i]),
-                "offset_final": None if r.offset_final is None else _finite(float(r.offset_final[i])),
-                "white_first": [_finite(float(v)) for v in r.white_first[i]],
-                "white_last": [_finite(float(v)) for v in r.white_last[i]],
+                "sigma0_deg": math.degrees(float(sc.sigma0[i])),
+                "rho": float(sc.surface.rho[i]), "f0": float(sc.surface.f0[i]), "n_u": float(sc.surface.n_u[i]),
+                "n_v": float(sc.surface.n_v[i]),
+                "offset_final": None if r.offset_final is None else finite_or_none(float(r.offset_final[i])),
+                "white_first": [finite_or_none(float(v)) for v in r.white_first[i]],
+                "white_last": [finite_or_none(float(v)) for v in r.white_last[i]],
                 "seconds_batch": r.seconds,
             })
     return rows

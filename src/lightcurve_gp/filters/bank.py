@@ -2,14 +2,10 @@
 
 No initial guess is needed: ``N`` filters (:func:`bank_attitudes`: a scrambled Sobol' set, uniform on SO(3), with
 ``N = 1024`` the nearest member of 20 000 random attitudes was 12.5° away in the median, 19.2° at the 95th
-percentile and 25.9° at most) start from the grid with the config's ``P0`` and run
-together in one batch of :func:`lightcurve_gp.filters.usque.run_usque` over the whole light curve. Each filter
-accumulates
-the Gaussian log-likelihood of its innovations,
-
-    ℓ_i = Σ_k −½ (ν_ik² / Pyy_ik + ln(2π Pyy_ik))     (over the steps it updated),
-
-and the bank's posterior weights under a uniform prior are ``w_i = exp(ℓ_i) / Σ_j exp(ℓ_j)`` — multiple-model
+percentile and 25.9° at most) start from the grid with the config's ``P0`` and run together in one batch
+(:func:`lightcurve_gp.filters.setup.run_filter`) over the whole light curve. Each filter accumulates the Gaussian
+log-likelihood ``ℓ_i`` of its innovations (:func:`lightcurve_gp.filters.selection.innovation_log_likelihood`), and
+the bank's posterior weights under a uniform prior are ``w_i = exp(ℓ_i) / Σ_j exp(ℓ_j)`` — multiple-model
 adaptive estimation (Magill 1965; for light curves, Linares et al. 2014). The bank is ranked by ``ℓ``; the best
 ``keep`` filters are run again alone with the config's own settings (the bank may leave out the GP's predictive
 variance, ``bank_variance``: an ``M × M`` quadratic form per sigma point, about ``M/d`` times the arithmetic of the
@@ -30,8 +26,6 @@ for the pruned). Without pruning (``prune_after=None``) the run is the unpruned 
 
 from __future__ import annotations
 
-import dataclasses
-import math
 import time
 from dataclasses import dataclass
 
@@ -39,12 +33,13 @@ import torch
 from torch import Tensor
 
 from lightcurve_gp.attitude.sampling import sobol_attitudes
-from lightcurve_gp.filters.offset import initial_offset, offset_covariance
-from lightcurve_gp.filters.usque import FilterHistory, UsqueParams, initial_covariance, model_error_variance, run_usque
-from lightcurve_gp.observation.along_pass import pass_models
+from lightcurve_gp.filters.selection import innovation_log_likelihood
+from lightcurve_gp.filters.setup import filter_params, run_filter, step_models
+from lightcurve_gp.filters.state import FilterHistory
+from lightcurve_gp.filters.usque import run_usque
 from lightcurve_gp.observation.base import ObservationModel, Variance
 
-__all__ = ["BankResult", "bank_attitudes", "innovation_log_likelihood", "run_filter", "continue_filters", "run_bank"]
+__all__ = ["BankResult", "bank_attitudes", "continue_filters", "run_bank"]
 
 
 @dataclass
@@ -81,65 +76,20 @@ def bank_attitudes(n: int, *, seed: int = 0, dtype: torch.dtype = torch.float64,
     return sobol_attitudes(n, seed, dtype=dtype, device=device)
 
 
-def innovation_log_likelihood(history: FilterHistory) -> Tensor:
-    """``ℓ (B,)``: the summed Gaussian log-density of each filter's innovations over the steps it updated (nats)."""
-    nu, pyy = history.innovation, history.y_var
-    terms = -0.5 * (nu * nu / pyy + torch.log(2.0 * math.pi * pyy))
-    return torch.where(history.updated, terms, torch.zeros((), dtype=terms.dtype)).sum(-1)
-
-
-def run_filter(cfg, model: ObservationModel, *, q_est0: Tensor, observations: Tensor, increments: Tensor,
-               R: Tensor | float | None = None, variance: Variance | None = None, geometry=None) -> FilterHistory:
-    """The GPUKF of ``cfg`` from ``q_est0 (B, 4)`` on ``observations (B, T+1)`` (mag) with increments ``(T, 4)``:
-    ``P0`` from ``filter.p0_deg`` (and ``filter.offset_prior_std`` with the offset state, ``b0 = ỹ_0 − h(q̂_0)``),
-    ``m_past0 = ỹ_0``; ``R`` (scalar, ``(B,)`` or ``(B, T+1)``, mag²) replaces ``filter.measurement_noise`` and
-    ``variance`` the model variance the filter asks for, when given; ``geometry`` (``T+1`` samples) runs the model
-    along the pass. The same run as :func:`lightcurve_gp.evaluation.estimators.run_estimators`'s ``gpukf`` for the same
-    inputs."""
-    params = _params(cfg, model, R, variance)
-    m_past0 = observations[:, 0]
-    dtype, device = q_est0.dtype, q_est0.device
-    start_model, step_model = _pass_models(model, geometry)
-    if not cfg.filter.estimate_offset:
-        return run_usque(model=step_model, q_est0=q_est0,
-                         P0=initial_covariance(cfg.filter.p0_deg, dtype=dtype, device=device),
-                         observations=observations, m_past0=m_past0, increments=increments, params=params)
-    b0 = initial_offset(start_model, q_est0, observations[:, 0], m_past0)
-    P0 = offset_covariance(cfg.filter.p0_deg, cfg.filter.offset_prior_std, dtype=dtype, device=device)
-    return run_usque(model=step_model, q_est0=q_est0, P0=P0, observations=observations, m_past0=m_past0,
-                     increments=increments, params=params, offset0=b0)
-
-
-def _pass_models(model: ObservationModel, geometry) -> tuple[ObservationModel, ObservationModel]:
-    """``(model at sample 0, model of steps 1 … T)`` (:func:`~.observation.along_pass.pass_models`); ``model``
-    itself twice without a geometry."""
-    return (model, model) if geometry is None else pass_models(model, geometry)
-
-
-def _params(cfg, model: ObservationModel, R: Tensor | float | None, variance: Variance | None) -> UsqueParams:
-    """The config's USQUE settings for ``model`` with ``R`` (plus the model's error under ``filter.model_error``)
-    and ``variance`` replaced when given."""
-    params = UsqueParams.from_config(cfg, model=model)
-    if R is not None:
-        params = dataclasses.replace(params, R=R + model_error_variance(cfg, model))
-    if variance is not None:
-        params = dataclasses.replace(params, variance=variance)
-    return params
-
-
 def continue_filters(cfg, model: ObservationModel, history: FilterHistory, members: Tensor, *,
                      observations: Tensor, increments: Tensor, R: Tensor | float | None = None,
                      variance: Variance | None = None, geometry=None) -> FilterHistory:
     """Continue the filters ``members (K,)`` of ``history`` from their last posterior (attitude, covariance, offset,
     running mean) on the next ``observations (K, T'+1)`` (column 0: the last sample ``history`` used, not used
-    again), increments ``(T', 4)`` and ``R`` (as :func:`run_filter`; per-sample ``(K, T'+1)`` aligned with
-    ``observations``; ``geometry``: of these ``T'+1`` samples, along a pass): the same filter as one uninterrupted
-    run, to rounding. Adaptive measurement noise carries a running state of its own and is refused."""
-    params = _params(cfg, model, R, variance)
+    again), increments ``(T', 4)`` and ``R`` (as :func:`~lightcurve_gp.filters.setup.run_filter`; per-sample
+    ``(K, T'+1)`` aligned with ``observations``; ``geometry``: of these ``T'+1`` samples, along a pass): the same
+    filter as one uninterrupted run, to rounding. Adaptive measurement noise carries a running state of its own and
+    is refused."""
+    params = filter_params(cfg, model, R=R, variance=variance)
     if params.adaptive_noise != "none":
         raise ValueError("continue_filters: adaptive measurement noise (filter.adaptive_noise) is not carried over")
     pick = lambda t: None if t is None else t[members, -1]  # noqa: E731
-    return run_usque(model=_pass_models(model, geometry)[1], q_est0=history.q_est[members, -1],
+    return run_usque(model=step_models(model, geometry=geometry)[1], q_est0=history.q_est[members, -1],
                      P0=history.P_full[members, -1], observations=observations,
                      m_past0=history.m_past_final[members], increments=increments,
                      params=params, offset0=pick(history.offset), theta0=pick(history.theta),

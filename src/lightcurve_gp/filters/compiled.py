@@ -1,51 +1,48 @@
 """The ω-known USQUE step compiled into fused graphs (``filter.compile: true``, :attr:`UsqueParams.compile`).
 
 One filter's step (B = 1) on the CPU is a few hundred small tensor operations — the sigma points, their propagation,
-the model's prediction, the gain and the reset (:func:`lightcurve_gp.filters.usque.usque_step`) — and eager torch spends
-microseconds of dispatch on each. :func:`compiled_stepper` compiles the very same function with inductor (fixed
-shapes, its C++ wrapper): the step becomes a few generated C++ loops plus the library calls that stay calls (small
-matrix products; the sigma points' Cholesky factor is written out elementwise,
+the model's prediction, the gain and the reset (:func:`lightcurve_gp.filters.step.usque_step`) — and eager torch
+spends microseconds of dispatch on each. :func:`compiled_stepper` compiles the very same function with inductor
+(fixed shapes, its C++ wrapper): the step becomes a few generated C++ loops plus the library calls that stay calls
+(small matrix products; the sigma points' Cholesky factor is written out elementwise,
 :func:`~lightcurve_gp.filters.unscented.cholesky_unrolled`, and fused).
 
-Two forms. When the model says its prediction traces (``fuses_in_compiled_step``), the whole step is exported once
-(``torch.export``, non-strict: the same Python runs, ``torch.compiler.is_compiling()`` is true) to one graph of flat
-tensors and compiled by ``torch._inductor.compile``; each step then calls that compiled graph directly, with no
-TorchDynamo frame, guard check or wrapper in between (on this project's 2-core CPU ~50 µs per call of a one-line
-function against 11 µs for the graph called directly; 78–90 µs per GPUKF step and 45–76 µs per UKF step, README:
-Performance). What dynamo's guards did is done once per run instead (:class:`_ExportedStep`): the compiled graph is
-looked up by the model object, a fingerprint of the model's Python state (its plain attributes and the identity and
-version counter of every tensor it holds outside its buffers, such as the renderer's scene: these are constants of
-the graph) and the shapes, strides, dtypes and devices of every input (its buffers and parameters are inputs, read at
-the start of each run), and the run's Python constants (the state layout, ``n + λ``, GRP ``a, f``, ``t_span_past``,
-the variant); any change exports and compiles again (so does a model whose fingerprint moved for a reason its mean
-does not see, e.g. the exact GP's full Cholesky factor computed or dropped). Within a run the compiled graph checks
-every input's size and stride itself and raises on a mismatch. Otherwise (a GP asked for a variance, the sparse GP,
-models without that method) the model is called eagerly between two halves compiled by ``torch.compile``
-(TorchDynamo, with its guards).
+Two forms. When this module recognises the model as one whose prediction traces (:func:`fuses`: the renderers, the
+exact GP's mean, any other :class:`~lightcurve_gp.observation.base.ObservationModule` that holds no GP with a
+variance or the sparse GP, and no :class:`~lightcurve_gp.observation.along_pass.AlongPass`), the whole step is
+exported once (``torch.export``, non-strict: the same Python runs, ``torch.compiler.is_compiling()`` is true) to one
+graph of flat tensors and compiled; each step then calls that graph directly, with no TorchDynamo frame or guard
+check in between. What dynamo's guards did is done once per run instead (:class:`_ExportedStep`): the compiled graph
+is looked up by the model object, a fingerprint of the model's Python state (its plain attributes and the identity
+and version counter of every tensor it holds outside its buffers, such as the renderer's scene: these are constants
+of the graph) and the shapes, strides, dtypes and devices of every input (its buffers and parameters are inputs,
+read at the start of each run), and the run's Python constants; any change exports and compiles again. A model
+whose Python state moves when it is called (a counter) would be frozen by one traced graph: it is seen during the
+trace and run in the other form. Otherwise (a GP asked for a variance, the sparse GP, models that are not modules)
+the model is called eagerly between two halves compiled by ``torch.compile`` (TorchDynamo, with its guards).
+
+Private torch API, behind capability checks (:func:`capabilities`), each with a public fallback that gives the same
+estimates: ``torch._inductor.compile`` calls the exported graph without TorchDynamo (else ``torch.compile`` of the
+exported graph module, a guard check per call); ``Tensor._version`` tells an in-place change of a graph constant
+(else a model that holds tensors outside its buffers is not fused but runs in the two-halves form).
 
 What cannot be inside one graph is a host synchronisation: the square root's fallback test, the model's finiteness
 check and the renderer's zero-flux test read values back to Python. Under compilation those read-backs are left out
 (``torch.compiler.is_compiling()`` in :func:`~lightcurve_gp.filters.unscented.sqrt_psd`,
-:func:`~lightcurve_gp.observation.base.check_inputs` and :meth:`~lightcurve_gp.photometry.render.Scene.magnitude`) and
-the
-compiled step returns one flag instead: any square root that fell back, or a posterior that is not finite. A step so
-flagged is done again by the eager :func:`~lightcurve_gp.filters.usque.usque_step`, which applies the fallback, raises
-or warns
-exactly as the uncompiled filter does. The estimates of both paths therefore agree to rounding (the fused loops sum
-in another order). The exact GP's mean is the one model-side change: inside the graph it is written elementwise over
-blocks of training points (:func:`~lightcurve_gp.observation.kernels.blocked_kernel_sum`), so the kernel row, its
-``exp`` and the sum with ``α`` are one loop; eagerly it stays one matrix product.
+:func:`~lightcurve_gp.observation.base.check_inputs` and :meth:`~lightcurve_gp.photometry.render.Scene.magnitude`)
+and the compiled step returns one flag instead: any square root that fell back, or a posterior that is not finite.
+A step so flagged is done again by the eager :func:`~lightcurve_gp.filters.step.usque_step`, which applies the
+fallback, raises or warns exactly as the uncompiled filter does. The estimates of both paths therefore agree to
+rounding (the fused loops sum in another order). The exact GP's mean is the one model-side change: inside the
+graph it is written elementwise over blocks of training points
+(:func:`~lightcurve_gp.observation.kernels.blocked_kernel_sum`).
 
-Costs: the first run of each new shape (``B``, the state layout, the model; with per-filter increments ``(B, T, 4)``
-also each run length ``T``) compiles — seconds to tens of seconds, once per process, less when inductor's on-disk
-cache (``TORCHINDUCTOR_CACHE_DIR``) already holds the graph; every run then pays the model's fingerprint
-(microseconds). A model whose Python state changes when it is called (a call counter, the pass model's sample index)
-would be frozen by one traced graph: such a model says so (``fuses_in_compiled_step`` false, e.g.
-:class:`~lightcurve_gp.observation.along_pass.AlongPass`), and one that does not is refused with a
-:class:`ValueError` when its step is exported (its state moved during the trace). The step's arithmetic is not
-reduced: the exact GP's mean (7 × 19 260 exponentials in float64 in the paper's case, ~2/3 of the GPUKF step) stays,
-and the generated loop's exponential (SLEEF's) is slower than the eager one (MKL's), which is why the GPs with a
-variance and the sparse GP keep their kernel rows eager.
+Costs: the first run of each new shape (``B``, the state layout, the model; with per-filter increments
+``(B, T, 4)`` also each run length ``T``) compiles — seconds, once per process, less when inductor's on-disk cache
+(``TORCHINDUCTOR_CACHE_DIR``) already holds the graph; every run then pays the model's fingerprint (microseconds).
+``benchmarks/bench_compile.py`` measures compile time, step times and the break-even run length: on a 2-core CPU
+a 5–6× faster step (B = 1) for 7–9 s of CPU compiling with a warm cache, 27 s cold, so compiling pays from ~2000–6000
+steps on, ten times the paper's 600-step run; hence opt-in.
 """
 
 from __future__ import annotations
@@ -59,9 +56,14 @@ import torch
 from torch import Tensor
 
 from lightcurve_gp.filters.state import FilterState, StepRecord
+from lightcurve_gp.filters.step import usque_prior, usque_step
 from lightcurve_gp.filters.update import Prior, RunConstants, SigmaInputs, sigma_inputs, update_with_predictions
+from lightcurve_gp.observation.along_pass import AlongPass
+from lightcurve_gp.observation.base import ObservationModule, Variance
+from lightcurve_gp.observation.exact_gp import ExactGP
+from lightcurve_gp.observation.gp_base import CachedGP
 
-__all__ = ["compiled_stepper"]
+__all__ = ["Capabilities", "capabilities", "compiled_stepper", "fuses"]
 
 #: the run's tensors, the state's fields and the step's inputs, in the order the exported graph takes them
 _RUN_TENSORS = ("wm", "wc", "Q", "R")
@@ -70,6 +72,56 @@ _STEP_INPUTS = ("L_k", "G_k", "y_k", "observed_k")
 _MODULE_INTERNALS = frozenset(vars(torch.nn.Module()))
 #: compiled whole steps per model object (dropped with the model), then by the rest of the key (_ExportedStep)
 _EXPORTED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+#: inductor's options for every graph: the graph's calls (its loops, the library calls that stay) are made from
+#: generated C++ rather than Python (the UKF step's CPU time 238 -> 126 µs at load 4-6; longer compiles)
+_INDUCTOR_OPTIONS = {"cpp_wrapper": True}
+
+
+@dataclasses.dataclass(frozen=True)
+class Capabilities:
+    """The private torch entry points the exported step uses, where this torch has them; each has a public fallback.
+
+    Attributes:
+        inductor_compile: ``torch._inductor.compile``: an exported graph compiled and then called without TorchDynamo
+            (no frame evaluation, no guard check per call); ``None``: ``torch.compile`` of the exported graph module.
+        version_counter: whether ``Tensor._version`` is readable: a tensor a model holds outside its buffers (a
+            constant of the graph, e.g. the renderer's scene) changed in place compiles the step again; ``False``:
+            such a model is not fused, its prediction runs eagerly between the two compiled halves.
+    """
+
+    inductor_compile: Callable[..., Any] | None = None
+    version_counter: bool = False
+
+
+@functools.cache
+def capabilities() -> Capabilities:
+    """What this torch offers of :class:`Capabilities` (probed once per process)."""
+    inductor = getattr(torch, "_inductor", None)  # torch imports the submodule on first access
+    compile_fn = getattr(inductor, "compile", None)
+    return Capabilities(inductor_compile=compile_fn if callable(compile_fn) else None,
+                        version_counter=isinstance(getattr(torch.empty(0), "_version", None), int))
+
+
+def fuses(model: Any, variance: Variance) -> bool:
+    """Whether the compiled step traces ``model``'s prediction with ``variance`` into its one graph (it must read
+    nothing back to Python and keep no per-call Python state), else calls it eagerly between two compiled halves.
+
+    An :class:`~lightcurve_gp.observation.base.ObservationModule` fuses when it and every model it holds do: not an
+    :class:`~lightcurve_gp.observation.along_pass.AlongPass` (a per-call sample counter), not a GP asked for a
+    variance (it reads values back) and not the sparse GP: kernel rows are ``exp``-bound and the eager ``exp``
+    (MKL's on CPU) ran ~2.5× faster than the loop a compiled graph generates; the exact GP's mean alone fuses (its
+    whole step was faster all the same)."""
+    if not isinstance(model, ObservationModule):
+        return False
+    return all(_fuses_alone(m, variance) for m in model.modules() if isinstance(m, ObservationModule))
+
+
+def _fuses_alone(model: ObservationModule, variance: Variance) -> bool:
+    if isinstance(model, AlongPass):
+        return False
+    if isinstance(model, CachedGP):
+        return isinstance(model, ExactGP) and variance == "none"
+    return True
 
 
 def _redo(new: FilterState, record: StepRecord) -> Tensor:
@@ -80,17 +132,13 @@ def _redo(new: FilterState, record: StepRecord) -> Tensor:
 
 def _whole_step(run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Tensor, y_k: Tensor,
                 observed_k: Tensor) -> tuple[FilterState, StepRecord, Tensor]:
-    """:func:`lightcurve_gp.filters.usque.usque_step`, the model's prediction included, and :func:`_redo`."""
-    from lightcurve_gp.filters.usque import usque_step
-
+    """:func:`lightcurve_gp.filters.step.usque_step`, the model's prediction included, and :func:`_redo`."""
     new, record = usque_step(run, state, L_k=L_k, G_k=G_k, y_k=y_k, observed_k=observed_k)
     return new, record, _redo(new, record)
 
 
 def _prior_half(run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Tensor) -> tuple[Prior, SigmaInputs]:
     """Steps 1–5 and the sigma attitudes the model is asked about."""
-    from lightcurve_gp.filters.usque import usque_prior
-
     prior = usque_prior(run, state, L_k=L_k, G_k=G_k)
     return prior, sigma_inputs(run, state, prior)
 
@@ -105,17 +153,13 @@ def _update_half(run: RunConstants, state: FilterState, prior: Prior, R_qm: Tens
 @functools.cache
 def _compiled(fn):
     # not fullgraph: a model that reads a value back, or a process past torch's limit of recompilations per
-    # function (many shapes or models), runs the rest eagerly instead of failing. cpp_wrapper: the graph's calls
-    # (its loops, the library calls that stay) are made from generated C++ rather than Python: the UKF step's CPU
-    # time 238 -> 126 µs (load 4-6), longer compiles
-    return torch.compile(fn, dynamic=False, options={"cpp_wrapper": True})
+    # function (many shapes or models), runs the rest eagerly instead of failing
+    return torch.compile(fn, dynamic=False, options=_INDUCTOR_OPTIONS)
 
 
 def _halves_step(run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Tensor, y_k: Tensor,
                  observed_k: Tensor) -> tuple[FilterState, StepRecord]:
     """The step as two ``torch.compile`` graphs around the model's eager call; a flagged step is done again."""
-    from lightcurve_gp.filters.usque import usque_step
-
     step = {"L_k": L_k, "G_k": G_k, "y_k": y_k, "observed_k": observed_k}
     prior, inputs = _compiled(_prior_half)(run, state, L_k=L_k, G_k=G_k)
     if bool(prior.failed.any()):
@@ -127,20 +171,18 @@ def _halves_step(run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Ten
 
 
 def compiled_stepper() -> Callable[..., tuple[FilterState, StepRecord]]:
-    """A step function for one run, called like :func:`lightcurve_gp.filters.usque.usque_step` (same arguments and
-    result):
-    its first call picks the form from that call's arguments — the exported whole step when the model's
-    ``fuses_in_compiled_step(variance)`` says so (:class:`_ExportedStep`, looked up or compiled), else the two
-    compiled halves around the model's eager call — and every call runs it; a step whose square root fell back or
-    whose posterior is not finite is done again eagerly (module docstring)."""
+    """A step function for one run, called like :func:`lightcurve_gp.filters.step.usque_step` (same arguments and
+    result): its first call picks the form from that call's arguments — the exported whole step when the model
+    :func:`fuses` (:class:`_ExportedStep`, looked up or compiled), else the two compiled halves around the model's
+    eager call — and every call runs it; a step whose square root fell back or whose posterior is not finite is
+    done again eagerly (module docstring)."""
     chosen: Callable[..., tuple[FilterState, StepRecord]] | None = None
 
     def step(run: RunConstants, state: FilterState, **inputs: Tensor) -> tuple[FilterState, StepRecord]:
         nonlocal chosen
         if chosen is None:
-            fuses = getattr(run.model, "fuses_in_compiled_step", None)
-            exported = isinstance(run.model, torch.nn.Module) and fuses is not None and fuses(run.variance)
-            chosen = _ExportedStep.for_run(run, state, inputs) if exported else _halves_step
+            exported = _ExportedStep.for_run(run, state, inputs) if fuses(run.model, run.variance) else None
+            chosen = exported or _halves_step
         return chosen(run, state, **inputs)
 
     return step
@@ -174,14 +216,15 @@ def _state(fields: tuple[str, ...], tensors: Any) -> FilterState:
 
 def _fingerprint(obj: Any, objects: list, seen: set[int], depth: int = 0) -> Any:
     """A hashable summary of what an exported graph may hold of ``obj`` as constants: plain values by value,
-    tensors by identity and version counter (an in-place change bumps it), other objects by identity and their
+    tensors by identity and version counter (an in-place change bumps it; without :class:`Capabilities`'
+    ``version_counter`` by identity alone, and the caller does not fuse), other objects by identity and their
     attributes (an ``nn.Module`` without its buffers, parameters and hooks: those are inputs), recursively.
     ``objects`` collects what is summarised by identity (the caller checks that they are still the same objects)."""
     if obj is None or isinstance(obj, (bool, int, float, complex, str, bytes, torch.dtype, torch.device)):
         return obj
     if isinstance(obj, Tensor):
         objects.append(obj)
-        return "tensor", id(obj), obj._version
+        return "tensor", id(obj), obj._version if capabilities().version_counter else None
     if id(obj) in seen or depth > 8:
         return "seen", id(obj)
     seen.add(id(obj))
@@ -195,7 +238,8 @@ def _fingerprint(obj: Any, objects: list, seen: set[int], depth: int = 0) -> Any
     if attrs is None:
         return "object", id(obj)
     if isinstance(obj, torch.nn.Module):
-        attrs = {**{k: v for k, v in attrs.items() if k not in _MODULE_INTERNALS}, "_modules": obj._modules}
+        attrs = {k: v for k, v in attrs.items() if k not in _MODULE_INTERNALS}
+        attrs["children"] = dict(obj.named_children())
     return type(obj).__qualname__, id(obj), parts(sorted(attrs.items()))
 
 
@@ -214,11 +258,12 @@ def _weak(obj: Any) -> Callable[[], Any]:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class _Compiled:
-    """One exported and compiled whole step: the compiled graph, what feeds each of its inputs before the user's
-    (``("buffer" | "parameter", name)`` in the model, or ``("constant", tensor)``), and references to the objects
-    of the model's fingerprint when it was compiled."""
+    """One exported and compiled whole step (``fn None``: the model cannot be fused, its step runs in two halves):
+    the compiled graph, what feeds each of its inputs before the user's (``("buffer" | "parameter", name)`` in the
+    model, or ``("constant", tensor)``), and references to the objects of the model's fingerprint when it was
+    compiled."""
 
-    fn: Callable[..., list[Tensor]]
+    fn: Callable[..., Any] | None
     sources: tuple[tuple[str, Any], ...]
     refs: tuple[Callable[[], Any], ...]
 
@@ -233,13 +278,15 @@ class _ExportedStep:
     exports and compiles it (module docstring: the key), each call passes the flat tensors and redoes a flagged
     step eagerly."""
 
-    fn: Callable[..., list[Tensor]]
+    fn: Callable[..., Any]
     prefix: tuple[Tensor, ...]  # the model's buffers, parameters and the graph's constants
     fields: tuple[str, ...]  # the state's fields present
 
     @classmethod
-    def for_run(cls, run: RunConstants, state: FilterState, inputs: dict[str, Tensor]) -> _ExportedStep:
-        """The compiled step for ``run`` (its first step's ``state`` and step ``inputs``), compiled when new."""
+    def for_run(cls, run: RunConstants, state: FilterState, inputs: dict[str, Tensor]) -> _ExportedStep | None:
+        """The compiled step for ``run`` (its first step's ``state`` and step ``inputs``), compiled when new;
+        ``None`` when the model cannot be fused (its Python state moves when called, or it holds tensors outside
+        its buffers and this torch has no version counter)."""
         if state.omega is not None:
             raise ValueError("the compiled step is the ω-known step: omega must be None")
         model = run.model
@@ -252,17 +299,17 @@ class _ExportedStep:
                  _signature(t for _, t in model.named_parameters()))
         objects: list = []
         key = (_fingerprint(model, objects, set()), shape)
+        if not capabilities().version_counter and any(isinstance(o, Tensor) for o in objects):
+            return None
         entries = _EXPORTED.setdefault(model, {})
         entry = entries.get(key)
         if entry is None or not entry.holds(objects):
             entry = _export(run, fields, flat, fingerprint=key[0])
             entries[key] = entry = dataclasses.replace(entry, refs=tuple(_weak(o) for o in objects))
-        return cls(entry.fn, _prefix(model, entry.sources), fields)
+        return None if entry.fn is None else cls(entry.fn, _prefix(model, entry.sources), fields)
 
     def __call__(self, run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Tensor, y_k: Tensor,
                  observed_k: Tensor) -> tuple[FilterState, StepRecord]:
-        from lightcurve_gp.filters.usque import usque_step
-
         m = len(self.fields)
         out = self.fn(*self.prefix, run.wm, run.wc, run.Q, run.R, *(getattr(state, f) for f in self.fields),
                       L_k, G_k, y_k, observed_k)
@@ -279,14 +326,12 @@ def _prefix(model: Any, sources: tuple[tuple[str, Any], ...]) -> tuple[Tensor, .
 
 
 def _export(run: RunConstants, fields: tuple[str, ...], flat: tuple[Tensor, ...], *, fingerprint: Any) -> _Compiled:
-    """Export :class:`_FlatStep` on the first step's tensors and compile its graph with inductor (C++ wrapper);
-    refuse a model whose fingerprint (before: ``fingerprint``) moved while its step was traced."""
+    """Export :class:`_FlatStep` on the first step's tensors and compile its graph (:func:`_compile_graph`); a model
+    whose fingerprint (before: ``fingerprint``) moved while its step was traced is not fused (``fn None``)."""
     traced: list = []
     program = torch.export.export(_FlatStep(run, fields, traced.append), flat, strict=False)
-    if traced != [fingerprint]:
-        raise ValueError(f"filter.compile: {type(run.model).__name__} changed its Python state when called (a "
-                         "counter, a per-call setting), which one traced graph would freeze; such a model must "
-                         "return False from fuses_in_compiled_step (it is then called eagerly)")
+    if traced != [fingerprint]:  # a counter, a per-call setting: one traced graph would freeze it
+        return _Compiled(None, (), ())
     kinds = {"PARAMETER": "parameter", "BUFFER": "buffer", "CONSTANT_TENSOR": "constant"}
     specs = program.graph_signature.input_specs
     head = specs[:len(specs) - len(flat)]
@@ -295,6 +340,14 @@ def _export(run: RunConstants, fields: tuple[str, ...], flat: tuple[Tensor, ...]
                            "model's tensors, then the step's")
     sources = tuple((kinds[s.kind.name], program.constants[s.target] if s.kind.name == "CONSTANT_TENSOR"
                      else s.target.removeprefix("model.")) for s in head)
-    fn = torch._inductor.compile(program.graph_module, [*_prefix(run.model, sources), *flat],
-                                 options={"cpp_wrapper": True})
-    return _Compiled(fn, sources, ())
+    return _Compiled(_compile_graph(program.graph_module, [*_prefix(run.model, sources), *flat]), sources, ())
+
+
+def _compile_graph(graph: torch.fx.GraphModule, example: list[Tensor]) -> Callable[..., Any]:
+    """The exported graph (every input flat: the model's tensors, then the step's) compiled by inductor: called
+    directly where this torch has ``torch._inductor.compile`` (:class:`Capabilities`), else through the public
+    ``torch.compile`` (the same graph, a TorchDynamo guard check per call)."""
+    inductor_compile = capabilities().inductor_compile
+    if inductor_compile is not None:
+        return inductor_compile(graph, example, options=_INDUCTOR_OPTIONS)
+    return torch.compile(graph, dynamic=False, options=_INDUCTOR_OPTIONS)

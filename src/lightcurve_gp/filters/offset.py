@@ -13,8 +13,7 @@ attitude error ``δp`` (3) with ``b`` (1, mag, a random walk) and predicts
 with any :class:`~lightcurve_gp.observation.base.ObservationModel` ``h`` of the reference curve: the renderer with
 ``ρ0`` (a conventional UKF that estimates ρ) or a GP trained on ρ-normalised magnitudes (the GPUKF with an offset).
 :func:`lightcurve_gp.filters.usque.run_usque` given ``offset0`` runs on the 4-dimensional state ``x = [δp, b]``; the
-attitude
-part is reset to zero after every update while ``b`` carries its estimate (Crassidis & Markley 2003, with the
+attitude part is reset to zero after every update while ``b`` carries its estimate (Crassidis & Markley 2003, with the
 bias-state pattern of their gyro-bias filter, here a measurement bias). This module holds the offset's prior and
 its map to a reflectance (:func:`offset_to_rho`).
 """

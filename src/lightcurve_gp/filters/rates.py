@@ -4,8 +4,7 @@ With ω unknown the sigma points no longer share one kinematic increment: sigma 
 ``q_i = δq(χ_i) ⊗ q̂`` spinning at ``ω_i = ω̂ + χ_i[ω]``, and the torque-free Euler equations with the quaternion
 kinematics (paper Sec. 2.3, Eqs. (14), (18)) move each by its own RK4 step — all ``B × (2n+1)`` of them in one
 batched call (:func:`lightcurve_gp.attitude.dynamics.rk4_stepper`). The propagated attitudes are re-expressed as GRP
-errors
-about the propagated centre ``q_0⁻`` and the rates as deviations from its rate ``ω_0⁻``; their weighted mean and
+errors about the propagated centre ``q_0⁻`` and the rates as deviations from its rate ``ω_0⁻``; their weighted mean and
 covariance are the prior (Crassidis & Markley 2003, Eqs. (30)–(36) of their filter with the gyro bias replaced by
 the rate; paper Sec. 2.5, Eqs. (34)–(37)). The measurement update is shared with the ω-known filter
 (:func:`lightcurve_gp.filters.update.measurement_update`).

@@ -1,28 +1,43 @@
-"""The same light curves filtered under several settings, the run of highest innovation likelihood kept per seed.
+"""The innovation log-likelihood of a filter run, and the run of highest likelihood kept per light curve.
 
 A filter's innovations ``ν_k`` with their predicted variances ``P_yy,k`` give the log-likelihood of the light curve
-under that filter, ``ℓ = Σ_k log N(ν_k; 0, P_yy,k)`` (:func:`lightcurve_gp.filters.bank.innovation_log_likelihood`,
-the bank's ranking): a filter whose sigma points describe the light curve's nonlinearity badly predicts it badly.
-Among ``K`` runs on the same observations, keeping each seed's run of highest ``ℓ`` is multiple-model selection
-with equal prior weights; it needs no truth, so it is what a user can do on their own light curve.
+under that filter,
 
-Used for the unscented λ of the surface-state filter
-(:func:`lightcurve_gp.evaluation.estimators.run_surface_filter_selected`): neither the paper's ``λ = 0`` nor Julier's
+    ℓ = Σ_k log N(ν_k; 0, P_yy,k) = Σ_k −½ (ν_k² / P_yy,k + ln(2π P_yy,k))     (over the steps it updated):
+
+a filter whose sigma points describe the light curve's nonlinearity badly predicts it badly. The global-start bank
+ranks its members by ``ℓ`` (:mod:`lightcurve_gp.filters.bank`). Among ``K`` runs on the same observations, keeping
+each seed's run of highest ``ℓ`` is multiple-model selection with equal prior weights; it needs no truth, so it is
+what a user can do on their own light curve. Used for the unscented λ of the surface-state filter
+(``surface_ukf_select`` in :mod:`lightcurve_gp.evaluation.registry`): neither the paper's ``λ = 0`` nor Julier's
 ``λ = 3 − n`` is better on every trajectory (experiments/README.md).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Sequence
 
 import torch
 from torch import Tensor
 
-from lightcurve_gp.filters.bank import innovation_log_likelihood
 from lightcurve_gp.filters.state import FilterHistory
 
-__all__ = ["select_rows", "select_by_likelihood"]
+__all__ = ["innovation_log_terms", "innovation_log_likelihood", "select_rows", "select_by_likelihood"]
+
+
+def innovation_log_terms(history: FilterHistory) -> Tensor:
+    """The log-density of each step's innovation ``(B, T+1)`` (nats): ``−½ (ν² / Pyy + ln(2π Pyy))`` where the
+    filter updated, 0 elsewhere (step 0, missing or refused observations). ``cumsum(-1)`` gives ``ℓ`` so far."""
+    nu, pyy = history.innovation, history.y_var
+    terms = -0.5 * (nu * nu / pyy + torch.log(2.0 * math.pi * pyy))
+    return torch.where(history.updated, terms, torch.zeros((), dtype=terms.dtype))
+
+
+def innovation_log_likelihood(history: FilterHistory) -> Tensor:
+    """``ℓ (B,)``: the summed Gaussian log-density of each filter's innovations over the steps it updated (nats)."""
+    return innovation_log_terms(history).sum(-1)
 
 
 def select_rows(histories: Sequence[FilterHistory], index: Tensor) -> FilterHistory:

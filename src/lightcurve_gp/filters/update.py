@@ -1,7 +1,6 @@
 """The measurement half of a batched USQUE step (paper Sec. 2.5, Eqs. (41)–(47); Sec. 3.3), shared by both
-predictions: the ω-known rotation shortcut (:func:`lightcurve_gp.filters.usque.usque_step`) and the rate-state
-prediction
-that propagates every sigma point with its own ω (:mod:`lightcurve_gp.filters.rates`).
+predictions: the ω-known rotation shortcut (:func:`lightcurve_gp.filters.step.usque_step`) and the rate-state
+prediction that propagates every sigma point with its own ω (:mod:`lightcurve_gp.filters.rates`).
 
 A prediction hands over the propagated centre ``q_0⁻`` (and ``ω_0⁻``), the prior mean ``x̂⁻`` and covariance ``P⁻``
 of the error state about ``[0, ω_0⁻, b̂]`` and the sigma points ``χ_i⁻`` to update with — its own propagated ones,
@@ -74,8 +73,7 @@ def redrawn_sigma_points(run: RunConstants, x_m: Tensor | None, P_m: Tensor) -> 
 def measurement_update(run: RunConstants, state: FilterState, prior: Prior, *, y_k: Tensor,
                        observed_k: Tensor) -> tuple[FilterState, StepRecord]:
     """Steps 6–9 of :func:`lightcurve_gp.filters.usque.run_usque` for ``B`` filters: predicted observation, gain,
-    update,
-    reset and the ``m_past`` recursion.
+    update, reset and the ``m_past`` recursion.
 
     Args:
         run: the run's constants; state: the posterior at ``k − 1``; prior: the prediction at ``k``.

@@ -1,18 +1,41 @@
 """Batched USQUE: the unscented quaternion estimator of the GPUKF and the conventional UKF.
 
 Paper sections 2.5 (UKF) and 3.3 (GPUKF); USQUE after Crassidis & Markley (2003), "Unscented filtering for
-spacecraft attitude estimation". Many independent filters advance together: every tensor carries a leading batch
-dimension ``B`` and one step of all filters is a handful of batched tensor operations (:func:`usque_step`).
+spacecraft attitude estimation". Many independent filters advance together (:func:`run_usque`): every tensor carries
+a leading batch dimension ``B`` and one step of all filters is a handful of batched tensor operations.
 
 State layout ``[δp (3, GRP attitude error), ω (3), b (1, magnitude offset), θ (p, model parameters)]`` with a block
 present only when it is estimated (:class:`StateLayout`): ``δp`` always, ``b`` with an offset prior
 (``y = h(q, m_past) + b``, the bias-state pattern of Crassidis & Markley's gyro-bias filter, here a measurement bias),
 ``θ`` with a parameter prior (``y = h(q, m_past; θ)``: the model takes each sigma point's ``θ``, e.g. the surface's
-reflectance parameters, :mod:`lightcurve_gp.observation.surface_state`), ω with a rate prior. With ω known the
-prediction model enters only through per-step kinematic increments ``δ_k`` with ``q_{k+1} = normalise(δ_k ⊗ q_k)``
-for every attitude (torque-free ω(t) does not depend on q) and the step is a rotation (:func:`usque_step`); with ω
-in the state every sigma point is propagated with its own rate (:mod:`lightcurve_gp.filters.rates`). Both share the
-measurement update (:mod:`lightcurve_gp.filters.update`).
+reflectance parameters, :mod:`lightcurve_gp.observation.surface_state`), ω with a rate prior.
+
+Step ``k = 1 … T`` (Crassidis & Markley 2003, Q added to the sigma-point covariance and again to ``P⁻``):
+
+1. ``χ_i = x̂⁺ ± cols √((n+λ)(P⁺ + Q))`` with ``x̂⁺ = [0, ω̂, b̂, θ̂]``; 2. ``q_i = grp_to_quat(χ_i) ⊗ q̂``;
+3. ``q_i⁻ = normalise(δ_{k−1} ⊗ q_i)`` (ω in the state: ``(q_i⁻, ω_i⁻) = RK4(q_i, ω_i)``);
+4. ``χ_i⁻ = [quat_to_grp(q_i⁻ ⊗ (q_0⁻)⁻¹), ω_i⁻]``, ``b_i`` and ``θ_i`` unchanged;
+5. ``x̂⁻ = Σ wm χ_i⁻``, ``P⁻ = Σ wc (χ_i⁻ − x̂⁻)(·)ᵀ + Q``;
+6. ``Y_i = model(q_i⁻, m_past[, θ_i]) (+ b_i)``, ``ŷ = Σ wm Y_i``, ``Pyy = Σ wc (Y_i − ŷ)² + R (+ Σ wm var_i)``,
+   ``Pxy = Σ wc (χ_i⁻ − x̂⁻)(Y_i − ŷ)``;
+7. ``K = Pxy / Pyy``, ``x̂⁺ = x̂⁻ + K (ỹ_k − ŷ)``, ``P⁺ = P⁻ − K Pyy Kᵀ``;
+8. reset ``q̂ ← grp_to_quat(x̂⁺[:3]) ⊗ q_0⁻``, ``ω̂ ← x̂⁺[ω]``, ``b̂ ← x̂⁺[b]``, ``θ̂ ← x̂⁺[θ]``;
+9. ``m_past ← (T m_past + ỹ_k) / (T + 1)``.
+
+The paper's variant (``UsqueParams.q_placement = "after"``, ``sigma_redraw``): step 1 without ``Q`` and, before
+step 6, ``χ_i⁻ = x̂⁻ ± cols √((n+λ) P⁻)`` drawn again (paper Sec. 2.5, Eqs. (29)–(42)).
+
+With ω known, steps 2–5 are a rotation, ``χ_i⁻ = A(δ) χ_i`` and ``P⁻ = A (P⁺ + Q) Aᵀ + Q``
+(:mod:`lightcurve_gp.filters.step`), optionally compiled (:mod:`lightcurve_gp.filters.compiled`); with ω in the state
+every sigma point moves with its own rate (:mod:`lightcurve_gp.filters.rates`): the torque-free Euler equations and
+the kinematics by RK4 (``UsqueParams.inertia``, ``dt``), all ``B (2n+1)`` sigma points in one call. Both share the
+measurement update (:mod:`lightcurve_gp.filters.update`). With ``adaptive_noise = "innovation"`` the ``R`` of step 6
+is each filter's ``R̂_k = max(R, c_k)``, ``c`` the running average of the innovation excess of the steps before
+(:func:`adapted_noise`).
+
+A NaN observation skips steps 7 and 9 for that filter only (the prior becomes the posterior). A finite observation
+whose prediction is not finite or whose ``Pyy ≤ 0`` is refused the same way and counted in ``rejected``; its
+``m_past`` recursion still happens (the observation is real).
 
 Conventions (docs/design.md, paper Sec. 2.3): scalar-last quaternions, paper product ``⊗``, error
 ``q_err = q_true ⊗ q_est⁻¹``, GRP ``p = f q̄ / (a + q4)``. The sign of ``q̂`` is never canonicalised inside the
@@ -24,36 +47,18 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import torch
 from torch import Tensor
 
 from lightcurve_gp.attitude.dynamics import rk4_stepper
-from lightcurve_gp.attitude.rotations import attitude_matrix, quat_left_matrix
 from lightcurve_gp.filters.compiled import compiled_stepper
 from lightcurve_gp.filters.rates import rate_prior
-from lightcurve_gp.filters.state import (
-    FilterHistory,
-    FilterState,
-    HistoryBuilder,
-    StateLayout,
-    StepRecord,
-)
-from lightcurve_gp.filters.unscented import (
-    UnscentedWeights,
-    sqrt_psd,
-    symmetrise,
-    unscented_weights,
-    warn_fallbacks,
-)
-from lightcurve_gp.filters.update import (
-    Prior,
-    RunConstants,
-    adapted_noise,
-    measurement_update,
-    redrawn_sigma_points,
-    sigma_set,
-)
+from lightcurve_gp.filters.state import FilterHistory, FilterState, HistoryBuilder, StateLayout, StepRecord
+from lightcurve_gp.filters.step import step_major, step_matrices, usque_step
+from lightcurve_gp.filters.unscented import UnscentedWeights, symmetrise, unscented_weights, warn_fallbacks
+from lightcurve_gp.filters.update import RunConstants, adapted_noise, measurement_update
 from lightcurve_gp.observation.base import ObservationModel, Variance, check_variance
 
 __all__ = [
@@ -64,6 +69,7 @@ __all__ = [
     "UsqueParams",
     "initial_covariance",
     "model_error_variance",
+    "run_constants",
     "run_usque",
     "usque_step",
     "adapted_noise",
@@ -83,10 +89,9 @@ LAM_RULES = ("given", "julier")
 def model_error_variance(cfg, model) -> float:
     """What ``filter.model_error`` adds to a filter's ``R`` for ``model`` (mag²): 0 with ``none`` or for a model that
     is not trained (the renderers, exact given their inputs, carry no training ``config``); with ``heldout`` the
-    excess variance of the trained model's held-out set (:func:`lightcurve_gp.training.fit.heldout_metrics`, stored in
-    its
-    file by ``train``): the squared error its own predictive variance does not cover. A trained model without those
-    metrics (an older file, or one built in memory) is refused."""
+    excess variance of the trained model's held-out set (:func:`lightcurve_gp.training.fit.heldout_metrics`, stored
+    in its file by ``train``): the squared error its own predictive variance does not cover. A trained model without
+    those metrics (an older file, or one built in memory) is refused."""
     if cfg.filter.model_error == "none" or getattr(model, "config", None) is None:
         return 0.0
     heldout = (getattr(model, "extra", None) or {}).get("heldout") or {}
@@ -127,7 +132,8 @@ class UsqueParams:
             propagated ones (Crassidis & Markley).
         q_placement: one of :data:`Q_PLACEMENTS`.
         compile: with ω known, run each step as compiled graphs (:mod:`lightcurve_gp.filters.compiled`): the same
-            estimates to rounding, a fraction of the per-step dispatch; the first step of each shape compiles.
+            estimates to rounding, a fraction of the per-step dispatch; the first step of each shape compiles
+            (seconds: off by default, it pays from thousands of steps on, ``benchmarks/bench_compile.py``).
     """
 
     alpha: float = 1e-4
@@ -172,14 +178,13 @@ class UsqueParams:
 
     @classmethod
     def from_config(cls, cfg, *, model=None) -> UsqueParams:
-        """Parameters of a :class:`~lightcurve_gp.config.load.Config`: its ``filter`` section (``Q = process_noise ·
-        I``),
-        ``data.t_span_past``, ``model.variance`` (``"none"`` unless ``filter.add_model_variance``) and the adaptive
-        noise rule with ``λ = min(1, scenario.dt_s / filter.adaptive_noise_time_s)``, the rate filter's
-        ``filter.omega_process_noise``, ``filter.inertia_kg_m2`` (default ``shape.inertia_kg_m2``) and
-        ``scenario.dt_s``, the variant (``filter.sigma_redraw``, ``filter.q_placement``) and ``filter.compile``. With
-        ``filter.model_error: heldout`` ``R`` also holds the trained ``model``'s held-out excess variance
-        (:func:`model_error_variance`)."""
+        """Parameters of a :class:`~lightcurve_gp.config.load.Config`: its ``filter`` section
+        (``Q = process_noise · I``), ``data.t_span_past``, ``model.variance`` (``"none"`` unless
+        ``filter.add_model_variance``) and the adaptive noise rule with
+        ``λ = min(1, scenario.dt_s / filter.adaptive_noise_time_s)``, the rate filter's ``filter.omega_process_noise``,
+        ``filter.inertia_kg_m2`` (default ``shape.inertia_kg_m2``) and ``scenario.dt_s``, the variant
+        (``filter.sigma_redraw``, ``filter.q_placement``) and ``filter.compile``. With ``filter.model_error: heldout``
+        ``R`` also holds the trained ``model``'s held-out excess variance (:func:`model_error_variance`)."""
         f = cfg.filter
         return cls(
             alpha=float(f.alpha), beta=float(f.beta), kappa=float(f.kappa), lam=None if f.lam is None else float(f.lam),
@@ -267,94 +272,11 @@ def _process_noise(params: UsqueParams, layout: StateLayout, B: int, like: Tenso
     return Q
 
 
-def _step_major(m: Tensor, *, copy: bool = True) -> tuple[Tensor, ...]:
-    """The steps of ``m (1 | B, T, ...)`` as ``T`` tensors ``(1 | B, ...)``, with ``copy`` laid out step-major so that
-    their strides do not depend on ``T`` (a compiled step is specialised to its inputs' strides, those of size-1
-    dimensions included); without, views of ``m``."""
-    return m.transpose(0, 1).clone(memory_format=torch.contiguous_format).unbind(0) if copy else m.unbind(1)
-
-
-def _step_matrices(increments: Tensor, layout: StateLayout, B: int, scale: float) -> tuple[tuple, tuple]:
-    """Per-step ``L(δ_k) (B, 4, 4)`` and ``√(n+λ) G(δ_k) (B, n, n)`` with ``G = A(δ)`` on the attitude block and
-    the identity elsewhere (stride 0 over ``B`` when the increments are shared). ``normalise(δ ⊗ q) = (δ/|δ|) ⊗ q``:
-    the increments are normalised once."""
-    inc = increments / torch.linalg.vector_norm(increments, dim=-1, keepdim=True)
-    inc = inc.unsqueeze(0) if inc.ndim == 2 else inc  # (1 | B, T, 4)
-    G = torch.eye(layout.dim, dtype=inc.dtype, device=inc.device).repeat(*inc.shape[:-1], 1, 1)
-    G[..., :3, :3] = attitude_matrix(inc)
-    shared = inc.shape[0] == 1  # per-filter increments are not copied again (B T (4² + n²) values)
-    L_steps = [m.expand(B, -1, -1) for m in _step_major(quat_left_matrix(inc), copy=shared)]
-    G_steps = [m.expand(B, -1, -1) for m in _step_major(G * math.sqrt(scale), copy=shared)]
-    return L_steps, G_steps
-
-
-def usque_prior(run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Tensor) -> Prior:
-    """Steps 1–5 of :func:`usque_step` with ω known: the prior of ``B`` filters (arguments as there)."""
-    # 1-5. sigma offsets ±√(n+λ) cols √(P⁺ + Q) about x̂⁺ = [0, b̂]; propagating q_i = δq(χ_i) ⊗ q̂ to δ ⊗ q_i and
-    # re-expressing it about the propagated centre δ ⊗ q̂ conjugates δq(χ_i) by δ, which keeps its scalar part and
-    # rotates its vector part by A(δ), so the GRP becomes A(δ) χ_i (b is unchanged): the propagated offsets are the
-    # columns of S⁻ = √(n+λ) G S, x̂⁻ = x̂⁺ and P⁻ = S⁻ S⁻ᵀ/(n+λ) + Q exactly (Crassidis & Markley 2003); with Q after
-    # the propagation only (the paper) S = √P⁺
-    s, failed = sqrt_psd(state.P + run.Q if run.q_in_sigma else state.P)
-    S_m = torch.bmm(G_k, s)  # (B, n, n): column j = propagated sigma offset j
-    P_m = torch.baddbmm(run.Q, S_m, S_m.mT, alpha=1.0 / run.scale)
-    q_m = torch.bmm(L_k, state.q_hat.unsqueeze(-1)).squeeze(-1)
-    if run.sigma_redraw:
-        chi, failed_again = redrawn_sigma_points(run, None, P_m)
-        failed = failed | failed_again
-    else:
-        chi = sigma_set(None, S_m.mT)
-    return Prior(q_m, None, None, P_m, chi, failed)
-
-
-def usque_step(run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Tensor, y_k: Tensor,
-               observed_k: Tensor) -> tuple[FilterState, StepRecord]:
-    """One USQUE step of ``B`` filters with ω known (:func:`run_usque` lists the steps 1–9): :func:`usque_prior`,
-    then the measurement update.
-
-    Args:
-        run: the run's constants; state: the posterior at ``k − 1``.
-        L_k: ``L(δ_{k−1}) (B, 4, 4)``; G_k: ``√(n+λ) G(δ_{k−1}) (B, n, n)`` (:func:`_step_matrices`).
-        y_k: observation ``ỹ_k (B,)`` with missing values filled by 0; observed_k: where it is finite ``(B,)``.
-    """
-    prior = usque_prior(run, state, L_k=L_k, G_k=G_k)
-    return measurement_update(run, state, prior, y_k=y_k, observed_k=observed_k)
-
-
 def run_usque(*, model: ObservationModel, q_est0: Tensor, P0: Tensor, observations: Tensor, m_past0: Tensor,
               increments: Tensor | None = None, params: UsqueParams | None = None,
               offset0: Tensor | None = None, theta0: Tensor | None = None,
               omega0: Tensor | None = None) -> FilterHistory:
-    """Run ``B`` independent USQUE filters over ``T`` steps in one set of tensors.
-
-    Step ``k = 1 … T`` (Crassidis & Markley 2003, Q added to the sigma-point covariance and again to ``P⁻``):
-
-    1. ``χ_i = x̂⁺ ± cols √((n+λ)(P⁺ + Q))`` with ``x̂⁺ = [0, ω̂, b̂, θ̂]``; 2. ``q_i = grp_to_quat(χ_i) ⊗ q̂``;
-    3. ``q_i⁻ = normalise(δ_{k−1} ⊗ q_i)`` (ω in the state: ``(q_i⁻, ω_i⁻) = RK4(q_i, ω_i)``);
-    4. ``χ_i⁻ = [quat_to_grp(q_i⁻ ⊗ (q_0⁻)⁻¹), ω_i⁻]``, ``b_i`` and ``θ_i`` unchanged;
-    5. ``x̂⁻ = Σ wm χ_i⁻``, ``P⁻ = Σ wc (χ_i⁻ − x̂⁻)(·)ᵀ + Q``;
-    6. ``Y_i = model(q_i⁻, m_past[, θ_i]) (+ b_i)``, ``ŷ = Σ wm Y_i``, ``Pyy = Σ wc (Y_i − ŷ)² + R (+ Σ wm var_i)``,
-       ``Pxy = Σ wc (χ_i⁻ − x̂⁻)(Y_i − ŷ)``;
-    7. ``K = Pxy / Pyy``, ``x̂⁺ = x̂⁻ + K (ỹ_k − ŷ)``, ``P⁺ = P⁻ − K Pyy Kᵀ``;
-    8. reset ``q̂ ← grp_to_quat(x̂⁺[:3]) ⊗ q_0⁻``, ``ω̂ ← x̂⁺[ω]``, ``b̂ ← x̂⁺[b]``, ``θ̂ ← x̂⁺[θ]``;
-    9. ``m_past ← (T m_past + ỹ_k) / (T + 1)``.
-
-    The paper's variant (``params.q_placement = "after"``, ``params.sigma_redraw``): step 1 without ``Q`` and, before
-    step 6, ``χ_i⁻ = x̂⁻ ± cols √((n+λ) P⁻)`` drawn again (paper Sec. 2.5, Eqs. (29)–(42)).
-
-    With ω known, steps 2–5 are a rotation: ``q_i⁻ ⊗ (q_0⁻)⁻¹ = δ ⊗ δq(χ_i) ⊗ δ⁻¹`` has the GRP ``A(δ) χ_i``
-    (conjugation by ``δ`` rotates a quaternion's vector part by ``A(δ)``), so ``χ_i⁻ = A(δ) χ_i`` and
-    ``P⁻ = A (P⁺ + Q) Aᵀ + Q``. The step computes them that way: the same filter with a fraction of the work.
-    With ω in the state (``omega0`` given) every sigma point moves with its own rate
-    (:func:`lightcurve_gp.filters.rates.rate_prior`): the torque-free Euler equations and the kinematics by RK4
-    (``params.inertia``, ``params.dt``), all ``B (2n+1)`` sigma points in one call.
-
-    With ``params.adaptive_noise = "innovation"`` the ``R`` of step 6 is each filter's ``R̂_k = max(R, c_k)``,
-    ``c`` the running average of the innovation excess of the steps before (:func:`adapted_noise`).
-
-    A NaN observation skips steps 7 and 9 for that filter only (the prior becomes the posterior). A finite
-    observation whose prediction is not finite or whose ``Pyy ≤ 0`` is refused the same way and counted in
-    ``rejected``; its ``m_past`` recursion still happens (the observation is real).
+    """Run ``B`` independent USQUE filters over ``T`` steps in one set of tensors (the steps: module docstring).
 
     Args:
         model: observation model, called once per step with ``q (B, 2n+1, 4)`` and ``m_past (B, 2n+1)``: each
@@ -376,44 +298,27 @@ def run_usque(*, model: ObservationModel, q_est0: Tensor, P0: Tensor, observatio
         omega0: initial body-rate estimates ``(B, 3)`` or ``(3,)`` (rad/s) to estimate ω; ``None``: ω known.
 
     Returns:
-        :class:`FilterHistory`. Emits :class:`~lightcurve_gp.filters.unscented.SqrtFallbackWarning` once when any filter
-        needed the square-root fallback (counts in ``fallbacks``).
+        :class:`FilterHistory`. Emits :class:`~lightcurve_gp.filters.unscented.SqrtFallbackWarning` once when any
+        filter needed the square-root fallback (counts in ``fallbacks``).
     """
     params = params or UsqueParams()
     layout = StateLayout(offset=offset0 is not None, omega=omega0 is not None,
                          parameters=0 if theta0 is None else int(theta0.shape[-1]))
     B, T = _check_run_inputs(q_est0, P0, offset0, theta0, omega0, observations, m_past0, increments, layout)
-    dtype, device = q_est0.dtype, q_est0.device
     with torch.no_grad():
-        run, R_steps = _run_constants(params, layout, model, B, T, q_est0)
-        obs = observations.to(dtype=dtype, device=device)
+        run, R_steps = run_constants(params, layout, model, B, T, q_est0)
+        obs = observations.to(dtype=q_est0.dtype, device=q_est0.device)
         observed = torch.isfinite(obs)
-        y_steps = _step_major(torch.where(observed, obs, torch.zeros_like(obs)))
-        observed_steps = _step_major(observed)
-        q_hat = q_est0.to(dtype=dtype).clone()
-        state = FilterState(
-            q_hat=q_hat / torch.linalg.vector_norm(q_hat, dim=-1, keepdim=True),
-            offset=None if offset0 is None else offset0.to(dtype=dtype, device=device).expand(B).clone(),
-            P=symmetrise(P0.to(dtype=dtype, device=device).expand(B, layout.dim, layout.dim)).clone(),
-            m_past=m_past0.to(dtype=dtype, device=device).expand(B).clone(memory_format=torch.contiguous_format),
-            noise_excess=None if run.adaptive_rate is None else run.R.clone(),
-            theta=None if theta0 is None else theta0.to(dtype=dtype, device=device).expand(B, -1).clone(),
-            omega=None if omega0 is None else omega0.to(dtype=dtype, device=device).expand(B, 3).clone())
+        y_steps = step_major(torch.where(observed, obs, torch.zeros_like(obs)))
+        observed_steps = step_major(observed)
+        state = _initial_state(layout, run, q_est0=q_est0, P0=P0, m_past0=m_past0, offset0=offset0, theta0=theta0,
+                               omega0=omega0)
         history = HistoryBuilder(layout)
-        nan_b = torch.full((B,), math.nan, dtype=dtype, device=device)
-        no = torch.zeros(B, dtype=torch.bool, device=device)
-        history.add(state, StepRecord(nan_b, nan_b, nan_b, nan_b, state.m_past, no, no, no))
-        if omega0 is None:
-            L_steps, G_steps = _step_matrices(increments.to(dtype=dtype, device=device), layout, B, run.scale)
-        step = compiled_stepper() if params.compile else usque_step
+        history.add(state, _initial_record(state))
+        step = _stepper(run, increments, compile_=params.compile)
         for k in range(1, T + 1):
             run_k = run if R_steps is None else dataclasses.replace(run, R=R_steps[k])
-            if omega0 is None:
-                state, record = step(run_k, state, L_k=L_steps[k - 1], G_k=G_steps[k - 1], y_k=y_steps[k],
-                                     observed_k=observed_steps[k])
-            else:
-                state, record = measurement_update(run_k, state, rate_prior(run_k, state), y_k=y_steps[k],
-                                                   observed_k=observed_steps[k])
+            state, record = step(run_k, state, k, y_k=y_steps[k], observed_k=observed_steps[k])
             history.add(state, record)
         out = history.build(observed, state)
     n_fb = int((out.fallbacks > 0).sum())
@@ -422,16 +327,62 @@ def run_usque(*, model: ObservationModel, q_est0: Tensor, P0: Tensor, observatio
     return out
 
 
-def _run_constants(params: UsqueParams, layout: StateLayout, model: ObservationModel, B: int, T: int,
-                   like: Tensor) -> tuple[RunConstants, tuple[Tensor, ...] | None]:
-    """The run's weights, noises and variant (with ω in the state its RK4 stepper), and with a per-sample ``R``
-    ``(B, T+1)`` its columns (step ``k`` uses column ``k``; the constants hold column 0), else ``None``."""
+def _initial_state(layout: StateLayout, run: RunConstants, *, q_est0: Tensor, P0: Tensor, m_past0: Tensor,
+                   offset0: Tensor | None, theta0: Tensor | None, omega0: Tensor | None) -> FilterState:
+    """The state at ``t_0`` of ``B`` filters: copies of the (checked) inputs, broadcast over ``B``, ``q̂``
+    normalised, ``P`` symmetrised, the adaptive rule's running average at ``R``."""
+    dtype, device, B = q_est0.dtype, q_est0.device, q_est0.shape[0]
+    q_hat = q_est0.to(dtype=dtype).clone()
+    return FilterState(
+        q_hat=q_hat / torch.linalg.vector_norm(q_hat, dim=-1, keepdim=True),
+        offset=None if offset0 is None else offset0.to(dtype=dtype, device=device).expand(B).clone(),
+        P=symmetrise(P0.to(dtype=dtype, device=device).expand(B, layout.dim, layout.dim)).clone(),
+        m_past=m_past0.to(dtype=dtype, device=device).expand(B).clone(memory_format=torch.contiguous_format),
+        noise_excess=None if run.adaptive_rate is None else run.R.clone(),
+        theta=None if theta0 is None else theta0.to(dtype=dtype, device=device).expand(B, -1).clone(),
+        omega=None if omega0 is None else omega0.to(dtype=dtype, device=device).expand(B, 3).clone())
+
+
+def _initial_record(state: FilterState) -> StepRecord:
+    """The record of ``t_0``: no prediction (NaN), no update."""
+    B = state.q_hat.shape[0]
+    nan_b = torch.full((B,), math.nan, dtype=state.q_hat.dtype, device=state.q_hat.device)
+    no = torch.zeros(B, dtype=torch.bool, device=state.q_hat.device)
+    return StepRecord(nan_b, nan_b, nan_b, nan_b, state.m_past, no, no, no)
+
+
+def _stepper(run: RunConstants, increments: Tensor | None, *,
+             compile_: bool) -> Callable[..., tuple[FilterState, StepRecord]]:
+    """``step(run_k, state, k, *, y_k, observed_k)``: step ``k`` of the run. With ``increments`` (ω known) the
+    rotation step (:func:`~lightcurve_gp.filters.step.usque_step`, compiled with ``compile_``) on the step's
+    matrices; without, the rate prediction (:func:`~lightcurve_gp.filters.rates.rate_prior`) and the update."""
+    if increments is None:
+        def rate_step(run_k: RunConstants, state: FilterState, k: int, **obs: Tensor):
+            return measurement_update(run_k, state, rate_prior(run_k, state), **obs)
+
+        return rate_step
+    like = run.Q
+    B = like.shape[0]
+    L_steps, G_steps = step_matrices(increments.to(dtype=like.dtype, device=like.device), run.layout, B, run.scale)
+    inner = compiled_stepper() if compile_ else usque_step
+
+    def rotation_step(run_k: RunConstants, state: FilterState, k: int, **obs: Tensor):
+        return inner(run_k, state, L_k=L_steps[k - 1], G_k=G_steps[k - 1], **obs)
+
+    return rotation_step
+
+
+def run_constants(params: UsqueParams, layout: StateLayout, model: ObservationModel, B: int, T: int,
+                  like: Tensor) -> tuple[RunConstants, tuple[Tensor, ...] | None]:
+    """The run's weights, noises and variant (with ω in the state its RK4 stepper) for ``B`` filters over ``T``
+    steps, in ``like``'s dtype and device, and with a per-sample ``R`` ``(B, T+1)`` its columns (step ``k`` uses
+    column ``k``; the constants hold column 0), else ``None``."""
     dtype, device = like.dtype, like.device
     lam, wm, wc = params.weights(layout.dim, dtype=dtype, device=device)
     R = torch.as_tensor(params.R, dtype=dtype, device=device)
     if R.shape not in ((), (B,), (B, T + 1)):
         raise ValueError(f"R must be a scalar, (B={B},) or (B={B}, T+1={T + 1}), got {tuple(R.shape)}")
-    R_steps = _step_major(R) if R.ndim == 2 else None
+    R_steps = step_major(R) if R.ndim == 2 else None
     stepper = None
     if layout.omega:
         stepper = rk4_stepper(torch.tensor(params.inertia, dtype=dtype, device=device), params.dt, like=like)

@@ -14,8 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import partial
-from typing import Callable, Sequence
+from typing import Sequence
 
 import torch
 from torch import Tensor
@@ -23,10 +22,10 @@ from torch import Tensor
 from lightcurve_gp.attitude.dynamics import propagate_only
 from lightcurve_gp.attitude.metrics import attitude_errors_deg
 from lightcurve_gp.attitude.rotations import quat_mul, rotvec_to_quat
+from lightcurve_gp.inference.solver import GaussianPrior, LeastSquaresOptions, batch_least_squares
 from lightcurve_gp.observation.base import ObservationModel
 
-__all__ = ["MapPrior", "batch_map", "blockwise_magnitudes", "gauss_newton", "map_attitude", "map_rmse_deg",
-           "tile_seeds"]
+__all__ = ["MapPrior", "chunked_magnitudes", "map_attitude", "map_known_rate", "map_rmse_deg", "select_seeds"]
 
 
 @dataclass(frozen=True)
@@ -44,100 +43,38 @@ class MapPrior:
         return torch.tensor(values, dtype=dtype)
 
 
-def blockwise_magnitudes(model: ObservationModel, *, q: Tensor, m_past: Tensor) -> Tensor:
-    """Magnitudes ``(K·S, t+1)`` of attitudes ``q (K·S, t+1, 4)``, ``K`` blocks of the ``S`` seeds whose ``m_past``
-    ``(S, 1)`` they share, the model evaluated one block at a time (its memory: that of one block)."""
-    S, t1 = m_past.shape[0], q.shape[1]
-    blocks = [model(q=block, m_past=m_past.expand(-1, t1), variance="none")[0] for block in q.split(S)]
-    return torch.cat(blocks)
+def chunked_magnitudes(model: ObservationModel, *, q: Tensor, m_past: Tensor, chunk: int) -> Tensor:
+    """Magnitudes ``(A, t+1)`` (mag) of attitudes ``q (A, t+1, 4)`` with their held inputs ``m_past (A, 1)`` (mag),
+    the model evaluated ``chunk`` rows at a time (its memory: that of one chunk)."""
+    t1 = q.shape[1]
+    parts = [model(q=qc, m_past=mc.expand(-1, t1), variance="none")[0] for qc, mc in zip(q.split(chunk),
+                                                                                       m_past.split(chunk))]
+    return torch.cat(parts)
 
 
-def tile_seeds(q_est0: Tensor, rows: int) -> Tensor:
-    """The initial estimate ``(4,)`` as given, or ``(S, 4)`` repeated to ``rows = K·S`` rows (``K`` blocks)."""
-    return q_est0 if q_est0.dim() == 1 else q_est0.repeat(rows // q_est0.shape[0], 1)
+def select_seeds(values: Tensor, rows: Tensor) -> Tensor:
+    """``values`` as given when shared (``(4,)``, one initial estimate for every seed), else its rows
+    ``values[rows]`` (``(S, 4)`` per seed)."""
+    return values if values.dim() == 1 else values[rows]
 
 
-def _predict(model: ObservationModel, x: Tensor, q_est0: Tensor, increments: Tensor, m_past: Tensor,
-             offset: bool) -> Tensor:
-    """Magnitudes ``(K·S, t+1)`` of states ``x (K·S, 3 | 4)`` along the known dynamics (``increments (t, 4)``)."""
-    q = propagate_only(quat_mul(rotvec_to_quat(x[:, :3]), tile_seeds(q_est0, x.shape[0])), increments)
-    m = blockwise_magnitudes(model, q=q, m_past=m_past)
-    return m + x[:, 3:] if offset else m
+def _magnitudes(model: ObservationModel, x: Tensor, rows: Tensor, *, q_est0: Tensor, increments: Tensor,
+                m_past: Tensor) -> Tensor:
+    """Magnitudes ``(A, t+1)`` of states ``x (A, 3 | 4)`` of the seeds ``rows`` along the known dynamics
+    (``increments (t, 4)``), the offset added with a fourth state."""
+    q = propagate_only(quat_mul(rotvec_to_quat(x[:, :3]), select_seeds(q_est0, rows)), increments)
+    m = chunked_magnitudes(model, q=q, m_past=m_past[rows], chunk=m_past.shape[0])
+    return m + x[:, 3:] if x.shape[-1] == 4 else m
 
 
-def _neg_log_posterior(m: Tensor, x: Tensor, *, y: Tensor, r_var: float, x_prior: Tensor, prior_precision: Tensor
-                       ) -> Tensor:
-    """``½ Σ (ỹ_k − m_k)²/R + ½ (x − x_prior)ᵀ P0⁻¹ (x − x_prior)`` ``(K·S,)`` of states ``x (K·S, n)`` and their
-    magnitudes ``m (K·S, t+1)`` (``K`` blocks of the seeds) against ``y (S, t+1)`` (``ỹ_0`` left out: it sets the
-    offset's prior)."""
-    S = y.shape[0]
-    r = (y.repeat(m.shape[0] // S, 1) - m)[:, 1:]
-    prior_term = ((x - x_prior.repeat(x.shape[0] // S, 1)).pow(2) * prior_precision).sum(-1)
-    return 0.5 * (r.pow(2).sum(-1) / r_var + prior_term)
-
-
-def gauss_newton(predict: Callable[[Tensor, int], Tensor], *, x: Tensor, x_prior: Tensor, prior_precision: Tensor,
-                 observations: Tensor, measurement_noise: float, t: int, steps: Tensor, tolerance: Tensor,
-                 iterations: int, halvings: int = 0) -> tuple[Tensor, Tensor]:
-    """Gauss–Newton on the posterior of states ``x (S, n)`` given ``ỹ_1 … ỹ_t``, every observation re-linearised
-    at every iteration.
-
-    Args:
-        predict: ``predict(x, t)`` → magnitudes ``(K·S, t+1)`` of states ``x (K·S, n)``, ``ỹ_0`` first: ``K``
-            blocks of the ``S`` seeds (all the Jacobian's differences go in one call).
-        x: the starting states ``(S, n)``.
-        x_prior: the prior means ``(S, n)``; ``prior_precision (n,)`` the prior's diagonal information.
-        observations: ``(S, T+1)`` magnitudes (mag), ``T ≥ t``; ``measurement_noise`` their variance (mag²).
-        steps: central-difference step of each state component ``(n,)``.
-        tolerance: stop when every component of the Gauss–Newton step is below it ``(n,)``.
-        iterations: Gauss–Newton iterations at most.
-        halvings: with ``> 0``, a seed whose step raises its negative log posterior halves the step, up to this
-            many times (then it keeps its state for this iteration); 0: the plain Gauss–Newton step.
-
-    Returns:
-        The states ``(S, n)`` and the Gauss–Newton information matrix ``JᵀJ/R + P0⁻¹`` ``(S, n, n)`` at the last
-        linearisation (its inverse: the Laplace approximation of the posterior covariance).
-    """
-    r_var, H, y = measurement_noise, None, observations[:, :t + 1]
-    cost = partial(_neg_log_posterior, y=y, r_var=r_var, x_prior=x_prior, prior_precision=prior_precision)
-    for _ in range(iterations):
-        m, J = _jacobian(predict, x, t, steps)
-        H = J.mT @ J / r_var + torch.diag(prior_precision)
-        g = (J.mT @ (y - m)[:, 1:].unsqueeze(-1)).squeeze(-1) / r_var - (x - x_prior) * prior_precision
-        dx = torch.linalg.solve(H, g)
-        if halvings:
-            dx = _backtrack(predict, cost, x=x, dx=dx, cost_now=cost(m, x), t=t, halvings=halvings)
-        x = x + dx
-        if bool((dx.abs() < tolerance).all()):
-            break
-    return x, H
-
-
-def _jacobian(predict, x: Tensor, t: int, steps: Tensor) -> tuple[Tensor, Tensor]:
-    """``predict(x)`` ``(S, t+1)`` and its central-difference Jacobian without ``ỹ_0`` ``(S, t, n)``, in one call."""
-    S, n = x.shape
-    shifts = torch.cat([torch.diag(steps), -torch.diag(steps)])  # (2n, n)
-    m_all = predict(torch.cat([x, (x[None] + shifts[:, None]).reshape(2 * n * S, n)]), t)
-    plus, minus = m_all[S:].reshape(2, n, S, t + 1)
-    return m_all[:S], ((plus - minus) / (2 * steps[:, None, None])).permute(1, 2, 0)[:, 1:]
-
-
-def _backtrack(predict, cost, *, x: Tensor, dx: Tensor, cost_now: Tensor, t: int, halvings: int) -> Tensor:
-    """Per seed, the longest step ``dx / 2^k`` (``k ≤ halvings``) that does not raise the cost; zero if none."""
-    out, pending = torch.zeros_like(dx), torch.ones(x.shape[0], dtype=torch.bool)
-    for k in range(halvings + 1):
-        trial = dx / 2 ** k
-        ok = pending & (cost(predict(x + trial, t), x + trial) <= cost_now)
-        out[ok], pending = trial[ok], pending & ~ok
-        if not bool(pending.any()):
-            break
-    return out
-
-
-def batch_map(model: ObservationModel, *, q_est0: Tensor, increments: Tensor, observations: Tensor,
-              prior: MapPrior, checkpoints: Sequence[int], offset: bool, iterations: int = 15,
-              step: float = 1e-5) -> dict[int, Tensor]:
+def map_known_rate(model: ObservationModel, *, q_est0: Tensor, increments: Tensor, observations: Tensor,
+                   prior: MapPrior, checkpoints: Sequence[int], offset: bool, iterations: int = 15,
+                   step: float = 1e-5) -> dict[int, Tensor]:
     """MAP states ``x (S, 3 | 4)`` at each checkpoint index (observations ``1 … t`` used).
+
+    Gauss–Newton (:func:`~lightcurve_gp.inference.solver.batch_least_squares`, central differences) on the
+    residuals ``ỹ_k − h(q_k) − b`` of variance ``R``, ``k = 1 … t``, until every attitude component of every seed's
+    step is below 1e-9 rad.
 
     Args:
         model: observation model; its ``m_past`` input is held at the first observation.
@@ -146,25 +83,26 @@ def batch_map(model: ObservationModel, *, q_est0: Tensor, increments: Tensor, ob
         observations: ``(S, T+1)`` magnitudes, ``ỹ_0`` first.
         checkpoints: step indices ``t`` in increasing order; each solve starts from the previous one.
         offset: estimate a magnitude offset ``b`` as a fourth state.
-        iterations: Gauss–Newton iterations per checkpoint at most (stops when the attitude step is < 1e-9 rad).
+        iterations: Gauss–Newton iterations per checkpoint at most.
         step: central-difference step of the Jacobian (rad, mag).
     """
     S, n, dtype = observations.shape[0], 4 if offset else 3, observations.dtype
-    m_past = observations[:, :1]
-
-    def predict(x: Tensor, t: int) -> Tensor:
-        return _predict(model, x, q_est0, increments[:t], m_past, offset)
-
+    m_past, every = observations[:, :1], torch.arange(S)
     x0 = torch.zeros(S, n, dtype=dtype)
     if offset:
-        x0[:, 3] = observations[:, 0] - predict(x0, 0)[:, 0]
-    steps = torch.full((n,), step, dtype=dtype)
-    tolerance = torch.tensor([1e-9] * 3 + [math.inf] * offset, dtype=dtype)
-    x, out = x0.clone(), {}
+        x0[:, 3] = observations[:, 0] - _magnitudes(model, x0[:, :3], every, q_est0=q_est0,
+                                                    increments=increments[:0], m_past=m_past)[:, 0]
+    options = LeastSquaresOptions(method="gauss_newton", iterations=iterations, jacobian="central", step=step,
+                                  tolerance=torch.tensor([1e-9] * 3 + [math.inf] * offset, dtype=dtype),
+                                  covariance="none", stop_together=True, first_column=1)
+    gaussian = GaussianPrior.independent(x0, prior.precision(offset, dtype))
+    x, out = x0, {}
     for t in checkpoints:
-        x, _ = gauss_newton(predict, x=x, x_prior=x0, prior_precision=prior.precision(offset, dtype),
-                            observations=observations, measurement_noise=prior.measurement_noise, t=t, steps=steps,
-                            tolerance=tolerance, iterations=iterations)
+        def residual(states: Tensor, rows: Tensor, t: int = t) -> Tensor:
+            m = _magnitudes(model, states, rows, q_est0=q_est0, increments=increments[:t], m_past=m_past)
+            return observations[rows, :t + 1] - m  # sample 0 only sets the offset's prior: first_column=1
+
+        x = batch_least_squares(residual, x, prior=gaussian, variance=prior.measurement_noise, options=options).x
         out[t] = x.clone()
     return out
 
@@ -175,7 +113,7 @@ def map_attitude(x: Tensor, *, q_est0: Tensor, increments: Tensor) -> Tensor:
 
 
 def map_rmse_deg(estimates: dict[int, Tensor], *, q_true: Tensor, q_est0: Tensor, increments: Tensor) -> Tensor:
-    """Euler-angle RMSE ``(S, 3)`` (deg) over the checkpoints of :func:`batch_map`'s estimates against the true
+    """Euler-angle RMSE ``(S, 3)`` (deg) over the checkpoints of :func:`map_known_rate`'s estimates against the true
     attitudes ``q_true (T+1, 4)``."""
     errors = [attitude_errors_deg(q_true[t], map_attitude(x, q_est0=q_est0, increments=increments[:t]))
               for t, x in estimates.items()]

@@ -1,11 +1,11 @@
 """What the light curve allows when the spin is unknown: the batch MAP of the initial attitude *and* body rate.
 
-:mod:`.batch_map` with the initial rate as a parameter. At each checkpoint ``t`` Gauss–Newton
-(:func:`.batch_map.gauss_newton`) maximises the posterior of ``x = [e, δω, b]`` given ``ỹ_1 … ỹ_t``: ``e`` the
-rotation vector (rad) of ``q_0 ⊗ q_est,0⁻¹``, ``δω`` the correction (rad/s) of the initial body rate ``ω_est,0``
-and, with an offset, ``b`` the magnitude offset (mag). Every evaluation propagates its own trajectory from
-``(exp(e) ⊗ q_est,0, ω_est,0 + δω)`` with the torque-free Euler equations and the quaternion kinematics
-(:func:`.dynamics.propagate`, RK4, the inertia known). The prior is the rate filters': ``e ~ N(0, p0² I)``,
+:func:`.attitude.map_known_rate` with the initial rate as a parameter. At each checkpoint ``t`` Gauss–Newton with
+backtracking (:func:`.solver.batch_least_squares`) maximises the posterior of ``x = [e, δω, b]`` given
+``ỹ_1 … ỹ_t``: ``e`` the rotation vector (rad) of ``q_0 ⊗ q_est,0⁻¹``, ``δω`` the correction (rad/s) of the initial
+body rate ``ω_est,0`` and, with an offset, ``b`` the magnitude offset (mag). Every evaluation propagates its own
+trajectory from ``(exp(e) ⊗ q_est,0, ω_est,0 + δω)`` with the torque-free Euler equations and the quaternion
+kinematics (:func:`.dynamics.propagate`, RK4, the inertia known). The prior is the rate filters': ``e ~ N(0, p0² I)``,
 ``δω ~ N(0, σ_ω² I)`` (``filter.p0_omega_deg_s``) and ``b ~ N(ỹ_0 − h(q̂_0), offset_prior_std²)``. The estimate at
 ``t`` uses no later observation, so its errors over the checkpoints compare with a filter's over its window.
 """
@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import partial
 from typing import Sequence
 
 import torch
@@ -22,7 +23,8 @@ from torch import Tensor
 from lightcurve_gp.attitude.dynamics import propagate
 from lightcurve_gp.attitude.metrics import attitude_errors_deg
 from lightcurve_gp.attitude.rotations import quat_mul, rotvec_to_quat
-from lightcurve_gp.inference.attitude import MapPrior, blockwise_magnitudes, gauss_newton, tile_seeds
+from lightcurve_gp.inference.attitude import MapPrior, chunked_magnitudes, select_seeds
+from lightcurve_gp.inference.solver import GaussianPrior, LeastSquaresOptions, batch_least_squares, least_squares_cost
 from lightcurve_gp.observation.base import ObservationModel
 
 __all__ = ["RateMapEstimate", "RateDynamics", "map_with_rate", "neg_log_posterior", "prior_mean", "rate_map_trajectory",
@@ -45,7 +47,7 @@ class RateDynamics:
             raise ValueError(f"omega_est0: shape {tuple(self.omega_est0.shape)}, expected (3,) (rad/s)")
         if not (math.isfinite(self.p0_omega_deg_s) and self.p0_omega_deg_s > 0):
             raise ValueError(f"filter.p0_omega_deg_s: {self.p0_omega_deg_s} must be > 0 for the MAP with the rate "
-                             "unknown (use batch_map for a known rate)")
+                             "unknown (use map_known_rate for a known rate)")
         if tuple(self.inertia.shape) != (3,) or not bool((self.inertia > 0).all()):
             raise ValueError(f"inertia: {self.inertia.tolist()} must be three positive principal moments (kg m^2)")
         if not self.dt > 0:
@@ -63,8 +65,8 @@ class RateMapEstimate:
 
 def rate_map_trajectory(x: Tensor, *, q_est0: Tensor, dynamics: RateDynamics, n_steps: int) -> tuple[Tensor, Tensor]:
     """Attitudes ``(S, n_steps+1, 4)`` and rates ``(S, n_steps+1, 3)`` (rad/s) from the initial states ``x (S, ≥6)``
-    (``S`` may be ``K`` blocks of the seeds of ``q_est0 (4,) | (S/K, 4)``)."""
-    q0 = quat_mul(rotvec_to_quat(x[:, :3]), tile_seeds(q_est0, x.shape[0]))
+    and the initial estimates ``q_est0 (4,) | (S, 4)``."""
+    q0 = quat_mul(rotvec_to_quat(x[:, :3]), q_est0)
     return propagate(q0, dynamics.omega_est0 + x[:, 3:6], dynamics.inertia, dynamics.dt, n_steps)
 
 
@@ -75,13 +77,15 @@ def _prior_precision(prior: MapPrior, dynamics: RateDynamics, offset: bool, dtyp
     return torch.cat([p[:3], rate, p[3:]])
 
 
-def _magnitudes(model: ObservationModel, x: Tensor, *, q_est0: Tensor, dynamics: RateDynamics, m_past: Tensor,
-                n_steps: int) -> Tensor:
-    """Magnitudes ``(K·S, n_steps+1)`` of states ``x (K·S, 6 | 7)`` (the offset added with a seventh state),
-    ``K`` blocks of the ``S`` seeds of ``m_past (S, 1)``."""
-    q, _ = rate_map_trajectory(x, q_est0=q_est0, dynamics=dynamics, n_steps=n_steps)
-    m = blockwise_magnitudes(model, q=q, m_past=m_past)
-    return m + x[:, 6:] if x.shape[-1] == 7 else m
+def _residual(model: ObservationModel, x: Tensor, rows: Tensor, *, q_est0: Tensor, dynamics: RateDynamics,
+              observations: Tensor, t: int) -> Tensor:
+    """Residuals ``ỹ_k − h(q_k) − b`` ``(A, t+1)`` (mag), ``k = 0 … t``, of states ``x (A, 6 | 7)`` of the seeds
+    ``rows (A,)`` (the offset added with a seventh state); ``k = 0`` only sets the offset's prior, the solver
+    drops it (``first_column=1``)."""
+    q, _ = rate_map_trajectory(x, q_est0=select_seeds(q_est0, rows), dynamics=dynamics, n_steps=t)
+    m = chunked_magnitudes(model, q=q, m_past=observations[rows, :1], chunk=observations.shape[0])
+    m = m + x[:, 6:] if x.shape[-1] == 7 else m
+    return observations[rows, :t + 1] - m
 
 
 def prior_mean(model: ObservationModel, *, q_est0: Tensor, observations: Tensor, offset: bool) -> Tensor:
@@ -98,11 +102,11 @@ def neg_log_posterior(model: ObservationModel, x: Tensor, *, q_est0: Tensor, dyn
                       observations: Tensor, prior: MapPrior, t: int) -> Tensor:
     """The negative log posterior (up to a constant) ``(S,)`` of states ``x (S, 6 | 7)`` given ``ỹ_1 … ỹ_t``:
     what :func:`map_with_rate` minimises, to compare its estimate with another state (e.g. the truth's)."""
-    offset = x.shape[-1] == 7
+    offset, every = x.shape[-1] == 7, torch.arange(x.shape[0])
     x0 = prior_mean(model, q_est0=q_est0, observations=observations, offset=offset)
-    m = _magnitudes(model, x, q_est0=q_est0, dynamics=dynamics, m_past=observations[:, :1], n_steps=t)
-    r = (observations[:, 1:t + 1] - m[:, 1:]).pow(2).sum(-1) / prior.measurement_noise
-    return 0.5 * (r + ((x - x0).pow(2) * _prior_precision(prior, dynamics, offset, x.dtype)).sum(-1))
+    r = _residual(model, x, every, q_est0=q_est0, dynamics=dynamics, observations=observations, t=t)
+    gaussian = GaussianPrior.independent(x0, _prior_precision(prior, dynamics, offset, x.dtype))
+    return least_squares_cost(r[:, 1:], x, every, prior=gaussian, variance=prior.measurement_noise)
 
 
 def _check_checkpoints(checkpoints: Sequence[int], n_steps: int) -> None:
@@ -122,7 +126,7 @@ def map_with_rate(model: ObservationModel, *, q_est0: Tensor, dynamics: RateDyna
         q_est0: initial attitude estimate ``(4,)`` or ``(S, 4)``, the prior mean.
         dynamics: the prior mean and std of the initial rate, the inertia and the step.
         observations: ``(S, T+1)`` magnitudes (mag), ``ỹ_0`` first, one per ``dynamics.dt``.
-        prior: attitude prior, measurement noise variance and offset prior (as :func:`.batch_map.batch_map`).
+        prior: attitude prior, measurement noise variance and offset prior (as :func:`.attitude.map_known_rate`).
         checkpoints: step indices ``t`` in increasing order; each solve starts from the previous one.
         offset: estimate a magnitude offset ``b`` as a seventh state.
         iterations: Gauss–Newton iterations per checkpoint at most (stops when the attitude step is below 1e-9 rad
@@ -131,26 +135,25 @@ def map_with_rate(model: ObservationModel, *, q_est0: Tensor, dynamics: RateDyna
         rate_step: central-difference step of the rate columns (rad/s).
         halvings: step halvings per iteration when a Gauss–Newton step raises a seed's negative log posterior (the
             rate makes the posterior far less quadratic than the attitude alone: an error in ω grows with time).
+            The covariance is the inverse information of each seed's last linearisation (before its last step).
         x_start: where the first solve starts ``(S, 6 | 7)`` (default: the prior mean); the prior is unchanged.
     """
     T = observations.shape[1] - 1
     _check_checkpoints(checkpoints, T)
     dtype = observations.dtype
-    m_past = observations[:, :1]
-
-    def predict(x: Tensor, t: int) -> Tensor:
-        return _magnitudes(model, x, q_est0=q_est0, dynamics=dynamics, m_past=m_past, n_steps=t)
-
     x0 = prior_mean(model, q_est0=q_est0, observations=observations, offset=offset)
-    steps = torch.tensor([step] * 3 + [rate_step] * 3 + [step] * offset, dtype=dtype)
-    tolerance = torch.tensor([1e-9] * 3 + [1e-12] * 3 + [math.inf] * offset, dtype=dtype)
-    precision = _prior_precision(prior, dynamics, offset, dtype)
+    options = LeastSquaresOptions(
+        method="gauss_newton", iterations=iterations, halvings=halvings, jacobian="central",
+        step=torch.tensor([step] * 3 + [rate_step] * 3 + [step] * offset, dtype=dtype),
+        tolerance=torch.tensor([1e-9] * 3 + [1e-12] * 3 + [math.inf] * offset, dtype=dtype),
+        covariance="last_linearization", stop_together=True, first_column=1)
+    gaussian = GaussianPrior.independent(x0, _prior_precision(prior, dynamics, offset, dtype))
     x, out = (x0 if x_start is None else x_start).clone(), {}
     for t in checkpoints:
-        x, H = gauss_newton(predict, x=x, x_prior=x0, prior_precision=precision, observations=observations,
-                            measurement_noise=prior.measurement_noise, t=t, steps=steps, tolerance=tolerance,
-                            iterations=iterations, halvings=halvings)
-        out[t] = RateMapEstimate(x.clone(), torch.linalg.inv(H))
+        residual = partial(_residual, model, q_est0=q_est0, dynamics=dynamics, observations=observations, t=t)
+        result = batch_least_squares(residual, x, prior=gaussian, variance=prior.measurement_noise, options=options)
+        x = result.x
+        out[t] = RateMapEstimate(x.clone(), result.covariance)
     return out
 
 

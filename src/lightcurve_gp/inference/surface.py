@@ -2,8 +2,9 @@
 
 Not a filter. At each checkpoint index ``t`` it maximises, per seed, the posterior of the state given ``ỹ_1 … ỹ_t``,
 the known dynamics (each seed its own kinematic increments) and the filters' prior, re-linearising every
-observation at every iteration (Levenberg–Marquardt on the Gauss–Newton normal equations, Jacobians by forward
-differences; every seed in one batch, warm-started from the previous checkpoint). State and prior:
+observation at every iteration (Levenberg–Marquardt, :func:`~lightcurve_gp.inference.solver.batch_least_squares`,
+Jacobians by forward differences; every seed in one batch, warm-started from the previous checkpoint). State and
+prior:
 
 * attitude: ``e`` (3, rad), the rotation vector with ``q_0 = q(e) ⊗ q̂_0``; prior ``N(0, σ0² I)`` (the filters' P0);
 * ``surface=False``: the magnitude offset ``b`` (mag) on the renderer at a reference surface,
@@ -12,29 +13,32 @@ differences; every seed in one batch, warm-started from the previous checkpoint)
   with the prior of :func:`lightcurve_gp.observation.surface_state.surface_state_prior` (the surface-state filter's).
 
 The estimate at ``t`` uses no later sample, so its errors at the checkpoints compare with a filter's over the same
-window. Its covariance is the inverse Gauss–Newton Hessian; the attitude block, turned to time ``t`` by ``A(Δ_t)``
-(the cumulative increment), gives the NEES.
+window. Its covariance is the inverse Gauss–Newton Hessian at the estimate (the Laplace approximation); the attitude
+block, turned to time ``t`` by ``A(Δ_t)`` (the cumulative increment), gives the NEES.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from functools import partial
 from typing import Sequence
 
 import torch
 from torch import Tensor
 
 from lightcurve_gp.attitude.rotations import attitude_matrix, quat_mul, quat_normalize, rotvec_to_quat
+from lightcurve_gp.inference.solver import GaussianPrior, LeastSquaresOptions, batch_least_squares
 from lightcurve_gp.observation.surface_state import surface_from_state, surface_state_prior
 from lightcurve_gp.photometry.brdf import Surface
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.truths import TruthRanges
 
-__all__ = ["MapEstimate", "cumulative_increments", "batch_map"]
+__all__ = ["SurfaceMapEstimate", "cumulative_increments", "map_with_surface"]
 
 
 @dataclass
-class MapEstimate:
+class SurfaceMapEstimate:
     """Batch MAP estimates at ``K`` checkpoints of ``S`` seeds.
 
     Attributes:
@@ -92,67 +96,15 @@ class _Problem:
     def _reference(self, rows: int) -> Surface:
         return Surface(*(t.to(self.q_est0).expand(rows) for t in self.reference))
 
-    def cost(self, x: Tensor, y: Tensor, R: float, t: int, rows: Tensor) -> Tensor:
-        """Negative log posterior (× 2, up to a constant) ``(len(rows),)``; a non-finite prediction costs 1e6 mag²."""
-        r = y - self.predict(x, t, rows)
-        r = torch.where(torch.isfinite(r), r, torch.full_like(r, 1e3))
-        return (r * r).sum(-1) / R + ((x - self.mean[rows]) ** 2 * self.precision[rows]).sum(-1)
+    def residual(self, x: Tensor, rows: Tensor, *, observations: Tensor, t: int) -> Tensor:
+        """Residuals ``ỹ_k − h_k(x)`` ``(A, t)`` (mag), ``k = 1 … t``, of states ``x (A, n)`` of the seeds ``rows``."""
+        return observations[rows, 1:t + 1] - self.predict(x, t, rows)
 
 
-def _jacobian(problem: _Problem, x: Tensor, rows: Tensor, t: int, step: float) -> tuple[Tensor, Tensor]:
-    """Prediction ``(A, t)`` of the seeds ``rows`` (A of them) and its forward-difference Jacobian ``(A, t, n)``."""
-    A, n = x.shape
-    stacked = torch.cat([x] + [x + step * e for e in torch.eye(n, dtype=x.dtype)])
-    m = problem.predict(stacked, t, rows.repeat(n + 1)).view(n + 1, A, t)
-    return m[0], ((m[1:] - m[0]) / step).permute(1, 2, 0)
-
-
-def _normal_equations(problem: _Problem, x: Tensor, y: Tensor, rows: Tensor, R: float, t: int,
-                      step: float) -> tuple[Tensor, Tensor]:
-    """Gauss–Newton Hessian ``(A, n, n)`` and gradient ``(A, n)`` of the negative log posterior at ``x (A, n)``."""
-    m, J = _jacobian(problem, x, rows, t, step)
-    r = y - m
-    ok = torch.isfinite(r) & torch.isfinite(J).all(-1)
-    r, J = torch.where(ok, r, 0.0), torch.where(ok.unsqueeze(-1), J, 0.0)
-    precision = problem.precision[rows]
-    H = J.mT @ J / R + torch.diag_embed(precision)
-    g = (J.mT @ r.unsqueeze(-1)).squeeze(-1) / R - (x - problem.mean[rows]) * precision
-    return H, g
-
-
-def _solve_checkpoint(problem: _Problem, x: Tensor, y: Tensor, R: float, t: int, iterations: int,
-                      step: float, tolerance: float) -> tuple[Tensor, Tensor]:
-    """Levenberg–Marquardt from ``x (S, n)`` on samples ``1 … t``; returns the estimate and its Hessian.
-
-    A seed stops when its attitude step is below ``tolerance`` (rad) or its damping passes 1e6 (no descent left);
-    only the seeds still moving are evaluated.
-    """
-    S = x.shape[0]
-    damping = torch.full((S,), 1e-3, dtype=x.dtype)
-    cost = problem.cost(x, y, R, t, torch.arange(S))
-    active = torch.ones(S, dtype=torch.bool)
-    for _ in range(iterations):
-        rows = active.nonzero().squeeze(-1)
-        if rows.numel() == 0:
-            break
-        H, g = _normal_equations(problem, x[rows], y[rows], rows, R, t, step)
-        scaled = H + torch.diag_embed(damping[rows].unsqueeze(-1) * torch.diagonal(H, dim1=-2, dim2=-1))
-        dx = torch.linalg.solve(scaled, g)
-        trial = problem.cost(x[rows] + dx, y[rows], R, t, rows)
-        better = trial < cost[rows]
-        x[rows] = torch.where(better.unsqueeze(-1), x[rows] + dx, x[rows])
-        cost[rows] = torch.where(better, trial, cost[rows])
-        damping[rows] = torch.where(better, damping[rows] / 3.0, damping[rows] * 4.0)
-        moving = (dx[:, :3].abs().amax(-1) > tolerance) & (damping[rows] < 1e6)
-        active[rows] = moving
-    H, _ = _normal_equations(problem, x, y, torch.arange(S), R, t, step)
-    return x, H
-
-
-def batch_map(scene: Scene, *, q_est0: Tensor, sigma0: Tensor, observations: Tensor, increments: Tensor,
-              checkpoints: Sequence[int], measurement_noise: float, reference: Surface, offset_std: float,
-              surface: bool, ranges: TruthRanges = TruthRanges(), iterations: int = 10, warm_iterations: int = 4,
-              step: float = 1e-6, tolerance: float = 5e-5) -> MapEstimate:
+def map_with_surface(scene: Scene, *, q_est0: Tensor, sigma0: Tensor, observations: Tensor, increments: Tensor,
+                     checkpoints: Sequence[int], measurement_noise: float, reference: Surface, offset_std: float,
+                     surface: bool, ranges: TruthRanges = TruthRanges(), iterations: int = 10,
+                     warm_iterations: int = 4, step: float = 1e-6, tolerance: float = 5e-5) -> SurfaceMapEstimate:
     """Batch MAP estimates at every checkpoint (see the module docstring).
 
     Args:
@@ -167,21 +119,29 @@ def batch_map(scene: Scene, *, q_est0: Tensor, sigma0: Tensor, observations: Ten
         iterations: at most this many iterations at the first checkpoint (from the prior mean);
             ``warm_iterations`` at each later one (from the previous estimate).
         step: forward-difference step (rad, mag and log units alike).
-        tolerance: a seed's iterations stop once its attitude step is below this (rad).
+        tolerance: a seed's iterations stop once its attitude step is below this (rad), or once its damping
+            reaches 1e6 (no step lowers the cost); only the seeds still moving are evaluated. A non-finite
+            prediction costs ``(1e3)² / R`` per sample.
     """
     cum = cumulative_increments(increments)
     problem = _Problem(scene, q_est0, cum, observations[:, 0], sigma0, reference=reference, offset_std=offset_std,
                        surface=surface, ranges=ranges)
-    x = problem.mean.clone()
-    xs, covs = [], []
+    n = problem.mean.shape[-1]
+    gaussian = GaussianPrior.independent(problem.mean, problem.precision)
+    x, xs, covs = problem.mean, [], []
     for i, t in enumerate(checkpoints):
-        x, H = _solve_checkpoint(problem, x.clone(), observations[:, 1:t + 1], measurement_noise, t,
-                                 iterations if i == 0 else warm_iterations, step, tolerance)
+        options = LeastSquaresOptions(
+            method="levenberg_marquardt", iterations=iterations if i == 0 else warm_iterations,
+            jacobian="forward_difference", step=step, invalid_residual=1e3,
+            tolerance=torch.tensor([tolerance] * 3 + [math.inf] * (n - 3), dtype=x.dtype))
+        result = batch_least_squares(partial(problem.residual, observations=observations, t=t), x, prior=gaussian,
+                                     variance=measurement_noise, options=options)
+        x = result.x
         xs.append(x)
-        covs.append(torch.linalg.inv(H)[:, :3, :3])
+        covs.append(result.covariance[:, :3, :3])
     x_all = torch.stack(xs, 1)
     rot = attitude_matrix(cum[:, list(checkpoints)])  # (S, K, 3, 3): A(Δ_t) turns the error to time t
     P = rot @ torch.stack(covs, 1) @ rot.mT
     q0 = quat_mul(rotvec_to_quat(x_all[..., :3]), q_est0.unsqueeze(1))
     q_est = quat_mul(cum[:, list(checkpoints)], q0)
-    return MapEstimate(list(checkpoints), x_all, q_est, P)
+    return SurfaceMapEstimate(list(checkpoints), x_all, q_est, P)

@@ -20,14 +20,14 @@ from torch import Tensor
 
 from lightcurve_gp.observation.base import ObservationModel, ObservationModule, Prediction, Variance
 from lightcurve_gp.observation.body_geometry import GeometryBound, bound_geometry, predict_bound
-from lightcurve_gp.observation.parametric import _RendererModel
+from lightcurve_gp.observation.parametric import RendererModel
 
 __all__ = ["bind_geometry", "AlongPass", "pass_models"]
 
 
 def bind_geometry(model: ObservationModel, *, sun: Tensor, observer: Tensor, range_m: float) -> ObservationModel:
     """``model`` under one geometry: unit directions object → Sun and object → observer ``(3,)``, range in m."""
-    if isinstance(model, _RendererModel):  # the same renderer model, its scene re-aimed
+    if isinstance(model, RendererModel):  # the same renderer model, its scene re-aimed
         bound = copy.copy(model)
         bound.scene = model.scene.with_geometry(sun.to(model.scene.sun), observer.to(model.scene.sun), float(range_m))
         return bound
@@ -55,11 +55,6 @@ class AlongPass(ObservationModule):
         if inputs:
             return self._bound_model()(q=q, m_past=m_past, variance=variance, **inputs)
         return super().forward(q=q, m_past=m_past, variance=variance)
-
-    def fuses_in_compiled_step(self, variance: Variance) -> bool:
-        """Never: every call predicts the next sample (a Python counter), which a graph traced once would freeze; a
-        compiled filter step calls it eagerly between its two compiled halves."""
-        return False
 
     def _advance(self) -> int:
         k = self.next_sample

@@ -122,11 +122,6 @@ class ObservationModule(nn.Module):
         q, m_past = check_inputs(q, m_past)
         return self._predict(q, m_past, variance)
 
-    def fuses_in_compiled_step(self, variance: Variance) -> bool:
-        """Whether a compiled filter step (:mod:`lightcurve_gp.filters.compiled`) traces this prediction into its graph
-        (it must read nothing back to Python); ``False``: the step calls it eagerly between two compiled halves."""
-        return True
-
     def predict(self, q: Tensor, m_past: Tensor, *, variance: Variance = "fast") -> Prediction:
         """Positional-argument alias of :meth:`forward` for library users."""
         return self(q=q, m_past=m_past, variance=variance)

@@ -110,13 +110,6 @@ class CachedGP(ObservationModule):
     def noise_std(self) -> float:
         return float(self.noise) ** 0.5
 
-    def fuses_in_compiled_step(self, variance: Variance) -> bool:
-        """Kernel rows are ``exp``-bound, and the eager ``exp`` (MKL's on CPU) ran ~2.5× faster than the loop a
-        compiled graph generates (on the exact GP's 7 × 19 260 row): by default a compiled filter step calls a GP
-        eagerly, between its two compiled halves. The exact GP's mean overrides this (fused, its whole step was
-        faster all the same); for the sparse GP the fused form was not measured."""
-        return False
-
     def _reference_count(self) -> int:
         """Number of cached inputs each test point is compared with (training or inducing points)."""
         raise NotImplementedError

@@ -11,10 +11,10 @@ from lightcurve_gp.observation.surface_state import PARAMETERS, surface_from_sta
 from lightcurve_gp.photometry.brdf import Surface
 from lightcurve_gp.photometry.render import Scene
 
-__all__ = ["Parametric", "SurfaceStateRenderer"]
+__all__ = ["RendererModel", "Parametric", "SurfaceStateRenderer"]
 
 
-class _RendererModel(ObservationModule):
+class RendererModel(ObservationModule):
     """A model holding a :class:`Scene`, moved with the module by ``.to()``; the renderer ignores ``m_past``."""
 
     uses_m_past = False
@@ -32,7 +32,7 @@ class _RendererModel(ObservationModule):
         return super()._apply(fn, recurse)
 
 
-class Parametric(_RendererModel):
+class Parametric(RendererModel):
     """``m_app = −26.7 − 2.5 log10(f_obs(q; ρ) / r_obs²)`` with an assumed ρ; ignores ``m_past``.
 
     The renderer is exact given its parameters, so the predictive variance (``"fast"`` or ``"exact"``) is zero.
@@ -67,7 +67,7 @@ class Parametric(_RendererModel):
         return f"{material}, facets={len(self.scene.facets)}"
 
 
-class SurfaceStateRenderer(_RendererModel):
+class SurfaceStateRenderer(RendererModel):
     """The renderer with the surface as an input: ``m_app = h(q; surface_from_state(θ))`` (paper Eq. (8)).
 
     Called as ``model(q=, m_past=, variance=, theta=)`` with ``q (B, S, 4)`` and ``theta (B, S, 4)``: every point

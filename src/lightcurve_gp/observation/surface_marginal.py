@@ -9,7 +9,7 @@ with K random surfaces each (:mod:`lightcurve_gp.training.surfaces`), it predict
   does not move (the filter's offset state absorbs any constant part);
 * variance: that GP's latent variance plus ``s²(q) = exp(g(q))``, where ``g`` is a second SGPR on the
   bias-corrected ``log s²`` of each training attitude's mean square deviation from the median
-  (:func:`~lightcurve_gp.training.surfaces.attitude_spread`), with its noise the sampling variance
+  (:func:`attitude_spread`), with its noise the sampling variance
   ``ψ'((K − 1)/2)`` of a log sample variance. So the filter's ``Pyy`` covers how far an unknown surface's specular
   part can move the magnitude at that attitude, where it can (glint geometries), and not where it cannot.
 
@@ -25,12 +25,44 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from lightcurve_gp.config.load import config_to_dict
+from lightcurve_gp.config.hashing import config_to_dict
 from lightcurve_gp.observation.base import ObservationModule, Prediction, Variance
 from lightcurve_gp.observation.inputs import InputMap
 from lightcurve_gp.observation.sparse_gp import SparseGP
 
-__all__ = ["SurfaceMarginalGP", "spread_model_config"]
+__all__ = ["SurfaceMarginalGP", "spread_model_config", "attitude_spread", "SPREAD_FLOOR"]
+
+#: smallest spread the spread model learns (mag²): 0.01 mag, far below any measurement noise of interest (R = 0.5
+#: mag² in the paper), so that the log spread of diffuse attitudes (~1e-12) does not stretch the model's range
+SPREAD_FLOOR = 1e-4
+
+
+def attitude_spread(q: Tensor, y: Tensor, per_attitude: int, *,
+                    floor: float = SPREAD_FLOOR) -> tuple[Tensor, Tensor, Tensor, float]:
+    """Centre and spread over surfaces of surface-major targets ``y (K·A,)`` at ``q (K·A, 4)``.
+
+    The centre is the median over an attitude's K surfaces: the diffuse curve wherever fewer than half of them
+    glint, which a glint's large brightening does not pull. The spread is the mean square deviation from it,
+    ``s² = Σ (y_k − ỹ)² / (K − 1)`` (floored at ``floor``), what the filter must add to its variance when it
+    predicts the centre for an unknown surface.
+
+    Returns:
+        ``q_a (A, 4)``; ``centre (A,)``; ``log_s2 (A,)`` corrected by ``−(ψ(ν/2) − log(ν/2))``, ``ν = K − 1``: the
+        mean of ``log(χ²_ν / ν)``, so that it is unbiased for Gaussian spreads (for which the median is near the mean);
+        and ``ψ'(ν/2)``, the variance of that estimate there (Bartlett & Kendall 1946).
+    """
+    k = per_attitude
+    if y.shape[0] % k:
+        raise ValueError(f"{y.shape[0]} points are not {k} surfaces per attitude")
+    qk = q.reshape(k, -1, 4)
+    if not torch.equal(qk, qk[:1].expand_as(qk)):
+        raise ValueError("points are not surface-major: the attitudes of the K blocks differ")
+    yk = y.reshape(k, -1)
+    centre = yk.median(0).values if k % 2 else yk.sort(0).values[k // 2 - 1:k // 2 + 1].mean(0)
+    s2 = ((yk - centre) ** 2).sum(0).div(k - 1).clamp_min(floor)
+    half_nu = torch.tensor((k - 1) / 2.0, dtype=torch.float64)
+    bias = float(torch.special.digamma(half_nu) - half_nu.log())
+    return qk[0], centre, s2.log() - bias, float(torch.special.polygamma(1, half_nu))
 
 
 def spread_model_config(cfg: Any, log_s2: Tensor, sampling_var: float, num_inducing: int) -> Any:
@@ -68,8 +100,6 @@ class SurfaceMarginalGP(ObservationModule):
         ``cfg`` is the ``model`` section (kind ``sparse``); ``per_attitude`` is K, ``spread_inducing`` the spread
         model's inducing points.
         """
-        from lightcurve_gp.training.surfaces import attitude_spread
-
         q_a, centre, log_s2, sampling_var = attitude_spread(q, y, per_attitude)
         m_a = m_past.reshape(per_attitude, -1)[0]
         mean_gp = SparseGP.from_data(q_a, m_a, centre, cfg, seed=seed, device=device, progress=progress)

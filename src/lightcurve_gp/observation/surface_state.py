@@ -19,24 +19,27 @@ Prior (per object, from the first observation ``ỹ_0`` and the prior attitude `
   against the renderer at the reference surface (the offset prior of the offset filters, mapped through
   ``b = −2.5 log10(ρ / ρ_ref)``), std ``(ln 10 / 2.5) · offset_std``;
 * ``logit F0``, ``log n_u``, ``log n_v``: Gaussian with the mean and standard deviation of the drawing distribution of
-  :class:`~lightcurve_gp.simulation.truths.TruthRanges` in those coordinates (uniform F0 mapped to logit, log-uniform
-  ``n``
-  to log: the mean and the std ``width/√12`` of the interval's ends in those coordinates).
+  :class:`SurfaceRanges` in those coordinates (uniform F0 mapped to logit, log-uniform ``n`` to log: the mean and the
+  std ``width/√12`` of the interval's ends in those coordinates).
+
+:data:`SURFACE_RANGES` are the surfaces this prior expects; the random truths of the generalisation suite
+(:mod:`lightcurve_gp.simulation.truths`) draw their surfaces from the same ranges.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
-from lightcurve_gp.config.load import Config
+from lightcurve_gp.config.schema import Config
 from lightcurve_gp.photometry.brdf import Surface
 from lightcurve_gp.photometry.render import Scene
-from lightcurve_gp.simulation.truths import TruthRanges
 
-__all__ = ["LOG_LOBE_MAX", "PARAMETERS", "reference_surface", "surface_from_state", "surface_state_prior"]
+__all__ = ["LOG_LOBE_MAX", "PARAMETERS", "SurfaceRanges", "SURFACE_RANGES", "reference_surface", "surface_from_state",
+           "surface_state_prior"]
 
 #: lobe exponents are held in [1, e^12 ≈ 1.6e5] when rendered (the truths draw 10 … 10⁴)
 LOG_LOBE_MAX = 12.0
@@ -44,6 +47,20 @@ LOG_LOBE_MAX = 12.0
 PARAMETERS = ("log_rho", "logit_f0", "log_n_u", "log_n_v")
 #: ``d log ρ / d b`` of ``b = −2.5 log10(ρ / ρ_ref)`` (up to sign)
 _LOG_RHO_PER_MAG = math.log(10.0) / 2.5
+
+
+@dataclass(frozen=True)
+class SurfaceRanges:
+    """Ranges of the Ashikhmin–Shirley parameters of an unknown surface: ρ and F0 uniform, each lobe exponent
+    log-uniform."""
+
+    rho: tuple[float, float] = (0.1, 0.9)
+    f0: tuple[float, float] = (0.05, 0.95)
+    lobe_exponent: tuple[float, float] = (10.0, 1.0e4)
+
+
+#: the surfaces the prior expects (and the generalisation suite draws)
+SURFACE_RANGES = SurfaceRanges()
 
 
 def surface_from_state(theta: Tensor) -> Surface:
@@ -61,7 +78,7 @@ def reference_surface(cfg: Config) -> Surface:
 
 
 def surface_state_prior(*, scene: Scene, q_est0: Tensor, y0: Tensor, reference: Surface, offset_std: float,
-                        ranges: TruthRanges = TruthRanges()) -> tuple[Tensor, Tensor]:
+                        ranges: SurfaceRanges = SURFACE_RANGES) -> tuple[Tensor, Tensor]:
     """Prior mean ``(S, 4)`` and standard deviation ``(4,)`` of the surface state (module docstring).
 
     Args:
@@ -70,7 +87,8 @@ def surface_state_prior(*, scene: Scene, q_est0: Tensor, y0: Tensor, reference: 
             non-finite reference prediction, gives ``b_0 = 0``).
         reference: the reference surface, fields ``(1,)``.
         offset_std: prior std of the magnitude offset (mag), mapped to ``log ρ``.
-        ranges: the drawing ranges of F0 and the lobe exponents.
+        ranges: the drawing ranges of F0 and the lobe exponents (any object with ``f0`` and ``lobe_exponent``
+            pairs, e.g. :class:`~lightcurve_gp.simulation.truths.TruthRanges`).
     """
     S = q_est0.shape[0]
     ref = Surface(*(t.to(q_est0).expand(S) for t in reference))

@@ -3,15 +3,20 @@
 Formats by suffix: ``.ecsv`` (metadata in the YAML header), ``.csv`` (metadata as ``# key: value`` comment lines
 before the column names) and ``.fits``/``.fit`` (metadata as header cards). Columns:
 
-* ``time`` — ISO UTC strings (``2025-01-01T00:00:00.000``), or numbers: seconds from the metadata's ``epoch``
-  (ISO UTC) when it is given, else MJD (UTC). Strictly increasing; gaps and irregular steps are normal.
+* ``time`` — UTC times as text in any form astropy's ``Time`` reads (``2025-01-01T00:00:00.000``,
+  ``2025-01-01 00:00:00``...), or numbers: seconds from the metadata's ``epoch`` (a UTC time in any such form, quoted
+  or not), or MJD (UTC) when the metadata says ``time_format: mjd``. Numbers with neither are refused: seconds read
+  as days would put a 600 s light curve 600 days long in the 19th century. Strictly increasing; gaps and irregular
+  steps are normal. Every time must lie in :data:`YEARS` and the whole curve within :data:`MAX_SPAN_DAYS`, checked
+  before anything is computed from them (:mod:`lightcurve_gp.observed.times`).
 * ``mag`` — apparent magnitude; finite and ``|mag| ≤ 40``.
 * ``mag_err`` (optional) — 1σ of ``mag`` (mag, > 0): the filter's measurement variance per sample is ``mag_err²``.
 * per-sample geometry (optional, all seven or none): ``sun_x, sun_y, sun_z`` and ``obs_x, obs_y, obs_z`` (unit
   vectors object → Sun and object → observer, inertial frame GCRS) and ``range_km`` (object–observer distance).
 
 Metadata (all optional): ``site_lat_deg``, ``site_lon_deg``, ``site_alt_m`` (the observing site, geodetic WGS84),
-``tle_line1``, ``tle_line2`` (the object's two-line elements), ``band`` (filter band), ``epoch`` (see ``time``).
+``tle_line1``, ``tle_line2`` (the object's two-line elements), ``band`` (filter band), ``epoch`` and
+``time_format`` (``seconds`` or ``mjd``; see ``time``).
 A file gives per-sample geometry or a TLE, not both; every sample of a file with a TLE must lie within
 :data:`TLE_VALIDITY_DAYS` of the TLE's epoch.
 
@@ -33,15 +38,25 @@ from astropy.table import Table
 from astropy.time import Time, TimeDelta
 
 from lightcurve_gp.files import atomic_path
+from lightcurve_gp.observed.times import (
+    MAX_SPAN_DAYS,
+    NUMERIC_TIME_FORMATS,
+    YEARS,
+    TimeColumnError,
+    check_order,
+    check_span,
+    parse_time_column,
+    read_epoch,
+)
 from lightcurve_gp.passes.orbit import check_tle
 
-__all__ = ["LightCurve", "LightCurveFileError", "GEOMETRY_COLUMNS", "MAG_LIMIT", "TLE_VALIDITY_DAYS",
-           "iso_times", "light_curve_format", "light_curve_table", "read_light_curve", "tle_epoch", "write_table",
-           "write_light_curve"]
+__all__ = ["LightCurve", "LightCurveFileError", "GEOMETRY_COLUMNS", "MAG_LIMIT", "MAX_SPAN_DAYS",
+           "TLE_VALIDITY_DAYS", "YEARS", "iso_times", "light_curve_format", "light_curve_table", "read_light_curve",
+           "tle_epoch", "write_table", "write_light_curve"]
 
 GEOMETRY_COLUMNS = ("sun_x", "sun_y", "sun_z", "obs_x", "obs_y", "obs_z", "range_km")
 SITE_KEYS = ("site_lat_deg", "site_lon_deg", "site_alt_m")
-META_KEYS = (*SITE_KEYS, "tle_line1", "tle_line2", "band", "epoch")
+META_KEYS = (*SITE_KEYS, "tle_line1", "tle_line2", "band", "epoch", "time_format")
 #: an apparent magnitude beyond this is not an observation (the Sun is −26.7)
 MAG_LIMIT = 40.0
 #: how far from its epoch a TLE is used (days)
@@ -62,7 +77,8 @@ class LightCurve:
         t: sample times ``(N,)`` in seconds from ``start`` (float64, microsecond resolution, strictly increasing).
         mag: magnitudes ``(N,)``; mag_err: their 1σ ``(N,)`` or ``None``.
         geometry: ``{"sun": (N, 3), "obs": (N, 3), "range_km": (N,)}`` or ``None``.
-        meta: the metadata of :data:`META_KEYS` that the file gives (site, TLE, band, epoch).
+        meta: the metadata of :data:`META_KEYS` that the file gives (site, TLE, band; ``epoch`` as ISO UTC text
+            with microseconds when ``time`` was seconds from it).
         time_format: how ``time`` was given: ``"iso"``, ``"mjd"`` or ``"seconds"``.
         source: the file it came from (for messages).
     """
@@ -126,9 +142,11 @@ def light_curve_table(lc: LightCurve, time_format: str = "iso") -> Table:
             cols[f"obs_{axis}"] = lc.geometry["obs"][:, i]
         cols["range_km"] = lc.geometry["range_km"]
     table = Table({name: cols[name] for name in ("time", "mag", "mag_err", *GEOMETRY_COLUMNS) if name in cols})
-    meta = {k: v for k, v in lc.meta.items() if k != "epoch"}
+    meta = {k: v for k, v in lc.meta.items() if k not in ("epoch", "time_format")}
     if time_format == "seconds":
         meta["epoch"] = iso_times(lc.start)
+    elif time_format == "mjd":
+        meta["time_format"] = "mjd"
     table.meta.update(meta)
     return table
 
@@ -230,42 +248,6 @@ def _float_column(table: Table, name: str, path: Path, where: _Locator) -> np.nd
     return np.asarray(_column(table, name), dtype=np.float64)
 
 
-def _parse_times(table: Table, meta: dict, path: Path, where: _Locator) -> tuple[Time, np.ndarray, str]:
-    """``(start, t seconds, time_format)`` of the ``time`` column."""
-    raw = _column(table, "time")
-    if raw.dtype.kind in "US":
-        for i, text in enumerate(raw):
-            try:
-                Time(str(text).strip(), format="isot", scale="utc")
-            except ValueError:
-                raise LightCurveFileError(f"{path}: {where(i)}: time {str(text)!r} is not an ISO UTC time "
-                                          f"(e.g. 2025-01-01T00:00:00.000)") from None
-        times = Time([str(s).strip() for s in raw], format="isot", scale="utc")
-        return times[0], np.round((times - times[0]).sec * 1e6) / 1e6, "iso"
-    values = np.asarray(raw, dtype=np.float64)
-    bad = np.flatnonzero(~np.isfinite(values))
-    if bad.size:
-        raise LightCurveFileError(f"{path}: {where(int(bad[0]))}: time {values[bad[0]]} is not finite")
-    if "epoch" in meta:
-        try:
-            epoch = Time(str(meta["epoch"]), format="isot", scale="utc")
-        except ValueError:
-            raise LightCurveFileError(f"{path}: metadata epoch: {meta['epoch']!r} is not an ISO UTC time") from None
-        return epoch + TimeDelta(values[0], format="sec"), values - values[0], "seconds"
-    times = Time(values, format="mjd", scale="utc")
-    return times[0], np.round((times - times[0]).sec * 1e6) / 1e6, "mjd"
-
-
-def _check_order(t: np.ndarray, raw_time, path: Path, where: _Locator) -> None:
-    step = np.diff(t)
-    bad = np.flatnonzero(step <= 0)
-    if bad.size:
-        i = int(bad[0]) + 1
-        problem = "repeats the time of the sample before (duplicate time)" if step[i - 1] == 0 else \
-            "is earlier than the sample before (times must increase)"
-        raise LightCurveFileError(f"{path}: {where(i)}: time {str(raw_time[i]).strip()} {problem}")
-
-
 def _check_mags(mag: np.ndarray, mag_err: np.ndarray | None, path: Path, where: _Locator) -> None:
     bad = np.flatnonzero(~np.isfinite(mag))
     if bad.size:
@@ -347,9 +329,14 @@ def _check_meta(meta: dict, path: Path) -> dict:
     if ("tle_line1" in out) != ("tle_line2" in out):
         missing = "tle_line2" if "tle_line1" in out else "tle_line1"
         raise LightCurveFileError(f"{path}: metadata {missing}: missing (a TLE needs tle_line1 and tle_line2)")
-    for key in ("tle_line1", "tle_line2", "band", "epoch"):
+    for key in ("tle_line1", "tle_line2", "band"):
         if key in out:
             out[key] = str(out[key])
+    if "time_format" in out and out["time_format"] not in NUMERIC_TIME_FORMATS:
+        raise LightCurveFileError(f"{path}: metadata time_format: {out['time_format']!r} is not one of "
+                                  f"{', '.join(NUMERIC_TIME_FORMATS)}")
+    if "epoch" in out:
+        out["epoch"] = read_epoch(out["epoch"])
     return out
 
 
@@ -376,10 +363,15 @@ def read_light_curve(path: str | Path) -> LightCurve:
             raise LightCurveFileError(f"{path}: column {name}: missing (the file has columns "
                                       f"{', '.join(table.colnames) or 'none'})")
     where = _Locator(path, fmt)
-    meta = _check_meta({str(k).lower(): v for k, v in table.meta.items()}, path)
-    start, t, time_format = _parse_times(table, meta, path, where)
-    raw_time = _column(table, "time")
-    _check_order(t, raw_time, path, where)
+    try:
+        meta = _check_meta({str(k).lower(): v for k, v in table.meta.items()}, path)
+        time_column = table["time"] if isinstance(table["time"], Time) else _column(table, "time")
+        start, t, time_format = parse_time_column(time_column, meta, where)
+        raw_time = time_column.isot if isinstance(time_column, Time) else time_column
+        check_order(t, raw_time, where)
+        check_span(t, raw_time, time_format != "iso", where)
+    except TimeColumnError as exc:
+        raise LightCurveFileError(f"{path}: {exc}") from None
     mag = _float_column(table, "mag", path, where)
     mag_err = _float_column(table, "mag_err", path, where) if "mag_err" in table.colnames else None
     _check_mags(mag, mag_err, path, where)
@@ -389,7 +381,10 @@ def read_light_curve(path: str | Path) -> LightCurve:
                                   f"give one of them")
     if "tle_line1" in meta:
         _check_tle_span(meta, start + TimeDelta(t, format="sec"), raw_time, path, where)
-    if time_format != "seconds":
+    meta.pop("time_format", None)
+    if time_format == "seconds":
+        meta["epoch"] = iso_times(meta["epoch"])
+    else:
         meta.pop("epoch", None)
     return LightCurve(start=start, t=t, mag=mag, mag_err=mag_err, geometry=geometry, meta=meta,
                       time_format=time_format, source=str(path))

@@ -29,17 +29,23 @@ from torch import Tensor
 
 from lightcurve_gp.attitude.metrics import chi2_band
 from lightcurve_gp.attitude.rotations import quat_normalize, quat_to_euler321
-from lightcurve_gp.attitude.timeline import spin_increments
+from lightcurve_gp.attitude.timeline import spin_increments, sub_steps
 from lightcurve_gp.config.load import ConfigError
 from lightcurve_gp.config.schema import GeometryConfig, SiteConfig
-from lightcurve_gp.filters.bank import BankResult, bank_attitudes, run_bank, run_filter
+from lightcurve_gp.filters.bank import BankResult, bank_attitudes, run_bank
 from lightcurve_gp.filters.offset import offset_to_rho
+from lightcurve_gp.filters.setup import run_filter
 from lightcurve_gp.filters.usque import FilterHistory
-from lightcurve_gp.observed.lightcurve_file import LightCurve, iso_times
+from lightcurve_gp.observed.lightcurve_file import LightCurve, LightCurveFileError, iso_times
 from lightcurve_gp.passes.geometry import PassGeometry, orbit_pass
 
-__all__ = ["ObservedRun", "FileGeometryError", "file_geometry", "check_model_takes_geometry", "file_inputs",
-           "estimate_light_curve", "history_table", "nis_summary", "bank_table"]
+__all__ = ["ObservedRun", "FileGeometryError", "MAX_SUB_STEPS", "file_geometry", "check_model_takes_geometry",
+           "check_light_curve", "file_inputs", "estimate_light_curve", "euler321_jacobian", "history_table",
+           "nis_summary", "bank_table"]
+
+#: the most sub-steps of ``scenario.dt_s`` the known-spin propagation may take through a file's gaps, beyond one per
+#: sample interval (a gap is integrated step by step: 0.7-2.6 ms per sub-step on one shared core)
+MAX_SUB_STEPS = 100_000
 
 
 class FileGeometryError(ValueError):
@@ -93,6 +99,29 @@ def check_model_takes_geometry(model, lc: LightCurve) -> None:
             f"or remove the geometry from the file to run with the config's fixed Sun and observer")
 
 
+def check_light_curve(cfg, lc: LightCurve) -> None:
+    """Refuse, before anything runs, a light curve the filter of ``cfg`` cannot use: fewer samples than one to
+    start from plus one scalar update per unknown of its state, or gaps the known-spin propagation would need more
+    than :data:`MAX_SUB_STEPS` sub-steps of ``scenario.dt_s`` for, beyond one per interval
+    (:class:`LightCurveFileError`)."""
+    unknowns = {"attitude": 3, "body rate": 3 * int(cfg.filter.estimate_omega),
+                "magnitude offset": int(cfg.filter.estimate_offset)}
+    dim = sum(unknowns.values())
+    n = int(lc.t.size)
+    if n < dim + 1:
+        raise LightCurveFileError(
+            f"{lc.source}: {n} sample{'s' if n != 1 else ''}; the filter needs at least {dim + 1}: the first sets the "
+            f"start and each later one is one scalar update of a state with {dim} unknowns "
+            f"({', '.join(k for k, v in unknowns.items() if v)})")
+    dt = float(cfg.scenario.dt_s)
+    extra = int(sub_steps(torch.as_tensor(lc.t, dtype=torch.float64), dt)[0].sum()) - (n - 1)
+    if extra > MAX_SUB_STEPS:
+        raise LightCurveFileError(
+            f"{lc.source}: the file spans {lc.t[-1] / 86400:.1f} days; the known-spin propagation through its gaps "
+            f"takes {extra} sub-steps of scenario.dt_s = {dt:g} s, more than {MAX_SUB_STEPS}; give a shorter light "
+            f"curve or a longer scenario.dt_s")
+
+
 def file_inputs(cfg, lc: LightCurve) -> tuple[Tensor, Tensor, Tensor | None]:
     """``(observations (T+1,), increments (T, 4), R (T+1,) or None)`` of a file in the config's dtype/device."""
     dtype, device = cfg.torch_dtype, torch.device(cfg.device)
@@ -136,18 +165,36 @@ def _select(history: FilterHistory, i: int) -> FilterHistory:
     return FilterHistory(**fields)
 
 
+def euler321_jacobian(euler: Tensor) -> Tensor:
+    """``∂(yaw, pitch, roll) / ∂δθ`` ``(..., 3, 3)`` of 3-2-1 angles ``euler (..., 3)`` (rad) for a small body-frame
+    rotation ``δθ`` of the attitude, ``A → (I − [δθ×]) A`` (the filter's error, ``q = δq ⊗ q̂``): the inverse of the
+    3-2-1 kinematics, singular at pitch ±90°. To first order the body z error moves yaw, y pitch and x roll."""
+    pitch, roll = euler[..., 1], euler[..., 2]
+    sr, cr, cp, tp = torch.sin(roll), torch.cos(roll), torch.cos(pitch), torch.tan(pitch)
+    zero, one = torch.zeros_like(roll), torch.ones_like(roll)
+    rows = [torch.stack([zero, sr / cp, cr / cp], -1), torch.stack([zero, cr, -sr], -1),
+            torch.stack([one, sr * tp, cr * tp], -1)]
+    return torch.stack(rows, -2)
+
+
 def history_table(run: ObservedRun, rho_reference: float | None) -> Table:
     """The attitude history: time (ISO UTC), ``t_s``, ``q1…q4``, yaw/pitch/roll (deg, 3-2-1 of ``A(q)``), the 1σ
-    of the attitude error about x, y, z (deg, from the GRP block of ``P``), the offset and ρ̂ with their 1σ when
-    estimated, the observed and predicted magnitude with its σ (``√Pyy``), the innovation and the NIS."""
+    of the attitude error about x, y, z (deg, from the GRP block of ``P``) and of yaw, pitch and roll (deg, the same
+    block through :func:`euler321_jacobian`), the offset and ρ̂ with their 1σ when estimated, the observed and
+    predicted magnitude with its σ (``√Pyy``), the innovation and the NIS."""
     h = run.history
     q = h.q_est[0].cpu()
-    euler = torch.rad2deg(quat_to_euler321(q)).numpy()
-    sigma = torch.rad2deg(torch.diagonal(h.P[0], dim1=-2, dim2=-1).clamp_min(0).sqrt()).cpu().numpy()
+    euler_rad = quat_to_euler321(q)
+    euler = torch.rad2deg(euler_rad).numpy()
+    P = h.P[0].cpu().to(euler_rad.dtype)
+    sigma = torch.rad2deg(torch.diagonal(P, dim1=-2, dim2=-1).clamp_min(0).sqrt()).numpy()
+    J = euler321_jacobian(euler_rad)
+    sigma_euler = torch.diagonal(J @ P @ J.mT, dim1=-2, dim2=-1).clamp_min(0).sqrt().rad2deg().numpy()
     cols = {"time": iso_times(run.lc.times), "t_s": run.lc.t}
     cols.update({f"q{i + 1}": q[:, i].numpy() for i in range(4)})
     cols.update({"yaw_deg": euler[:, 0], "pitch_deg": euler[:, 1], "roll_deg": euler[:, 2]})
     cols.update({f"sigma_{a}_deg": sigma[:, i] for i, a in enumerate("xyz")})
+    cols.update({f"sigma_{a}_deg": sigma_euler[:, i] for i, a in enumerate(("yaw", "pitch", "roll"))})
     if h.offset is not None:
         cols["offset_mag"] = h.offset[0].cpu().numpy()
         cols["offset_sigma_mag"] = h.offset_var[0].clamp_min(0).sqrt().cpu().numpy()

@@ -1,10 +1,11 @@
-"""Where the object is: a TLE propagated with SGP4, or Keplerian elements as a two-body orbit; UTC parsing.
+"""Where the object is: a TLE propagated with SGP4, or Keplerian elements as a two-body orbit.
 
 Frames and units. SGP4 (the ``sgp4`` package, Vallado's implementation) gives TEME positions in km at UTC Julian
 dates; :func:`tle_positions_gcrs` turns them at once into GCRS (:func:`lightcurve_gp.passes.earth.teme_to_gcrs`), the
 inertial frame of the whole package. Keplerian elements are read as osculating elements in the GCRS axes at the
 start time (μ = 398 600.4418 km³/s², no perturbations). Every function here returns GCRS positions in **km**
-``(T, 3)`` as float64 numpy arrays; :mod:`lightcurve_gp.passes.geometry` converts to metres.
+``(T, 3)`` as float64 numpy arrays; :mod:`lightcurve_gp.passes.geometry` converts to metres. UTC times and TLE lines
+are read by :mod:`lightcurve_gp.config.parsing` (re-exported here as :func:`parse_utc`, :func:`check_tle`).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import math
 
 import numpy as np
 
+from lightcurve_gp.config.parsing import check_tle, parse_utc
 from lightcurve_gp.passes.earth import TimeGrid, teme_to_gcrs
 
 __all__ = ["MU_EARTH_KM3_S2", "parse_utc", "check_tle", "satellite_from_tle", "tle_positions_gcrs",
@@ -20,43 +22,6 @@ __all__ = ["MU_EARTH_KM3_S2", "parse_utc", "check_tle", "satellite_from_tle", "t
 
 #: the Earth's gravitational parameter (km³/s², WGS84 / EGM96)
 MU_EARTH_KM3_S2 = 398600.4418
-
-_TLE_LENGTH = 69
-
-
-def parse_utc(text: str):
-    """An astropy ``Time`` (scale UTC) from an ISO 8601 string; ``ValueError`` naming the text otherwise."""
-    from astropy.time import Time
-
-    if not isinstance(text, str) or not text.strip():
-        raise ValueError(f"{text!r} is not a UTC time (ISO 8601, e.g. 2024-03-20T02:00:00)")
-    try:
-        t = Time(text.strip(), scale="utc")
-    except (ValueError, TypeError):
-        raise ValueError(f"astropy cannot parse {text!r} as a UTC time (ISO 8601, e.g. 2024-03-20T02:00:00)") from None
-    if not t.isscalar:
-        raise ValueError(f"{text!r} is not one time")
-    return t
-
-
-def _checksum(line: str) -> int:
-    """The TLE checksum of the first 68 characters: the sum of the digits, each '-' counting 1, modulo 10."""
-    return sum(int(c) if c.isdigit() else c == "-" for c in line[:68]) % 10
-
-
-def check_tle(line: str, number: int) -> None:
-    """Check one TLE line (``number`` 1 or 2): 69 characters, its line number first, a valid checksum last."""
-    if not isinstance(line, str):
-        raise ValueError(f"line {number} must be text, got {line!r}")
-    line = line.rstrip()
-    if len(line) != _TLE_LENGTH:
-        raise ValueError(f"line {number} has {len(line)} characters, a TLE line has {_TLE_LENGTH}")
-    if not line.startswith(f"{number} "):
-        raise ValueError(f"line {number} must start with '{number} ', got {line[:2]!r}")
-    if not line[68].isdigit():
-        raise ValueError(f"line {number} ends with {line[68]!r}, not a checksum digit")
-    if _checksum(line) != int(line[68]):
-        raise ValueError(f"line {number} checksum: the line sums to {_checksum(line)}, its last digit is {line[68]}")
 
 
 def satellite_from_tle(lines: list[str]):

@@ -37,7 +37,8 @@ import torch
 from torch import Tensor
 
 from lightcurve_gp.attitude.rotations import attitude_matrix
-from lightcurve_gp.config.load import Config
+from lightcurve_gp.config.schema import Config
+from lightcurve_gp.passes.geometry import pass_geometry
 from lightcurve_gp.photometry.brdf import Surface, ashikhmin_shirley_projected
 from lightcurve_gp.photometry.shapes import Facets, facets_from_config
 
@@ -136,8 +137,6 @@ class Scene:
         """
         facets = facets_from_config(cfg, rho=rho, dtype=dtype, device=device)
         if cfg.geometry.kind == "orbit":
-            from lightcurve_gp.passes.geometry import pass_geometry
-
             return cls.from_geometry(facets, pass_geometry(cfg), grouped=grouped)
         obs_m = torch.tensor(cfg.geometry.observer_km, dtype=torch.float64) * 1e3
         sun_m = torch.tensor(cfg.geometry.sun_km, dtype=torch.float64) * 1e3

@@ -24,14 +24,14 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import torch
 import trimesh
 from torch import Tensor
 
-from lightcurve_gp.config.load import Config
+from lightcurve_gp.config.parsing import load_mesh
+from lightcurve_gp.config.schema import Config
 
 __all__ = ["Facets", "tangent_axes", "facets_from_mesh", "load_mesh", "box_wing", "facets_from_config"]
 
@@ -167,31 +167,6 @@ def facets_from_mesh(mesh: trimesh.Trimesh, *, rho: float, f0: float, n_u: float
     full = lambda x: torch.full((count,), float(x), dtype=dtype, device=device)  # noqa: E731
     return Facets(normals=normals, areas=as_t(areas), centroids=as_t(triangles.mean(axis=1)), u=u, v=v,
                   rho=full(rho), f0=full(f0), n_u=full(n_u), n_v=full(n_v))
-
-
-def load_mesh(path: str | Path, *, process: bool = False) -> trimesh.Trimesh:
-    """Read any triangle mesh trimesh reads (OBJ, STL, PLY, GLB, OFF …) as one ``Trimesh``, metres, body frame.
-
-    Scenes with several geometries are concatenated. ``process=False`` keeps the faces exactly as written.
-
-    Raises:
-        FileNotFoundError: no such file.
-        ValueError: unreadable file, an empty mesh or zero-area faces.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"mesh file {str(path)!r} does not exist")
-    try:
-        mesh = trimesh.load(path, force="mesh", process=process)
-    except Exception as exc:  # trimesh raises many types for bad files; report them uniformly
-        raise ValueError(f"{path}: cannot read mesh: {exc}") from exc
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise ValueError(f"{path}: mesh is empty (no triangles)")
-    zero = np.flatnonzero(~(mesh.area_faces > 0.0))
-    if zero.size:
-        raise ValueError(f"{path}: {zero.size} zero-area face(s) (first: face {int(zero[0])}); "
-                         "a degenerate triangle has no normal")
-    return mesh
 
 
 def _box_faces(center, size, grid) -> tuple[np.ndarray, np.ndarray]:

@@ -1,10 +1,17 @@
-"""Truth trajectories and synthetic noisy light curves (paper section 4), batched over noise seeds.
+"""Truth trajectories and synthetic noisy light curves (paper section 4): ``S`` truths, one per seed.
 
-The truth starts at ``scenario.q0`` with rate ``scenario.omega0_deg_s`` and is propagated by RK4 every ``dt_s``
-for ``duration_s``; samples ``k = 0 … T`` lie at ``t_k = k dt``. Its light curve is rendered with
-``scenario.rho_true``; observation ``k`` of seed ``s`` adds ``N(0, noise_var)`` noise drawn from a generator seeded
-with ``s`` alone, so a seed's curve does not depend on which other seeds run beside it.
-The filter's initial estimate is ``q_est,0 = q(Euler error) ⊗ q_true,0`` (docs/design.md) and its initial rate
+A :class:`Scenario` holds ``S`` truths, each field with the seed dimension first, and their noisy light curves. Two
+builders fill it:
+
+* :func:`simulate_scenario` — the config's truth (the paper's case): every seed starts at ``scenario.q0`` with rate
+  ``scenario.omega0_deg_s`` and the config's surface at ``scenario.rho_true``, the seeds differing by noise alone;
+* :func:`simulate_truths` — one random truth per seed (:func:`lightcurve_gp.simulation.truths.draw_truths`: attitude,
+  spin, surface, initial error and ``σ0``), under the config's fixed geometry.
+
+The truth is propagated by RK4 every ``dt_s`` for ``duration_s``; samples ``k = 0 … T`` lie at ``t_k = k dt``.
+Observation ``k`` of seed ``s`` adds ``N(0, noise_var)`` noise drawn from a generator seeded with ``s`` alone, so a
+seed's curve does not depend on which other seeds run beside it. For the config's truth the filters' initial estimate
+is ``q_est,0 = q(Euler error) ⊗ q_true,0`` (docs/design.md) with ``σ0 = filter.p0_deg``, and the initial rate
 ``ω_est,0 = ω_0 + scenario.initial_omega_error_deg_s``; filters that take ω as known propagate with that rate.
 
 Along a pass (``geometry.kind: orbit``) the truth is still integrated every ``dt_s``, but it is sampled at the
@@ -24,89 +31,139 @@ import torch
 from torch import Tensor
 
 from lightcurve_gp.attitude.dynamics import propagate, quaternion_increments
-from lightcurve_gp.attitude.rotations import euler321_to_quat, quat_mul, quat_normalize
+from lightcurve_gp.attitude.rotations import euler321_to_quat, quat_mul, quat_normalize, quat_to_rotvec
 from lightcurve_gp.config.load import Config
 from lightcurve_gp.passes.geometry import PassGeometry, pass_geometry
+from lightcurve_gp.photometry.brdf import Surface
 from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.simulation.truths import TruthDraw, specular_share
 
-__all__ = ["Scenario", "simulate_scenario", "noisy_observations", "span_increments"]
+__all__ = ["Scenario", "simulate_scenario", "simulate_truths", "noisy_observations", "span_increments"]
 
 
 @dataclass
 class Scenario:
-    """One truth trajectory and its noisy light curves for ``S`` seeds.
+    """``S`` truths (one per seed) and their noisy light curves; every truth field leads with the seed dimension.
 
     Attributes:
-        times: sample times ``(T+1,)`` (s).
-        q_true: true attitudes ``(T+1, 4)``.
-        omega_true: true body rates ``(T+1, 3)`` (rad/s), known to the filter.
-        increments: RK4 kinematic increments ``(T, 4)`` of the truth: ``q_{k+1} = normalise(δ_k ⊗ q_k)``.
-        m_clean: noise-free magnitudes ``(T+1,)`` (mag) rendered with ``rho_true``.
+        times: sample times ``(T+1,)`` (s), shared by the seeds.
+        seeds: the seeds, length ``S``.
+        q_true: true attitudes ``(S, T+1, 4)``.
+        omega_true: true body rates ``(S, T+1, 3)`` (rad/s).
+        increments: RK4 kinematic increments of the truths ``(S, T, 4)``: ``q_{k+1} = normalise(δ_k ⊗ q_k)``.
+        m_clean: noise-free magnitudes ``(S, T+1)`` (mag), each seed rendered with its own surface.
         observations: noisy magnitudes ``(S, T+1)`` (mag).
-        seeds: the noise seeds, length ``S``.
-        q_est0: the filters' initial estimate ``(4,)``.
-        rho_true: the object's diffuse reflectance.
-        noise_var: variance of the magnitude noise (mag²).
-        geometry: the per-sample geometry of a pass (``None`` for ``geometry.kind: fixed``).
-        unobservable: samples with no observation (below the horizon limit, in shadow or with zero flux).
-        omega_est0: the filters' initial body rate ``(3,)`` (rad/s): the truth's plus the configured error.
-        omega_assumed: the rate history ``(T+1, 3)`` (rad/s) that starts at ``omega_est0`` (the truth's when the
+        surface: the true surfaces, fields ``(S,)``.
+        q_est0: the filters' initial estimates ``(S, 4)``: ``q(error) ⊗ q_true,0``.
+        error: the initial attitude errors as rotation vectors ``(S, 3)`` (rad).
+        sigma0: the filters' initial attitude standard deviation per axis ``(S,)`` (rad): ``P0 = σ0² I``.
+        omega_est0: the filters' initial body rates ``(S, 3)`` (rad/s): the truth's plus the configured error.
+        omega_assumed: the rate histories ``(S, T+1, 3)`` (rad/s) that start at ``omega_est0`` (the truth's when the
             error is zero): what a filter that takes ω as known believes.
-        increments_assumed: the increments ``(T, 4)`` of that rate history (``increments`` when the error is zero).
+        increments_assumed: the increments ``(S, T, 4)`` of those rate histories (``increments`` when the error is
+            zero).
+        noise_var: variance of the magnitude noise (mag²).
+        rho_true: the one diffuse reflectance every seed shares when the truth is the config's (its surface at that
+            ρ); ``None`` for drawn truths, whose surfaces are ``surface``.
+        specular_share: time mean of specular / total flux along each truth ``(S,)`` (drawn truths; else ``None``).
+        geometry: the per-sample geometry of a pass (``None`` for ``geometry.kind: fixed``).
+        unobservable: samples of one truth with no observation (below the horizon limit, in shadow or with zero
+            flux).
     """
 
     times: Tensor
+    seeds: list[int]
     q_true: Tensor
     omega_true: Tensor
     increments: Tensor
     m_clean: Tensor
     observations: Tensor
-    seeds: list[int]
+    surface: Surface
     q_est0: Tensor
-    rho_true: float
-    noise_var: float
+    error: Tensor
+    sigma0: Tensor
     omega_est0: Tensor
     omega_assumed: Tensor
     increments_assumed: Tensor
+    noise_var: float
+    rho_true: float | None = None
+    specular_share: Tensor | None = None
     geometry: PassGeometry | None = None
     unobservable: int = 0
 
+    @property
+    def steps(self) -> int:
+        """The number of filter steps ``T``."""
+        return self.increments.shape[1]
+
+    @property
+    def P0(self) -> Tensor:
+        """Initial attitude covariances ``σ0² I`` ``(S, 3, 3)`` (rad²)."""
+        eye = torch.eye(3, dtype=self.sigma0.dtype, device=self.sigma0.device)
+        return self.sigma0.pow(2).view(-1, 1, 1) * eye
+
 
 def noisy_observations(m_clean: Tensor, noise_var: float, seeds: Sequence[int]) -> Tensor:
-    """Add ``N(0, noise_var)`` noise to ``m_clean (T+1,)``, one independent generator per seed → ``(S, T+1)``."""
+    """Add ``N(0, noise_var)`` noise to ``m_clean (T+1,)`` or ``(S, T+1)`` (one row per seed), one independent
+    generator per seed → ``(S, T+1)``."""
     std = math.sqrt(noise_var)
     rows = []
-    for seed in seeds:
+    for i, seed in enumerate(seeds):
+        clean = m_clean if m_clean.ndim == 1 else m_clean[i]
         gen = torch.Generator().manual_seed(int(seed))
-        noise = torch.randn(m_clean.shape, generator=gen, dtype=torch.float64)
-        rows.append(m_clean + std * noise.to(device=m_clean.device, dtype=m_clean.dtype))
+        noise = torch.randn(clean.shape, generator=gen, dtype=torch.float64)
+        rows.append(clean + std * noise.to(device=clean.device, dtype=clean.dtype))
     return torch.stack(rows)
+
+
+def _check_seeds(cfg: Config, seeds: Sequence[int] | None) -> list[int]:
+    seeds = list(range(cfg.scenario.seeds)) if seeds is None else [int(s) for s in seeds]
+    if not seeds:
+        raise ValueError("seeds must name at least one noise seed")
+    steps = cfg.scenario.duration_s / cfg.scenario.dt_s
+    if abs(steps - round(steps)) > 1e-9:
+        raise ValueError(f"scenario.duration_s ({cfg.scenario.duration_s:g}) must be a multiple of scenario.dt_s "
+                         f"({cfg.scenario.dt_s:g})")
+    return seeds
+
+
+def _config_truth(cfg: Config, S: int, rho: float, like: Tensor) -> dict:
+    """The seed-independent fields of the config's truth, each repeated for ``S`` seeds (expanded views)."""
+    sc = cfg.scenario
+    tensor = lambda values: torch.tensor(values, dtype=like.dtype, device=like.device)  # noqa: E731
+    error = euler321_to_quat(torch.deg2rad(tensor(sc.initial_error_deg)))
+    material = (rho, cfg.surface.f0, cfg.surface.n_u, cfg.surface.n_v)
+    return {"surface": Surface(*(tensor(float(v)).expand(S) for v in material)),
+            "error": quat_to_rotvec(error).expand(S, 3),
+            "sigma0": torch.tensor(math.radians(cfg.filter.p0_deg), dtype=torch.float64, device=like.device).expand(S),
+            "noise_var": sc.noise_var,
+            "rho_true": rho, "q_est0": quat_mul(error, quat_normalize(tensor(sc.q0))).expand(S, 4)}
+
+
+def _per_seed(S: int, **fields: Tensor) -> dict[str, Tensor]:
+    """Fields of one truth repeated for ``S`` seeds (expanded views)."""
+    return {k: v.expand(S, *v.shape) for k, v in fields.items()}
 
 
 def simulate_scenario(cfg: Config, seeds: Sequence[int] | None = None, rho_true: float | None = None,
                       scene: Scene | None = None) -> Scenario:
-    """Truth trajectory, clean and noisy light curves and the initial estimate of ``cfg.scenario``.
+    """The config's truth for every seed, its clean and noisy light curves and the initial estimate.
 
     Args:
-        cfg: validated config (``scenario``, ``shape``, ``surface``, ``geometry`` sections are used).
+        cfg: validated config (``scenario``, ``shape``, ``surface``, ``geometry`` sections, ``filter.p0_deg``).
         seeds: noise seeds; default ``range(cfg.scenario.seeds)``.
         rho_true: overrides ``cfg.scenario.rho_true``.
         scene: renderer to use; default ``Scene.from_config(cfg)``.
     """
     sc = cfg.scenario
     dtype, device = cfg.torch_dtype, torch.device(cfg.device)
-    seeds = list(range(sc.seeds)) if seeds is None else [int(s) for s in seeds]
-    if not seeds:
-        raise ValueError("seeds must name at least one noise seed")
+    seeds = _check_seeds(cfg, seeds)
     rho = sc.rho_true if rho_true is None else float(rho_true)
     if not 0.0 <= rho <= 1.0:
         raise ValueError(f"rho_true: {rho:g} is outside [0, 1]")
-    steps = sc.duration_s / sc.dt_s
-    if abs(steps - round(steps)) > 1e-9:
-        raise ValueError(f"scenario.duration_s ({sc.duration_s:g}) must be a multiple of scenario.dt_s ({sc.dt_s:g})")
     if cfg.geometry.kind == "orbit":
         return _simulate_pass(cfg, seeds, rho, scene)
-    n_steps = int(round(steps))
+    n_steps = int(round(sc.duration_s / sc.dt_s))
     scene = (scene or Scene.from_config(cfg, rho=rho)).to(device=device, dtype=dtype)
 
     tensor = lambda values: torch.tensor(values, dtype=dtype, device=device)  # noqa: E731
@@ -119,27 +176,17 @@ def simulate_scenario(cfg: Config, seeds: Sequence[int] | None = None, rho_true:
     if not bool(torch.isfinite(m_clean).all()):
         bad = int((~torch.isfinite(m_clean)).sum())
         raise ValueError(f"the true trajectory has {bad} samples with zero flux (object not lit and visible)")
-    error = euler321_to_quat(torch.deg2rad(tensor(sc.initial_error_deg)))
     omega_est0 = omega0 + torch.deg2rad(tensor(sc.initial_omega_error_deg_s))
     omega_assumed, increments_assumed = omega_true, increments
     if any(sc.initial_omega_error_deg_s):
         omega_assumed = propagate(q0, omega_est0, inertia, sc.dt_s, n_steps)[1]
         increments_assumed = quaternion_increments(omega_est0, inertia, sc.dt_s, n_steps)
-    return Scenario(
-        times=torch.arange(n_steps + 1, dtype=dtype, device=device) * sc.dt_s,
-        q_true=q_true,
-        omega_true=omega_true,
-        increments=increments,
-        m_clean=m_clean,
-        observations=noisy_observations(m_clean, sc.noise_var, seeds),
-        seeds=seeds,
-        q_est0=quat_mul(error, q0),
-        rho_true=rho,
-        noise_var=sc.noise_var,
-        omega_est0=omega_est0,
-        omega_assumed=omega_assumed,
-        increments_assumed=increments_assumed,
-    )
+    S = len(seeds)
+    return Scenario(times=torch.arange(n_steps + 1, dtype=dtype, device=device) * sc.dt_s, seeds=seeds,
+                    observations=noisy_observations(m_clean, sc.noise_var, seeds), **_config_truth(cfg, S, rho, q0),
+                    **_per_seed(S, q_true=q_true, omega_true=omega_true, increments=increments, m_clean=m_clean,
+                                omega_est0=omega_est0, omega_assumed=omega_assumed,
+                                increments_assumed=increments_assumed))
 
 
 def _simulate_pass(cfg: Config, seeds: list[int], rho: float, scene: Scene | None) -> Scenario:
@@ -165,13 +212,38 @@ def _simulate_pass(cfg: Config, seeds: list[int], rho: float, scene: Scene | Non
     m_clean = scene.magnitude(q_true, rho=tensor(rho))
     seen = geometry.observable.to(device) & torch.isfinite(m_clean)
     m_clean = torch.where(seen, m_clean, torch.full_like(m_clean, math.nan))
-    error = euler321_to_quat(torch.deg2rad(tensor(sc.initial_error_deg)))
-    return Scenario(times=(geometry.times_s - geometry.times_s[0]).to(device=device, dtype=dtype), q_true=q_true,
-                    omega_true=omega_grid[index], increments=increments, m_clean=m_clean,
-                    observations=noisy_observations(m_clean, sc.noise_var, seeds), seeds=seeds,
-                    q_est0=quat_mul(error, q0), rho_true=rho, noise_var=sc.noise_var, omega_est0=omega0,
-                    omega_assumed=omega_grid[index], increments_assumed=increments, geometry=geometry,
-                    unobservable=int((~seen).sum()))
+    S = len(seeds)
+    return Scenario(times=(geometry.times_s - geometry.times_s[0]).to(device=device, dtype=dtype), seeds=seeds,
+                    observations=noisy_observations(m_clean, sc.noise_var, seeds), **_config_truth(cfg, S, rho, q0),
+                    **_per_seed(S, q_true=q_true, omega_true=omega_grid[index], increments=increments,
+                                m_clean=m_clean, omega_est0=omega0, omega_assumed=omega_grid[index],
+                                increments_assumed=increments),
+                    geometry=geometry, unobservable=int((~seen).sum()))
+
+
+def simulate_truths(cfg: Config, draw: TruthDraw, scene: Scene | None = None) -> Scenario:
+    """Trajectories, increments, clean and noisy light curves of the drawn truths under ``cfg``'s fixed geometry
+    (float64, CPU); ω is known exactly (``omega_assumed`` is the truth's).
+
+    Raises:
+        ValueError: a truth trajectory with zero flux somewhere (names the seed).
+    """
+    sc = cfg.scenario
+    n_steps = int(round(sc.duration_s / sc.dt_s))
+    scene = (scene or Scene.from_config(cfg)).to(dtype=torch.float64)
+    inertia = torch.tensor(cfg.shape.inertia_kg_m2, dtype=torch.float64)
+    q_true, omega_true = propagate(draw.q0, draw.omega0, inertia, sc.dt_s, n_steps)
+    increments = quaternion_increments(draw.omega0, inertia, sc.dt_s, n_steps)
+    m_clean = scene.magnitude(q_true, surface=draw.surface)
+    bad = ~torch.isfinite(m_clean).all(-1)
+    if bool(bad.any()):
+        raise ValueError(f"seed {draw.seeds[int(bad.nonzero()[0])]}: the true trajectory has samples with zero flux")
+    return Scenario(times=torch.arange(n_steps + 1, dtype=torch.float64) * sc.dt_s, seeds=list(draw.seeds),
+                    q_true=q_true, omega_true=omega_true, increments=increments, m_clean=m_clean,
+                    observations=noisy_observations(m_clean, sc.noise_var, draw.seeds), surface=draw.surface,
+                    q_est0=draw.q_est0, error=draw.error, sigma0=draw.sigma0, omega_est0=draw.omega0,
+                    omega_assumed=omega_true, increments_assumed=increments, noise_var=float(sc.noise_var),
+                    specular_share=specular_share(scene, q_true, draw.surface))
 
 
 def span_increments(grid_increments: Tensor, index: Tensor) -> Tensor:

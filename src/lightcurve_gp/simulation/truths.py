@@ -15,9 +15,10 @@ order, so a seed's truth is reproducible and does not depend on the other seeds 
   ``E|e|² = θ²``), so every seed keeps its attitude, spin and surface across the angles.
 
 The estimate starts at ``q_est,0 = q(e) ⊗ q_0`` (the scenario's convention). :func:`paper_case_draw` gives the
-paper's case in the same form (every seed the config's truth, the seeds differing by noise alone), so the suite's
-estimators also run on it. The geometry, the time grid, the inertia
-and the noise variance are those of the config (the paper's: fixed Sun and observer, 600 s at 1 Hz, variance 0.5).
+paper's case in the same form (every seed the config's truth, the seeds differing by noise alone). A draw becomes a
+:class:`~lightcurve_gp.simulation.scenario.Scenario` through
+:func:`~lightcurve_gp.simulation.scenario.simulate_truths`: the geometry, the time grid, the inertia and the noise
+variance are those of the config (the paper's: fixed Sun and observer, 600 s at 1 Hz, variance 0.5).
 """
 
 from __future__ import annotations
@@ -29,15 +30,14 @@ from typing import Sequence
 import torch
 from torch import Tensor
 
-from lightcurve_gp.attitude.dynamics import propagate, quaternion_increments
 from lightcurve_gp.attitude.rotations import euler321_to_quat, quat_mul, quat_normalize, quat_to_rotvec, rotvec_to_quat
 from lightcurve_gp.config.load import Config
+from lightcurve_gp.observation.surface_state import SURFACE_RANGES
 from lightcurve_gp.photometry.brdf import Surface
 from lightcurve_gp.photometry.render import Scene
-from lightcurve_gp.simulation.scenario import noisy_observations
 
-__all__ = ["TRUTH_STREAM", "SPECULAR_CLASSES", "TruthRanges", "TruthDraw", "TruthBatch", "draw_truths",
-           "paper_case_draw", "simulate_truths", "specular_share", "specular_class"]
+__all__ = ["TRUTH_STREAM", "SPECULAR_CLASSES", "TruthRanges", "TruthDraw", "draw_truths", "paper_case_draw",
+           "specular_share", "specular_class"]
 
 #: offset of the truth generators' seeds from the noise seeds
 TRUTH_STREAM = 1 << 40
@@ -47,12 +47,13 @@ SPECULAR_CLASSES = (("<1 %", 0.0, 0.01), ("1-30 %", 0.01, 0.30), (">30 %", 0.30,
 
 @dataclass(frozen=True)
 class TruthRanges:
-    """Ranges of the random truths (see the module docstring)."""
+    """Ranges of the random truths (see the module docstring); the surfaces' are those the surface-state prior
+    expects (:data:`~lightcurve_gp.observation.surface_state.SURFACE_RANGES`)."""
 
     omega_deg_s: tuple[float, float] = (0.05, 1.5)
-    rho: tuple[float, float] = (0.1, 0.9)
-    f0: tuple[float, float] = (0.05, 0.95)
-    lobe_exponent: tuple[float, float] = (10.0, 1.0e4)
+    rho: tuple[float, float] = SURFACE_RANGES.rho
+    f0: tuple[float, float] = SURFACE_RANGES.f0
+    lobe_exponent: tuple[float, float] = SURFACE_RANGES.lobe_exponent
     typical_error_deg: tuple[float, float] = (5.0, 20.0)
 
 
@@ -145,37 +146,6 @@ def paper_case_draw(cfg: Config, seeds: Sequence[int], *, rho: float) -> TruthDr
                      torch.full((S,), math.radians(cfg.filter.p0_deg), dtype=torch.float64))
 
 
-@dataclass
-class TruthBatch:
-    """``S`` truths with their light curves, ready for batched filters.
-
-    Attributes:
-        draw: the random parameters.
-        times: sample times ``(T+1,)`` (s).
-        q_true: true attitudes ``(S, T+1, 4)``.
-        increments: RK4 kinematic increments of each seed's own ω ``(S, T, 4)``.
-        m_clean: noise-free magnitudes ``(S, T+1)`` (mag), each seed's own surface.
-        observations: noisy magnitudes ``(S, T+1)`` (mag).
-        specular_share: time mean of specular / total flux along the truth ``(S,)``.
-        noise_var: variance of the magnitude noise (mag²).
-    """
-
-    draw: TruthDraw
-    times: Tensor
-    q_true: Tensor
-    increments: Tensor
-    m_clean: Tensor
-    observations: Tensor
-    specular_share: Tensor
-    noise_var: float
-
-    @property
-    def P0(self) -> Tensor:
-        """Initial attitude covariances ``σ0² I`` ``(S, 3, 3)`` (rad²)."""
-        eye = torch.eye(3, dtype=self.draw.sigma0.dtype)
-        return self.draw.sigma0.pow(2).view(-1, 1, 1) * eye
-
-
 def specular_share(scene: Scene, q: Tensor, surface: Surface) -> Tensor:
     """Time mean of specular / total flux along trajectories ``q (S, T+1, 4)`` with surfaces ``(S,)`` → ``(S,)``."""
     diffuse, specular = scene.flux_parts(q, surface=surface)
@@ -185,25 +155,3 @@ def specular_share(scene: Scene, q: Tensor, surface: Surface) -> Tensor:
 def specular_class(share: Tensor) -> Tensor:
     """Index into :data:`SPECULAR_CLASSES` of specular shares ``(...)``: ``< 0.01``, ``[0.01, 0.30]``, ``> 0.30``."""
     return (share >= SPECULAR_CLASSES[1][1]).long() + (share > SPECULAR_CLASSES[2][1]).long()
-
-
-def simulate_truths(cfg: Config, draw: TruthDraw, scene: Scene | None = None) -> TruthBatch:
-    """Trajectories, increments, clean and noisy light curves of the drawn truths under ``cfg``'s geometry (float64).
-
-    Raises:
-        ValueError: a truth trajectory with zero flux somewhere (names the seed).
-    """
-    sc = cfg.scenario
-    n_steps = int(round(sc.duration_s / sc.dt_s))
-    scene = (scene or Scene.from_config(cfg)).to(dtype=torch.float64)
-    inertia = torch.tensor(cfg.shape.inertia_kg_m2, dtype=torch.float64)
-    q_true, _ = propagate(draw.q0, draw.omega0, inertia, sc.dt_s, n_steps)
-    increments = quaternion_increments(draw.omega0, inertia, sc.dt_s, n_steps)
-    m_clean = scene.magnitude(q_true, surface=draw.surface)
-    bad = ~torch.isfinite(m_clean).all(-1)
-    if bool(bad.any()):
-        raise ValueError(f"seed {draw.seeds[int(bad.nonzero()[0])]}: the true trajectory has samples with zero flux")
-    observations = torch.cat([noisy_observations(m, sc.noise_var, [seed]) for m, seed in zip(m_clean, draw.seeds)])
-    return TruthBatch(draw=draw, times=torch.arange(n_steps + 1, dtype=torch.float64) * sc.dt_s, q_true=q_true,
-                      increments=increments, m_clean=m_clean, observations=observations,
-                      specular_share=specular_share(scene, q_true, draw.surface), noise_var=float(sc.noise_var))

@@ -11,14 +11,16 @@ from lightcurve_gp.commands.common import (
     UserError,
     add_common_arguments,
     apply_threads,
+    check_overrides,
     progress_enabled,
     run_command,
 )
+from lightcurve_gp.commands.layout import data_cache, model_store, sweeps_root
 from lightcurve_gp.config.load import config_from_dict, load_raw_config
-from lightcurve_gp.evaluation.estimators import DEFAULT_ESTIMATORS, ESTIMATORS
+from lightcurve_gp.evaluation.registry import DEFAULT_ESTIMATORS, ESTIMATORS
 from lightcurve_gp.sweep.executors import CLUSTER_EXTRA, EXECUTORS
 from lightcurve_gp.sweep.grid import parse_grid
-from lightcurve_gp.sweep.runner import run_sweep
+from lightcurve_gp.sweep.runner import SweepResult, run_sweep
 from lightcurve_gp.sweep.tables import print_summary
 
 __all__ = ["build_parser", "main"]
@@ -34,19 +36,19 @@ def build_parser() -> argparse.ArgumentParser:
 what it does:
   * every grid point is applied to CONFIG (after --set) and validated before anything runs; an unknown key or a bad
     value stops the sweep with an error naming the key
-  * one GP per distinct geometry/shape/surface/data/model setting is trained (python -m lightcurve_gp.train's
-    job) into the model store OUT/models/<hash>/ and reused by every case and later sweep that needs it
-  * each case is stored when it finishes, atomically, in OUT/<name>/cases/<case-id>.json (the id hashes the
+  * one GP per distinct geometry/shape/surface/data/model setting comes from the model store OUT/models/<key>/
+    (python -m lightcurve_gp.train's models are there too) or is trained into it once, for every later use
+  * each case is stored when it finishes, atomically, in OUT/sweeps/<name>/cases/<case-id>.json (the id hashes the
     case's whole config, seeds and estimators); a rerun skips stored cases and retries failed ones, so an
     interrupted sweep (Ctrl-C) resumes where it stopped
   * a case that raises is recorded with its error (status "failed") and the sweep goes on; a case whose worker
     process died is run again (--retries times at most)
   * --executor dask runs the trainings, then the cases, as tasks on a dask.distributed cluster; the records come
     back to this process, which stores each as it arrives (a rerun with either executor resumes the store)
-  * tables in OUT/<name>/sweep/<sweep-id>/: results.csv (one row per case x seed x estimator: case_id, the grid
+  * tables in OUT/sweeps/<name>/sweep/<sweep-id>/: results.csv (one row per case x seed x estimator: case_id, the grid
     values, seed, estimator, rmse_yaw_deg, rmse_pitch_deg, rmse_roll_deg, lc_rmse_noisy, lc_rmse_clean,
     nees_mean, seconds_per_step, status, error), summary.csv / summary.json (median and quartiles per case and
-    estimator) and sweep.json (the definition)
+    estimator) and sweep.json (the definition); nothing goes into a training run's folder OUT/<name>/
 
 example:
   python -m lightcurve_gp.sweep configs/boxwing.yaml --grid data.t_span_past=10,20,30,40 \\
@@ -68,7 +70,7 @@ example:
     parser.add_argument("--out", default="runs", type=Path, help="output root (default: runs)")
     parser.add_argument("--cache", default=None, type=Path, help="training-data cache (default: OUT/cache)")
     parser.add_argument("--sweep-id", default=None,
-                        help="name of the table folder OUT/<name>/sweep/<id> (default: hash of the definition)")
+                        help="table folder OUT/sweeps/<name>/sweep/<id> (default: hash of the definition)")
     parser.add_argument("--executor", choices=EXECUTORS, default="local",
                         help="where trainings and cases run: local (a pool of --workers spawned processes, or this "
                              "process with 1) or dask (dask.distributed: a LocalCluster of --workers "
@@ -88,6 +90,7 @@ example:
 
 def _run(args: argparse.Namespace) -> int:
     threads = apply_threads(args.threads)
+    check_overrides(args.overrides)
     if args.seeds is not None and args.seeds < 1:
         raise UserError(f"--seeds: {args.seeds} must be >= 1")
     raw = load_raw_config(args.config, args.overrides)
@@ -95,21 +98,35 @@ def _run(args: argparse.Namespace) -> int:
     estimators = [e.strip() for e in args.estimators.split(",") if e.strip()]
     base = config_from_dict(raw)
     seeds = range(args.seeds if args.seeds is not None else base.scenario.seeds)
-    kept = f"finished cases are stored in {args.out / base.name / 'cases'}; rerun the same command to resume"
+    out = sweeps_root(args.out)
+    cases_folder = out / base.name / "cases"
     try:
-        result = run_sweep(raw, axes, seeds, out=args.out, sweep_id=args.sweep_id, estimators=estimators,
-                           workers=args.workers, threads=threads, cache_dir=args.cache,
+        result = run_sweep(raw, axes, seeds, out=out, store=model_store(args.out), sweep_id=args.sweep_id,
+                           estimators=estimators, workers=args.workers, threads=threads,
+                           cache_dir=args.cache or data_cache(args.out),
                            progress=progress_enabled(args.no_progress), rerun_failed=not args.no_retry,
                            executor=args.executor, scheduler=args.scheduler, retries=args.retries)
     except KeyboardInterrupt:
-        raise Interrupted(kept) from None
+        raise Interrupted(f"finished cases are stored in {cases_folder}; rerun the same command to resume") from None
+    if result.interrupted:
+        raise Interrupted(_kept(result, [k for k, _ in axes], cases_folder))
     print_summary(result.summary, [k for k, _ in axes])
     for cid in result.failed:
         print(f"case {cid} failed: {result.records[cid].error}", file=sys.stderr)
     print(f"written: {result.folder}")
-    if result.interrupted:
-        raise Interrupted(kept)
     return 1 if result.failed else 0
+
+
+def _kept(result: SweepResult, grid_keys: list[str], cases_folder: Path) -> str:
+    """What an interrupted sweep kept: the table of its stored cases (printed when there is one) and the line of
+    the interrupt."""
+    stored, total = len(result.records), len(result.cases)
+    if not stored:
+        return f"no case finished (0 of {total}); rerun the same command to start again"
+    print(f"kept so far: {stored} of {total} cases")
+    print_summary(result.summary, grid_keys)
+    return (f"{stored} of {total} cases stored in {cases_folder} (partial tables in {result.folder}); rerun the same "
+            f"command to resume")
 
 
 def main(argv: list[str] | None = None) -> int:

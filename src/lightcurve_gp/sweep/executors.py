@@ -119,17 +119,18 @@ class Executor(ABC):
         self.close()
 
     def run(self, fn: Callable[[Any], Any], payloads: Mapping[str, Any], *, desc: str = "cases",
-            total: int | None = None, initial: int = 0, progress: bool = True) -> Iterator[Outcome]:
+            total: int | None = None, initial: int = 0, progress: bool | None = None) -> Iterator[Outcome]:
         """:meth:`map_unordered` behind a progress bar of the whole campaign.
 
         The bar counts ``initial`` items already done before this run (out of ``total``, default
         ``initial + len(payloads)``) and shows done / failed / running in its postfix.
         """
         total = initial + len(payloads) if total is None else total
-        bar = tqdm(total=total, initial=initial, desc=desc, unit=desc.rstrip("s") or "item", disable=not progress)
+        bar = tqdm(total=total, initial=initial, desc=desc, unit=desc.rstrip("s") or "item",
+                   disable=None if progress is None else not progress)
         done = failed = 0
         try:
-            if progress:
+            if not bar.disable:
                 bar.set_postfix(done=initial, failed=0, running=min(len(payloads), self.slots))
             for outcome in self.map_unordered(fn, payloads):
                 done += outcome.ok

@@ -13,12 +13,13 @@ from lightcurve_gp.config.load import (
     Config,
     ConfigError,
     apply_overrides,
+    check_device,
     check_mesh,
     config_from_dict,
     config_hash,
     config_to_dict,
 )
-from lightcurve_gp.evaluation.estimators import DEFAULT_ESTIMATORS, ESTIMATORS
+from lightcurve_gp.evaluation.registry import DEFAULT_ESTIMATORS, ESTIMATORS
 from lightcurve_gp.evaluation.reporting import CASE_FORMAT
 from lightcurve_gp.training.store import MODEL_SECTIONS, model_key
 
@@ -93,8 +94,8 @@ def _case_key(cfg: Config, seeds: Sequence[int], estimators: Sequence[str]) -> s
 
 def make_cases(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Sequence[int],
                estimators: Sequence[str] = DEFAULT_ESTIMATORS) -> list[Case]:
-    """Validate every grid point of ``axes`` applied to the raw config mapping ``raw`` (a mesh is checked as
-    :func:`~lightcurve_gp.config.load.load_config` checks it).
+    """Validate every grid point of ``axes`` applied to the raw config mapping ``raw`` (a mesh and the device are
+    checked as :func:`~lightcurve_gp.config.load.load_config` checks them).
 
     Raises:
         ConfigError: an unknown key or invalid value; the message names the key (and the grid point).
@@ -109,6 +110,7 @@ def make_cases(raw: dict, axes: Sequence[tuple[str, Sequence[Any]]], seeds: Sequ
             if cfg.shape.kind == "mesh" and cfg.shape.mesh_path not in meshes_checked:
                 check_mesh(cfg.shape.mesh_path)
                 meshes_checked.add(cfg.shape.mesh_path)
+            check_device(cfg.device)
         except ConfigError as exc:
             where = ", ".join(f"{k}={value_text(v)}" for k, v in values.items())
             raise ConfigError(f"{exc} (grid point {where})" if where else str(exc)) from None

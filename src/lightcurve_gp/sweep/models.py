@@ -12,16 +12,18 @@ from typing import Any, Sequence
 
 import torch
 
-from lightcurve_gp.config.load import config_from_dict, config_to_dict
+from lightcurve_gp.config.hashing import config_to_dict
+from lightcurve_gp.config.validate import config_from_dict
 from lightcurve_gp.sweep.executors import Executor, SerialExecutor
 from lightcurve_gp.sweep.grid import Case
+from lightcurve_gp.training.store import get_or_train
 
 __all__ = ["model_path", "train_model", "ensure_models"]
 
 
-def model_path(root: Path, model_hash: str) -> Path:
-    """Where the model of ``model_hash`` lives in the store ``<root>/models`` of a sweep root."""
-    return Path(root) / "models" / model_hash / "model.pt"
+def model_path(store: Path, model_hash: str) -> Path:
+    """Where the model of ``model_hash`` lives in the model store ``store``."""
+    return Path(store) / model_hash / "model.pt"
 
 
 def train_model(spec: dict[str, Any]) -> str:
@@ -32,8 +34,6 @@ def train_model(spec: dict[str, Any]) -> str:
     worker process (None: leave torch's), ``cache_dir`` the training-data cache, ``progress`` shows training's
     progress.
     """
-    from lightcurve_gp.training.store import get_or_train
-
     if spec.get("threads"):
         torch.set_num_threads(int(spec["threads"]))
     _, path = get_or_train(config_from_dict(spec["config"]), spec["store"], cache_dir=spec["cache_dir"],
@@ -41,10 +41,11 @@ def train_model(spec: dict[str, Any]) -> str:
     return str(path)
 
 
-def ensure_models(cases: Sequence[Case], root: Path, cache_dir: Path, executor: Executor, progress: bool = True,
-                  threads: int | None = None) -> dict[str, str | None]:
-    """Get every model the cases need from the model store ``root/models``: one :func:`train_model` task per
-    distinct model on ``executor`` (a model already in the store is only loaded and checked).
+def ensure_models(cases: Sequence[Case], store: Path, cache_dir: Path, executor: Executor,
+                  progress: bool | None = None, threads: int | None = None) -> dict[str, str | None]:
+    """Get every model the cases need from the model store ``store``: one :func:`train_model` task per distinct
+    model on ``executor`` (a model already in the store, trained by ``train`` or an earlier sweep, is only loaded
+    and checked).
 
     ``threads``: torch threads of a worker process (None: leave torch's, as in this process). Returns
     ``{model_hash: error or None}``; a failed training is reported, not raised, so that the cases that need it fail
@@ -52,8 +53,8 @@ def ensure_models(cases: Sequence[Case], root: Path, cache_dir: Path, executor: 
     """
     in_process = isinstance(executor, SerialExecutor)
     wanted = {c.model_hash: c.config for c in cases if c.model_hash is not None}
-    specs = {model_hash: {"config": config_to_dict(cfg), "store": str(Path(root) / "models"),
+    specs = {model_hash: {"config": config_to_dict(cfg), "store": str(store),
                           "cache_dir": str(cache_dir), "threads": threads, "progress": progress and in_process}
              for model_hash, cfg in wanted.items()}
     return {outcome.key: None if outcome.ok else f"model training failed: {outcome.error}"
-            for outcome in executor.run(train_model, specs, desc="models", progress=progress and bool(specs))}
+            for outcome in executor.run(train_model, specs, desc="models", progress=progress if specs else False)}

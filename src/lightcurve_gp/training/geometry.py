@@ -6,8 +6,8 @@ attitude alone sets the body-frame directions and α the phase angle. A scramble
 (``data.seed``) gives the attitude (three coordinates, Shoemake's map) and α (uniform in ``data.phase_angle_deg``);
 ``data.num_random`` points, each rendered with every ρ of ``data.rho_grid`` at the reference range
 ``model.reference_range_km``, so the target is already range-normalised. Points with zero flux are dropped and
-counted. The :class:`~lightcurve_gp.training.sets.TrainingSet` holds ``q`` (canonical-frame attitude), ``m_past`` = α in
-radians (the GP's second input), ``y`` and ``rho``.
+counted. The :class:`~lightcurve_gp.training.windows.TrainingSet` holds ``q`` (canonical-frame attitude),
+``m_past`` = α in radians (the GP's second input), ``y`` and ``rho``.
 """
 
 from __future__ import annotations
@@ -18,10 +18,10 @@ import torch
 from torch import Tensor
 
 from lightcurve_gp.attitude.sampling import shoemake_quaternions
-from lightcurve_gp.config.load import Config
+from lightcurve_gp.config.schema import Config
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.photometry.shapes import facets_from_config
-from lightcurve_gp.training.sets import TrainingSet
+from lightcurve_gp.training.windows import TrainingSet
 
 __all__ = ["canonical_geometry", "geometry_training_set", "geometry_heldout_set"]
 

@@ -1,13 +1,11 @@
 """The one model store: trained observation models keyed by the hash of everything that changes them.
 
-Layout: ``<root>/<model-key>/`` is a ``train`` run folder (``model.pt``, ``metrics.json``, ``config.yaml`` and
-the held-out figures), written atomically by :func:`lightcurve_gp.training.fit.train`. The key (:func:`model_key`)
-hashes
-the ``geometry`` (not for a ``body_geometry`` GP), ``shape``, ``surface``, ``data`` and ``model`` sections with the
-mesh file's *content* hash in place of its path (:func:`~lightcurve_gp.config.load.content_hash`), the dtype and
-:data:`STORE_FORMAT`; the run name is not part of it. :func:`get_or_train` is used by sweeps, the experiments and
-the benchmarks; ``train`` records the key of the model it writes and ``estimate`` checks a model file against its
-config with :func:`check_model_matches`.
+Layout: ``<root>/<model-key>/`` is a training run folder (``model.pt``, ``metrics.json``, ``config.yaml``),
+written atomically by :func:`lightcurve_gp.training.fit.train`; the key is :func:`~lightcurve_gp.training.keys.
+model_key` (the run name is not part of it). :func:`get_or_train` is used by sweeps, the experiments and the
+benchmarks; ``python -m lightcurve_gp.train`` adds the model it trains with :func:`add_to_store` (so a sweep over
+the same settings finds it instead of training it again), records its key, and ``estimate`` checks a model file
+against its config with :func:`check_model_matches`.
 
 Model files are opened with :func:`open_model`, which turns anything that is not a lightcurve-gp model file
 (a text file, a YAML file renamed ``.pt``, a foreign pickle) into one :class:`ModelFileError` line.
@@ -15,50 +13,35 @@ Model files are opened with :func:`open_model`, which turns anything that is not
 
 from __future__ import annotations
 
+import os
+import shutil
 import zipfile
 from pathlib import Path
 from typing import Any
 
-from lightcurve_gp.config.load import Config, ConfigError, config_from_dict, content_dict, content_hash
-from lightcurve_gp.files import file_sha256
+from lightcurve_gp.config.hashing import content_dict
+from lightcurve_gp.config.schema import Config, ConfigError
+from lightcurve_gp.config.validate import config_from_dict
+from lightcurve_gp.files import RunFolder, file_sha256
 from lightcurve_gp.observation.base import ObservationModel
 from lightcurve_gp.observation.serialization import ModelFileError, load_model
+from lightcurve_gp.training.fit import train
+from lightcurve_gp.training.keys import (
+    IGNORED_KEYS,
+    MODEL_SECTIONS,
+    STORE_FORMAT,
+    model_key,
+    model_record,
+    model_sections,
+)
 
 __all__ = ["MODEL_SECTIONS", "IGNORED_KEYS", "model_sections", "STORE_FORMAT", "ModelMismatchError", "model_key",
-           "model_record", "store_folder", "get_or_train", "open_model", "model_file_record", "training_mismatch",
-           "check_model_matches"]
-
-#: config sections a trained model depends on (with the dtype)
-MODEL_SECTIONS = ("geometry", "shape", "surface", "data", "model")
-#: keys of those sections that do not change the model (only the held-out evaluation written beside it)
-IGNORED_KEYS = ("data.heldout_size",)
-STORE_FORMAT = 1
+           "model_record", "store_folder", "get_or_train", "add_to_store", "open_model", "model_file_record",
+           "training_mismatch", "check_model_matches"]
 
 
 class ModelMismatchError(ConfigError):
     """A model file was trained with settings other than the run's; the message names the first differing key."""
-
-
-def model_sections(cfg: Config) -> tuple[str, ...]:
-    """:data:`MODEL_SECTIONS` less ``geometry`` for a ``body_geometry`` GP, which is trained over geometries and
-    serves every pass."""
-    if cfg.model.inputs == "body_geometry":
-        return tuple(s for s in MODEL_SECTIONS if s != "geometry")
-    return MODEL_SECTIONS
-
-
-def model_key(cfg: Config) -> str:
-    """16 hex digits: the store key of the model ``cfg`` trains (see the module docstring)."""
-    return content_hash(cfg, *model_sections(cfg), extra={"dtype": cfg.dtype, "store_format": STORE_FORMAT})
-
-
-def model_record(cfg: Config) -> dict[str, Any]:
-    """What a model file carries about its training, in ``extra``: the full config, the model key and the
-    content dict of :data:`MODEL_SECTIONS` (mesh hash included) that :func:`training_mismatch` compares."""
-    from lightcurve_gp.config.load import config_to_dict
-
-    return {"config": config_to_dict(cfg), "model_key": model_key(cfg), "dtype": cfg.dtype,
-            "trained_on": content_dict(cfg, *model_sections(cfg))}
 
 
 def store_folder(cfg: Config, root: str | Path) -> Path:
@@ -71,8 +54,6 @@ def get_or_train(cfg: Config, root: str | Path, *, cache_dir: str | Path | None 
     """The trained model of ``cfg`` and its file: loaded from the store when present and intact, else (or with
     ``retrain``) trained by :func:`lightcurve_gp.training.fit.train` into ``<root>/<key>/`` (atomically; the training
     data cache is ``cache_dir``, default ``<root>/cache``). A damaged store entry is replaced."""
-    from lightcurve_gp.commands.train import train
-
     folder = store_folder(cfg, root)
     path = folder / "model.pt"
     key = model_key(cfg)
@@ -86,6 +67,21 @@ def get_or_train(cfg: Config, root: str | Path, *, cache_dir: str | Path | None 
     train(cfg, folder, Path(cache_dir) if cache_dir is not None else Path(root) / "cache", progress=progress,
           force=True)
     return open_model(path), path
+
+
+def add_to_store(run_dir: str | Path, cfg: Config, root: str | Path) -> Path:
+    """Put the finished training run ``run_dir`` of ``cfg`` into the store ``root`` under its key, replacing the
+    entry there (atomically): its files hard-linked (copied where a link is not possible), so the model exists once
+    on disk and either folder can be removed or replaced without touching the other. Returns the store folder."""
+    run_dir = Path(run_dir)
+    with RunFolder(store_folder(cfg, root), force=True) as tmp:
+        for path in sorted(run_dir.iterdir()):
+            if path.is_file():
+                try:
+                    os.link(path, tmp / path.name)
+                except OSError:  # another file system, or links not supported
+                    shutil.copy2(path, tmp / path.name)
+    return store_folder(cfg, root)
 
 
 def open_model(path: str | Path) -> ObservationModel:

@@ -10,7 +10,8 @@ attitude-dependent brightening that no offset removes. The training set renders 
 ``ρ (1 − F0) / (1 − F0,0)`` of each point: the reflectance the reference surface would need to have the same diffuse
 part, so that :func:`lightcurve_gp.training.sets.normalised_targets` gives the surface-normalised magnitude
 ``y = m + 2.5 log10(ρ (1 − F0) / (ρ0 (1 − F0,0)))``. Points are surface-major (``N = K · A``, point ``k · A + a`` is
-attitude ``a`` with its ``k``-th surface), which :func:`attitude_spread` relies on.
+attitude ``a`` with its ``k``-th surface), which the surface-marginal GP relies on
+(:func:`lightcurve_gp.observation.surface_marginal.attitude_spread`).
 """
 
 from __future__ import annotations
@@ -23,17 +24,19 @@ from tqdm.auto import tqdm
 
 from lightcurve_gp.attitude.dynamics import propagate
 from lightcurve_gp.attitude.sampling import random_attitudes
-from lightcurve_gp.config.load import Config, TrainingSurfacesConfig
+from lightcurve_gp.config.schema import Config, TrainingSurfacesConfig
 from lightcurve_gp.photometry.brdf import Surface
 from lightcurve_gp.photometry.render import Scene
-from lightcurve_gp.training.sets import TrainingSet, _inertia, _window_steps, initial_attitudes, training_rates
+from lightcurve_gp.training.windows import (
+    TrainingSet,
+    initial_attitudes,
+    shape_inertia,
+    training_rates,
+    window_steps,
+)
 
 __all__ = ["draw_surfaces", "equivalent_reflectance", "render_over_surfaces", "generate_surface_training_set",
-           "generate_surface_heldout_set", "attitude_spread", "SPREAD_FLOOR"]
-
-#: smallest spread the spread model learns (mag²): 0.01 mag, far below any measurement noise of interest (R = 0.5
-#: mag² in the paper), so that the log spread of diffuse attitudes (~1e-12) does not stretch the model's range
-SPREAD_FLOOR = 1e-4
+           "generate_surface_heldout_set"]
 
 
 def draw_surfaces(spec: TrainingSurfacesConfig, shape: tuple[int, ...], *, seed: int,
@@ -55,16 +58,17 @@ def equivalent_reflectance(surface: Surface, f0_reference: float) -> Tensor:
 
 
 def render_over_surfaces(scene: Scene, q0: Tensor, surfaces: Surface, cfg: Config, *,
-                         progress: bool = False) -> TrainingSet:
-    """Windows (see :mod:`lightcurve_gp.training.sets`) of attitudes ``q0 (A, 4)``, each rendered with its surfaces
+                         progress: bool | None = False) -> TrainingSet:
+    """Windows (see :mod:`lightcurve_gp.training.windows`) of attitudes ``q0 (A, 4)``, each rendered with its surfaces
     ``surfaces`` (fields ``(K, A)``); surface-major points, ``rho`` the equivalent reflectance. An attitude with a
     zero-flux sample is dropped for all its surfaces (zero flux is geometry: nothing lit and visible)."""
-    n_steps = _window_steps(cfg.data)
+    n_steps = window_steps(cfg.data)
     omega0 = training_rates(cfg.data, q0.shape[0], dtype=q0.dtype)
-    q_hist, _ = propagate(q0, omega0, _inertia(cfg).to(q0.dtype), cfg.data.dt_s, n_steps)  # (A, n+1, 4)
+    q_hist, _ = propagate(q0, omega0, shape_inertia(cfg).to(q0.dtype), cfg.data.dt_s, n_steps)  # (A, n+1, 4)
     k_count = surfaces.rho.shape[0]
     m = torch.stack([scene.magnitude(q_hist, surface=surfaces.index(k))
-                     for k in tqdm(range(k_count), desc="rendering over surfaces", disable=not progress)])
+                     for k in tqdm(range(k_count), desc="rendering over surfaces",
+                                  disable=None if progress is None else not progress)])
     ok = torch.isfinite(m).all(-1).all(0)  # (A,)
     a_ok = int(ok.sum())
     return TrainingSet(q=q_hist[ok, -1].repeat(k_count, 1), m_past=m[:, ok, :-1].mean(-1).reshape(-1),
@@ -73,7 +77,7 @@ def render_over_surfaces(scene: Scene, q0: Tensor, surfaces: Surface, cfg: Confi
                        dropped=k_count * (q0.shape[0] - a_ok))
 
 
-def generate_surface_training_set(cfg: Config, progress: bool = True) -> TrainingSet:
+def generate_surface_training_set(cfg: Config, progress: bool | None = None) -> TrainingSet:
     """The training set of ``cfg`` with ``data.surfaces``: ``data.sampling`` attitudes × K surfaces each."""
     dtype = cfg.torch_dtype
     q0 = initial_attitudes(cfg.data, dtype=dtype)
@@ -91,31 +95,3 @@ def generate_surface_heldout_set(cfg: Config) -> TrainingSet:
     q0 = random_attitudes(n, seed=cfg.data.seed + 1, dtype=dtype)
     surfaces = draw_surfaces(cfg.data.surfaces, (1, n), seed=cfg.data.surfaces.seed + 1, dtype=dtype)
     return render_over_surfaces(Scene.from_config(cfg, dtype=dtype, device="cpu"), q0, surfaces, cfg)
-
-
-def attitude_spread(q: Tensor, y: Tensor, per_attitude: int, *,
-                    floor: float = SPREAD_FLOOR) -> tuple[Tensor, Tensor, Tensor, float]:
-    """Centre and spread over surfaces of surface-major targets ``y (K·A,)`` at ``q (K·A, 4)``.
-
-    The centre is the median over an attitude's K surfaces: the diffuse curve wherever fewer than half of them
-    glint, which a glint's large brightening does not pull. The spread is the mean square deviation from it,
-    ``s² = Σ (y_k − ỹ)² / (K − 1)`` (floored at ``floor``), what the filter must add to its variance when it
-    predicts the centre for an unknown surface.
-
-    Returns:
-        ``q_a (A, 4)``; ``centre (A,)``; ``log_s2 (A,)`` corrected by ``−(ψ(ν/2) − log(ν/2))``, ``ν = K − 1``: the
-        mean of ``log(χ²_ν / ν)``, so that it is unbiased for Gaussian spreads (for which the median is near the mean);
-        and ``ψ'(ν/2)``, the variance of that estimate there (Bartlett & Kendall 1946).
-    """
-    k = per_attitude
-    if y.shape[0] % k:
-        raise ValueError(f"{y.shape[0]} points are not {k} surfaces per attitude")
-    qk = q.reshape(k, -1, 4)
-    if not torch.equal(qk, qk[:1].expand_as(qk)):
-        raise ValueError("points are not surface-major: the attitudes of the K blocks differ")
-    yk = y.reshape(k, -1)
-    centre = yk.median(0).values if k % 2 else yk.sort(0).values[k // 2 - 1:k // 2 + 1].mean(0)
-    s2 = ((yk - centre) ** 2).sum(0).div(k - 1).clamp_min(floor)
-    half_nu = torch.tensor((k - 1) / 2.0, dtype=torch.float64)
-    bias = float(torch.special.digamma(half_nu) - half_nu.log())
-    return qk[0], centre, s2.log() - bias, float(torch.special.polygamma(1, half_nu))

@@ -1,0 +1,58 @@
+"""``lightcurve-gp COMMAND …`` (and ``python -m lightcurve_gp COMMAND …``): one entry point for every command.
+
+``COMMAND`` is one of :data:`COMMANDS`; the rest of the line goes to that command unchanged, so
+``lightcurve-gp train configs/boxwing.yaml`` is ``python -m lightcurve_gp.train configs/boxwing.yaml``. The command's
+module (and torch with it: seconds) is imported only once the command is known, inside the interrupt handler, so a
+Ctrl-C while it loads is the one line and exit code 130 of every interrupt, not a traceback.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+__all__ = ["COMMANDS", "main", "run", "usage"]
+
+#: command name -> (the module whose ``main(argv) -> exit code`` runs it, one line of help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "train": ("lightcurve_gp.commands.train", "generate the training set, fit the GP observation model, evaluate it"),
+    "estimate": ("lightcurve_gp.commands.estimate", "run the estimators on simulated seeds or on a light-curve file"),
+    "simulate": ("lightcurve_gp.commands.simulate", "write a synthetic light curve in the light-curve file format"),
+    "sweep": ("lightcurve_gp.sweep.cli", "run the estimators over a grid of config values, resumable"),
+}
+
+
+def usage() -> str:
+    """The one-screen help: the commands and how to get each one's options."""
+    width = max(map(len, COMMANDS))
+    lines = ["usage: lightcurve-gp COMMAND [options]", "", "commands:"]
+    lines += [f"  {name:<{width}}  {text}" for name, (_, text) in COMMANDS.items()]
+    lines += ["", "lightcurve-gp COMMAND --help lists the options of COMMAND."]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Dispatch ``argv`` (default ``sys.argv[1:]``) to the named command; exit code 2 for an unknown one."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if not argv or argv[0] in ("-h", "--help"):
+        print(usage())
+        return 0 if argv else 2
+    name, rest = argv[0], argv[1:]
+    if name not in COMMANDS:
+        print(f"error: {name!r} is not a command; choose from {', '.join(COMMANDS)}", file=sys.stderr)
+        return 2
+    return importlib.import_module(COMMANDS[name][0]).main(rest)
+
+
+def run() -> None:
+    """The ``lightcurve-gp`` console script: :func:`main`, then the process ends the way every command ends."""
+    try:
+        code = main()
+    except KeyboardInterrupt:  # only while a command's module loads: a running command handles its own
+        print("interrupted; nothing written", file=sys.stderr)
+        sys.exit(130)
+    importlib.import_module("lightcurve_gp.commands.common").exit_process(code)
+
+
+if __name__ == "__main__":
+    run()

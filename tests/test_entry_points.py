@@ -1,0 +1,43 @@
+"""The one entry point ``lightcurve-gp COMMAND …`` (``python -m lightcurve_gp``) and the per-command modules."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from lightcurve_gp.__main__ import COMMANDS, main, usage
+
+
+def test_usage_lists_every_command(capsys):
+    assert main([]) == 2
+    out = capsys.readouterr().out
+    assert out.strip() == usage()
+    for name in ("train", "estimate", "simulate", "sweep"):
+        assert f"  {name} " in out
+
+
+def test_help_exits_zero(capsys):
+    assert main(["--help"]) == 0
+    assert "lightcurve-gp COMMAND --help" in capsys.readouterr().out
+
+
+def test_unknown_command_is_one_line(capsys):
+    assert main(["trian"]) == 2
+    assert capsys.readouterr().err == (f"error: 'trian' is not a command; choose from {', '.join(COMMANDS)}\n")
+
+
+@pytest.mark.parametrize("name", ["train", "estimate", "simulate", "sweep"])
+def test_command_help_is_the_command_s_own(name, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main([name, "--help"])
+    assert stop.value.code == 0
+    assert f"python -m lightcurve_gp.{name}" in capsys.readouterr().out
+
+
+def test_python_dash_m_package_dispatches():
+    done = subprocess.run([sys.executable, "-m", "lightcurve_gp", "simulate", "--help"], capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0
+    assert "python -m lightcurve_gp.simulate" in done.stdout
