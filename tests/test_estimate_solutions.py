@@ -10,6 +10,7 @@ import torch
 from astropy.table import Table
 
 from lightcurve_gp.commands import estimate
+from lightcurve_gp.commands.layout import light_curve_folder
 from lightcurve_gp.inference.families import Families
 from lightcurve_gp.observed.solutions import solutions_table, write_solutions
 
@@ -47,7 +48,7 @@ def test_estimate_starts_from_the_best_family(tmp_path, model):
     out = tmp_path / "out"
     assert estimate.main([ROBUST, "--model", str(model), "--light-curve", str(obs), "--solutions", str(sol),
                           "--out", str(out), "--no-progress", *SETS]) == 0
-    summary = json.loads((out / "tiny_inv" / "light_curve_obs" / "summary.json").read_text())
+    summary = json.loads((light_curve_folder(out, "tiny_inv", obs) / "summary.json").read_text())
     assert summary["initial_attitude"] == pytest.approx(q0, abs=1e-12)
     assert summary["run"]["solutions"] == str(sol)
     assert summary["run"]["config"]["scenario"]["omega0_deg_s"] == pytest.approx(w_deg, rel=1e-12)

@@ -150,7 +150,7 @@ def _stage(problem: TrajectoryProblem, x: Tensor, *, prior_sd: float | None, ite
     if prior_sd is not None:
         precision = torch.zeros(7, dtype=x.dtype, device=x.device)
         precision[3:6] = prior_sd ** -2
-        prior = GaussianPrior.diagonal(x.clone(), precision)
+        prior = GaussianPrior.independent(x.clone(), precision)
     tolerance = torch.tensor([1e-7] * 3 + [1e-10] * 3 + [1e-6], dtype=x.dtype, device=x.device)
     options = LeastSquaresOptions(method="levenberg_marquardt", iterations=iterations, jacobian="provided",
                                   tolerance=tolerance, covariance=covariance)
