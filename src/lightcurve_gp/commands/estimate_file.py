@@ -16,11 +16,15 @@ propagation, is refused before the filter runs (:func:`lightcurve_gp.observed.ru
 
 A file with per-sample geometry or a TLE and site runs along its pass
 (:func:`lightcurve_gp.observed.run.file_geometry`) with a model that takes geometry.
+``--solutions solutions.ecsv`` (from ``python -m lightcurve_gp.invert``) starts the filter from the best family of the
+inversion instead: its attitude at the first sample and its body rate (which replaces ``scenario.omega0_deg_s``).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import math
 from pathlib import Path
 
 import torch
@@ -48,6 +52,7 @@ from lightcurve_gp.observed.run import (
     history_table,
     nis_summary,
 )
+from lightcurve_gp.observed.solutions import SolutionsFileError, best_solution, read_solutions
 from lightcurve_gp.observed.verdict import BankVerdict, ambiguity_images, bank_verdict
 
 __all__ = ["BANK_DEFAULTS", "add_file_arguments", "check_options", "parse_quaternion", "run_on_file", "summary"]
@@ -69,6 +74,9 @@ def add_file_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--initial-attitude", default=None, metavar="Q1,Q2,Q3,Q4",
                         help="with --light-curve: start from this quaternion (scalar last) instead of the bank; write "
                              "--initial-attitude=Q1,... when Q1 is negative")
+    parser.add_argument("--solutions", type=Path, default=None,
+                        help="with --light-curve: start from the best family of this invert solutions file (its "
+                             "attitude and body rate) instead of the bank")
     parser.add_argument("--bank-size", type=int, default=None,
                         help="with --light-curve and no --initial-attitude: filters in the global-start bank "
                              "(default 1024)")
@@ -154,9 +162,23 @@ def _check_arguments(args: argparse.Namespace) -> torch.Tensor | None:
     return None if args.initial_attitude is None else parse_quaternion(args.initial_attitude)
 
 
+def _from_solutions(args: argparse.Namespace, cfg):
+    """The config with the best family's body rate and that family's attitude ``(4,)`` (module docstring)."""
+    if args.initial_attitude is not None:
+        raise UserError("--solutions: give --initial-attitude or --solutions, not both")
+    try:
+        q, w, _ = best_solution(read_solutions(args.solutions))
+    except SolutionsFileError as exc:
+        raise UserError(str(exc)) from None
+    rate = [math.degrees(float(v)) for v in w]
+    return dataclasses.replace(cfg, scenario=dataclasses.replace(cfg.scenario, omega0_deg_s=rate)), q
+
+
 def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
     """The command's body for ``--light-curve`` (module docstring); everything is checked before the filter runs."""
     q0 = _check_arguments(args)
+    if getattr(args, "solutions", None) is not None:
+        cfg, q0 = _from_solutions(args, cfg)
     lc = read_light_curve(args.light_curve)
     check_light_curve(cfg, lc)
     try:
@@ -168,11 +190,15 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
     folder = light_curve_folder(args.out, cfg.name, args.light_curve)
     check_new_folder(folder, args.force)
     record = provenance(cfg, config_file=str(args.config), light_curve=str(args.light_curve),
-                        initial_attitude=args.initial_attitude, bank_size=None if q0 is not None else args.bank_size,
+                        initial_attitude=args.initial_attitude,
+                        solutions=None if getattr(args, "solutions", None) is None else str(args.solutions),
+                        bank_size=None if q0 is not None else args.bank_size,
                         bank_prune_after_s=None if q0 is not None else args.bank_prune_after_s,
                         bank_prune_keep=None if q0 is not None or args.bank_prune_after_s is None
                         else args.bank_prune_keep, **model_info)
     status = "filter" if q0 is not None else f"bank of {args.bank_size} filters"
+    if getattr(args, "solutions", None) is not None:
+        status = "filter from the inversion's best family"
     run = run_interruptible(lambda: estimate_light_curve(cfg, model, lc, initial_attitude=q0,
                                                          bank_size=args.bank_size, keep=args.bank_keep,
                                                          prune_after_s=args.bank_prune_after_s,

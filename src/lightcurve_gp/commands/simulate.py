@@ -13,6 +13,10 @@ columns (``sun_*``, ``obs_*``: unit vectors object → Sun and object → observ
 observable samples only (below the minimum elevation, in the Earth's shadow or with zero flux there is no
 magnitude); the sidecar holds the same samples.
 
+``--random-attitude`` and ``--random-rate MIN,MAX`` replace the config's ``scenario.q0`` and ``scenario.omega0_deg_s``
+by a draw of ``--truth-seed`` (default ``--seed``): an attitude uniform on SO(3), a rate of log-uniform magnitude in
+``[MIN, MAX]`` deg/s about a uniform axis (:func:`random_truth`); the sidecar's config records the drawn values.
+
 Both files appear together or not at all (temporary files renamed at the end); an existing file is refused unless
 ``--force``. Errors are one line and exit code 2, as in every command.
 """
@@ -26,9 +30,11 @@ from contextlib import ExitStack
 from pathlib import Path
 
 import numpy as np
+import torch
 from astropy.table import Table
 from astropy.time import Time, TimeDelta
 
+from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.commands.common import (
     UserError,
     add_common_arguments,
@@ -50,7 +56,37 @@ from lightcurve_gp.observed.lightcurve_file import (
 )
 from lightcurve_gp.simulation.scenario import Scenario, simulate_scenario
 
-__all__ = ["truth_path", "truth_table", "build_parser", "main"]
+__all__ = ["truth_path", "truth_table", "random_truth", "build_parser", "main"]
+
+#: offset of the truth draw's generator from ``--truth-seed`` (apart from the noise seeds)
+TRUTH_DRAW_STREAM = 1 << 41
+
+
+def random_truth(seed: int, *, attitude: bool, rate_range_deg_s: tuple[float, float] | None
+                 ) -> tuple[list[float] | None, list[float] | None]:
+    """An attitude ``q0`` uniform on SO(3) (when ``attitude``) and a body rate (deg/s) of log-uniform magnitude in
+    ``rate_range_deg_s`` about a uniform axis (when given), both from one generator seeded with ``seed``."""
+    gen = torch.Generator().manual_seed(TRUTH_DRAW_STREAM + int(seed))
+    u = torch.rand(2, generator=gen, dtype=torch.float64)
+    axis = torch.randn(3, generator=gen, dtype=torch.float64)
+    q0 = [float(v) for v in random_attitudes(1, seed=TRUTH_DRAW_STREAM + int(seed), dtype=torch.float64)[0]]
+    rate = None
+    if rate_range_deg_s is not None:
+        lo, hi = (math.log(v) for v in rate_range_deg_s)
+        rate = [float(v) for v in math.exp(lo + (hi - lo) * float(u[0])) * axis / axis.norm()]
+    return (q0 if attitude else None), rate
+
+
+def _rate_range(text: str | None) -> tuple[float, float] | None:
+    if text is None:
+        return None
+    try:
+        lo, hi = (float(v) for v in text.split(","))
+    except ValueError:
+        raise UserError(f"--random-rate: {text!r} is not two numbers MIN,MAX (deg/s)") from None
+    if not 0.0 < lo <= hi:
+        raise UserError(f"--random-rate: need 0 < MIN <= MAX (deg/s), got {lo:g} and {hi:g}")
+    return lo, hi
 
 
 def truth_path(out: Path) -> Path:
@@ -87,6 +123,11 @@ def build_parser() -> argparse.ArgumentParser:
                         help="how the time column is written (seconds: from --start, given as the epoch metadata)")
     parser.add_argument("--no-mag-err", action="store_true", help="leave the mag_err column out")
     parser.add_argument("--band", default=None, help="filter band to record in the metadata")
+    parser.add_argument("--random-attitude", action="store_true",
+                        help="draw the true initial attitude uniformly on SO(3) instead of scenario.q0")
+    parser.add_argument("--random-rate", default=None, metavar="MIN,MAX",
+                        help="draw the true body rate: log-uniform magnitude in [MIN, MAX] deg/s, uniform axis")
+    parser.add_argument("--truth-seed", type=int, default=None, help="seed of the random truth (default --seed)")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY.PATH=VALUE",
                         help="override a config value (repeatable)")
     add_common_arguments(parser, force_help="replace an existing light-curve file and its truth sidecar (both are "
@@ -133,7 +174,10 @@ def _run(args: argparse.Namespace) -> int:
         raise UserError(f"--seed: {args.seed} must be >= 0")
     if args.seed >= 2**64:
         raise UserError(f"--seed: {args.seed} must be < 2**64 (torch's seed range)")
-    cfg = load_config(args.config, args.overrides)
+    q0, rate = random_truth(args.seed if args.truth_seed is None else args.truth_seed,
+                            attitude=args.random_attitude, rate_range_deg_s=_rate_range(args.random_rate))
+    drawn = ([f"scenario.q0={q0}"] if q0 else []) + ([f"scenario.omega0_deg_s={rate}"] if rate else [])
+    cfg = load_config(args.config, args.overrides + drawn)
     if args.rho_true is not None and not 0.0 < args.rho_true <= 1.0:
         raise UserError(f"--rho-true: {args.rho_true:g} is outside (0, 1]")
     fmt = light_curve_format(args.out)

@@ -12,7 +12,9 @@ Methods (every one evaluates the function in a single call, so a batched model s
 * ``"central"`` — ``(r(x + h_i e_i) − r(x − h_i e_i)) / 2h_i``: ``2n + 1`` evaluations in one call, stacked as
   ``[x, x + h_1 e_1, …, x + h_n e_n, x − h_1 e_1, …, x − h_n e_n]`` (blocks of ``A`` rows);
 * ``"forward_difference"`` — ``(r(x + h_i e_i) − r(x)) / h_i``: ``n + 1`` evaluations, stacked as
-  ``[x, x + h_1 e_1, …, x + h_n e_n]``.
+  ``[x, x + h_1 e_1, …, x + h_n e_n]``;
+* ``"provided"`` — the residual function's own ``linearize(x, rows) → (r, J)`` (a model that knows its
+  derivatives in closed form, e.g. :class:`~lightcurve_gp.inference.trajectory.TrajectoryProblem`).
 
 The finite-difference steps ``h`` carry the units of the states (rad, rad/s, mag, …), one per coordinate or one
 for all.
@@ -29,8 +31,8 @@ __all__ = ["JACOBIAN_METHODS", "JacobianMethod", "ResidualFunction", "jacobian"]
 
 #: ``residual(x (A, n), rows (A,)) → (A, m)``: see the module docstring
 ResidualFunction = Callable[[Tensor, Tensor], Tensor]
-JacobianMethod = Literal["forward_mode", "central", "forward_difference"]
-JACOBIAN_METHODS = ("forward_mode", "central", "forward_difference")
+JacobianMethod = Literal["forward_mode", "central", "forward_difference", "provided"]
+JACOBIAN_METHODS = ("forward_mode", "central", "forward_difference", "provided")
 
 
 def jacobian(residual: ResidualFunction, x: Tensor, rows: Tensor, *, method: JacobianMethod = "forward_mode",
@@ -47,6 +49,10 @@ def jacobian(residual: ResidualFunction, x: Tensor, rows: Tensor, *, method: Jac
     """
     if method == "forward_mode":
         return _forward_mode(residual, x, rows)
+    if method == "provided":
+        if not callable(getattr(residual, "linearize", None)):
+            raise ValueError("jacobian method 'provided': the residual function has no linearize(x, rows) method")
+        return residual.linearize(x, rows)
     if method not in JACOBIAN_METHODS:
         raise ValueError(f"jacobian method: {method!r} is not one of {', '.join(JACOBIAN_METHODS)}")
     A, n = x.shape

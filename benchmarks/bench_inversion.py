@@ -1,0 +1,69 @@
+"""Time of the global inversion per light curve: 600 samples at 1 Hz, the box-wing under the paper's fixed geometry,
+``--starts`` starts, with 1 and 2 torch threads (median of ``--repeats``; wall and process CPU time, the load average
+beside them: on a shared machine the wall time is the CPU time stretched by the other processes).
+
+    python benchmarks/bench_inversion.py --starts 10000 --repeats 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+from pathlib import Path
+
+import torch
+
+from lightcurve_gp.attitude.dynamics import propagate
+from lightcurve_gp.attitude.rotations import quat_normalize
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.inference.forward import GroupRenderer
+from lightcurve_gp.inference.inversion import InversionSettings, invert
+from lightcurve_gp.inference.trajectory import TrajectoryProblem
+from lightcurve_gp.photometry.ambiguity import ambiguity_group
+from lightcurve_gp.photometry.render import Scene
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def problem(sigma: float = 0.05):
+    cfg = load_config(ROOT / "configs" / "boxwing.yaml")
+    scene = Scene.from_config(cfg)
+    inertia = torch.tensor(cfg.shape.inertia_kg_m2, dtype=torch.float64)
+    q0 = quat_normalize(torch.tensor([0.3, -0.2, 0.5, 0.78], dtype=torch.float64))
+    w0 = torch.deg2rad(torch.tensor([0.9, -0.7, 1.1], dtype=torch.float64))
+    q, _ = propagate(q0, w0, inertia, 1.0, 600)
+    gen = torch.Generator().manual_seed(0)
+    y = scene.magnitude(q, rho=0.5) + sigma * torch.randn(601, generator=gen, dtype=torch.float64)
+    prob = TrajectoryProblem(GroupRenderer(scene), torch.arange(601), y, torch.full_like(y, sigma), inertia, 1.0,
+                             q0[None])
+    group = ambiguity_group(scene, times_s=torch.arange(601.0), inertia=inertia, rate_known=False, probes=2)
+    return prob, group
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--starts", type=int, default=10_000)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    args = parser.parse_args()
+    prob, group = problem()
+    print(f"| threads | starts | wall s (median of {args.repeats}) | CPU s | load average | cores |")
+    print("|---|---|---|---|---|---|")
+    for threads in args.threads:
+        torch.set_num_threads(threads)
+        walls, cpus = [], []
+        for _ in range(args.repeats):
+            wall, cpu = time.perf_counter(), time.process_time()
+            invert(prob, group, settings=InversionSettings(starts=args.starts))
+            walls.append(time.perf_counter() - wall)
+            cpus.append(time.process_time() - cpu)
+        print(f"| {threads} | {args.starts} | {statistics.median(walls):.1f} | {statistics.median(cpus):.1f} | "
+              f"{os.getloadavg()[0]:.1f} | {os.cpu_count()} |")
+    print("reference: 10^4 starts in 48 min = 2880 s on a laptop CPU (Robinson & Frueh 2025)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,142 @@
+"""Families of inversion solutions: clustered modulo the exact ambiguity group, cut by likelihood ratio, weighted by
+their Laplace evidence.
+
+Two solutions ``(q_a, ω_a)`` and ``(q_b, ω_b)`` (initial attitude and body rate) are one when an image
+``(q_R ⊗ q_b ⊗ q_C, R ω_b)`` of :class:`~lightcurve_gp.photometry.ambiguity.AmbiguityGroup` lies within
+``angle_deg`` of ``q_a`` and ``rate_deg_s`` of ``ω_a``; families are formed greedily, best cost first, and a
+family is its best member. :func:`image_distance` scores an estimate against a truth the same way (the image that
+minimises ``angle / angle_deg + |Δω| / rate_deg_s``).
+
+Weights. With the cost ``c = ½ Σ r²`` (whitened residuals) the log-likelihood is ``ℓ = −c − Σ ln(√(2π) σ_k)``; a
+family's Laplace evidence under a uniform prior of volume ``V`` over the state ``[θ, ω, ln ρ]`` (SO(3) with its Haar
+volume 8π², the rate ball of radius ``ω_max``, ``ln ρ`` over ``[ln 10⁻³, 0]``) is
+
+    Z_f = exp(ℓ_f) · det(2π Σ_f)^{1/2} / V          (Σ_f the Laplace covariance at its best member)
+
+and counts once for all ``|G|`` exact images (they share ``ℓ`` and ``det Σ``, so the factor cancels). The weights
+``w_f = Z_f / Σ_g Z_g`` run over the families kept by the likelihood-ratio cut ``ℓ_best − ℓ_f ≤ max_log_ratio``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from lightcurve_gp.attitude.metrics import total_angle_deg
+from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
+
+__all__ = ["Families", "image_distance", "cluster", "log_prior_volume", "families"]
+
+#: ln ρ prior range of the evidence (ρ from 1e-3 to 1)
+LOG_RHO_RANGE = math.log(1e3)
+
+
+def image_distance(group: AmbiguityGroup, q_a: Tensor, omega_a: Tensor, q_b: Tensor, omega_b: Tensor, *,
+                   angle_deg: float = 5.0, rate_deg_s: float = 0.05) -> tuple[Tensor, Tensor, Tensor]:
+    """Attitude angle (deg), rate difference (deg/s) and image index of the image of ``b`` nearest ``a``, for
+    broadcasting ``q (..., 4)`` and ``ω (..., 3)`` (rad/s); shapes ``broadcast(...)``."""
+    batch = torch.broadcast_shapes(q_a.shape[:-1], q_b.shape[:-1], omega_a.shape[:-1], omega_b.shape[:-1])
+    q_a, omega_a = q_a.expand(*batch, 4), omega_a.expand(*batch, 3)
+    q_img, w_img = group.attitudes(q_b.expand(*batch, 4)), group.rates(omega_b.expand(*batch, 3))  # (K, ...)
+    angle = total_angle_deg(q_a.unsqueeze(0), q_img)
+    rate = torch.rad2deg(torch.linalg.vector_norm(omega_a.unsqueeze(0) - w_img, dim=-1))
+    best = (angle / angle_deg + rate / rate_deg_s).argmin(0)
+    pick = lambda t: t.gather(0, best.unsqueeze(0)).squeeze(0)  # noqa: E731
+    return pick(angle), pick(rate), best
+
+
+def _neighbours(group: AmbiguityGroup, q0: Tensor, omega0: Tensor, angle_deg: float, rate_deg_s: float,
+                chunk: int = 256) -> Tensor:
+    """``(M, M)`` bool: some image of ``j`` lies within ``angle_deg`` and ``rate_deg_s`` of ``i``; the attitude angle
+    from quaternion dot products (``cos(angle/2) = |⟨q_i, q_img⟩|``), the rate difference from distances."""
+    q_img, w_img = group.attitudes(q0), group.rates(omega0)  # (K, M, 4), (K, M, 3)
+    cos_half = math.cos(math.radians(angle_deg) / 2.0)
+    rate_rad = math.radians(rate_deg_s)
+    rows = []
+    for part in torch.arange(q0.shape[0], device=q0.device).split(chunk):
+        dots = torch.einsum("ia,kja->kij", q0[part], q_img).abs()  # (K, c, M)
+        dist = torch.cdist(omega0[part].unsqueeze(0).expand(len(group), -1, -1), w_img)  # (K, c, M)
+        rows.append(((dots >= cos_half) & (dist <= rate_rad)).any(0))
+    return torch.cat(rows)
+
+
+def cluster(group: AmbiguityGroup, q0: Tensor, omega0: Tensor, cost: Tensor, *, angle_deg: float = 5.0,
+            rate_deg_s: float = 0.05) -> tuple[Tensor, Tensor]:
+    """Greedy clustering of solutions ``q0 (M, 4)``, ``omega0 (M, 3)`` (rad/s) by ``cost (M,)`` modulo ``group``:
+    the best free solution heads a family that takes every free solution with an image within ``angle_deg`` and
+    ``rate_deg_s`` of it.
+
+    Returns:
+        ``labels (M,)`` (the family of each solution, 0 the best) and ``heads (F,)`` (each family's best member).
+    """
+    near = _neighbours(group, q0, omega0, angle_deg, rate_deg_s)
+    order = torch.argsort(cost).tolist()
+    labels = torch.full((q0.shape[0],), -1, dtype=torch.long, device=q0.device)
+    heads = []
+    for i in order:
+        if labels[i] >= 0:
+            continue
+        labels[near[i] & (labels < 0)] = len(heads)
+        labels[i] = len(heads)
+        heads.append(i)
+    return labels, torch.tensor(heads, dtype=torch.long, device=q0.device)
+
+
+def log_prior_volume(rate_max_rad_s: float) -> float:
+    """``ln V`` of the uniform prior over ``[θ, ω, ln ρ]`` (module docstring)."""
+    return math.log(8.0 * math.pi ** 2) + math.log(4.0 / 3.0 * math.pi * rate_max_rad_s ** 3) + math.log(LOG_RHO_RANGE)
+
+
+@dataclass(frozen=True)
+class Families:
+    """The families within the likelihood-ratio cut, best weight first.
+
+    Attributes:
+        q0: initial attitudes ``(F, 4)``; omega0: initial body rates ``(F, 3)`` (rad/s); log_rho: ``ln ρ̂ (F,)``.
+        log_likelihood: ``ℓ (F,)`` (nats); log_evidence: ``ln Z (F,)``; weight: ``(F,)`` summing to 1.
+        covariance: Laplace covariances of ``[θ, ω, ln ρ]`` ``(F, 7, 7)`` (rad², (rad/s)², …).
+        members: solutions in each family ``(F,)``.
+        images: the labels of the group the families were taken modulo.
+    """
+
+    q0: Tensor
+    omega0: Tensor
+    log_rho: Tensor
+    log_likelihood: Tensor
+    log_evidence: Tensor
+    weight: Tensor
+    covariance: Tensor
+    members: Tensor
+    images: tuple[str, ...]
+
+    def __len__(self) -> int:
+        return self.q0.shape[0]
+
+
+def families(group: AmbiguityGroup, *, q0: Tensor, omega0: Tensor, log_rho: Tensor, cost: Tensor,
+             covariance: Tensor, sigma: Tensor, rate_max_rad_s: float, max_log_ratio: float = 10.0,
+             angle_deg: float = 5.0, rate_deg_s: float = 0.05) -> Families:
+    """Cluster converged solutions (``M`` rows: ``q0 (M, 4)``, ``omega0 (M, 3)``, ``log_rho (M,)``, ``cost (M,)`` =
+    ``½ Σ r²``, ``covariance (M, 7, 7)``), keep the families within ``max_log_ratio`` nats of the best and weight
+    them by evidence (module docstring). ``sigma (K,)`` the light curve's 1σ (mag) for the likelihood's constant."""
+    labels, heads = cluster(group, q0, omega0, cost, angle_deg=angle_deg, rate_deg_s=rate_deg_s)
+    constant = float(torch.log(math.sqrt(2.0 * math.pi) * sigma).sum())
+    ll = -cost[heads] - constant
+    keep = (ll.max() - ll) <= max_log_ratio
+    heads, ll = heads[keep], ll[keep]
+    cov = covariance[heads]
+    logdet = torch.linalg.slogdet(2.0 * math.pi * cov)
+    half_logdet = torch.where(logdet.sign > 0, 0.5 * logdet.logabsdet, torch.full_like(ll, -math.inf))
+    log_z = ll + half_logdet - log_prior_volume(rate_max_rad_s)
+    finite = torch.isfinite(log_z)
+    weight = torch.where(finite, torch.softmax(torch.where(finite, log_z, -math.inf), 0), 0.0) if bool(finite.any()) \
+        else torch.full_like(ll, 1.0 / ll.numel())
+    order = torch.argsort(weight, descending=True, stable=True)
+    members = torch.bincount(labels, minlength=int(labels.max()) + 1)[torch.nonzero(keep).squeeze(-1)]
+    pick = lambda t: t[heads][order]  # noqa: E731
+    return Families(q0=pick(q0), omega0=pick(omega0), log_rho=pick(log_rho), log_likelihood=ll[order],
+                    log_evidence=log_z[order], weight=weight[order], covariance=cov[order], members=members[order],
+                    images=tuple(group.labels))

@@ -1,0 +1,217 @@
+"""Global inversion of a light curve: the initial attitude, body rate and ρ with no initial guess.
+
+Robinson & Frueh's recipe (dominant frequency first, then many independent local optimisations, every solution
+within a likelihood ratio of the best kept) in batched tensors, on one :class:`.trajectory.TrajectoryProblem`:
+
+1. **Rates.** The periodogram (:mod:`.periodogram`) proposes rate magnitudes; with a log-spaced grid over the rate
+   range (below one turn over the arc the periodogram has no resolution) they make the shells of the rate starts,
+   each shell with directions spread over the sphere (a Fibonacci lattice), more at larger rates
+   (:func:`rate_starts`).
+2. **Screening.** Every rate of the grid with every attitude of a scrambled Sobol' set over SO(3): ``R``
+   propagations and ``R·A`` light curves over the first arc, ρ profiled; the ``starts`` best grid points start.
+3. **Continuation.** Levenberg–Marquardt (:func:`.solver.batch_least_squares`, the problem's closed-form
+   Jacobian) on arcs of growing length (``arcs_s``), each stage on the best ``keep`` rows of the previous one (one
+   row per solution modulo the exact group), with a Gaussian prior of standard deviation ``turn_rad / arc`` on the
+   change of the rate (a short arc cannot tell the rate better; without it the rate wanders along the short arc's
+   flat directions) except on the whole light curve.
+4. The survivors, polished on the whole light curve, with their Laplace covariance, go to :mod:`.families`.
+
+Everything is one set of tensors on the problem's device and dtype; ``progress`` (a callable of a message) reports
+each stage.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import torch
+from torch import Tensor
+
+from lightcurve_gp.attitude.sampling import sobol_attitudes
+from lightcurve_gp.inference.families import cluster
+from lightcurve_gp.inference.periodogram import Periodogram, periodogram, resolution_rate_deg_s
+from lightcurve_gp.inference.solver import GaussianPrior, LeastSquaresOptions, batch_least_squares
+from lightcurve_gp.inference.trajectory import TrajectoryProblem
+from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
+
+__all__ = ["InversionSettings", "Inversion", "rate_starts", "screen", "invert"]
+
+
+@dataclass(frozen=True)
+class InversionSettings:
+    """How :func:`invert` searches (module docstring).
+
+    Attributes:
+        starts: grid points that start the first Levenberg–Marquardt stage.
+        screen_factor: grid points screened per start (the screening grid has ``starts · screen_factor`` points).
+        attitudes: Sobol' attitudes of the screening grid (its rates: ``starts · screen_factor / attitudes``).
+        rate_range_deg_s: the rates searched (°/s).
+        shell_ratio: ratio of neighbouring rate shells of the log grid.
+        arcs_s: arc length of each stage (s); 0 means the whole light curve.
+        keep: rows entering each stage after the first (one per stage after the first).
+        iterations: Levenberg–Marquardt iterations per stage; final_iterations: on the whole light curve (few rows).
+        turn_rad: the rate prior of a stage on an arc of ``L`` s has the standard deviation ``turn_rad / L``.
+        cluster_angle_deg, cluster_rate_deg_s: solutions this close modulo the group are one.
+        seed: of the Sobol' attitudes.
+        nterms: Fourier terms of the periodogram.
+    """
+
+    starts: int = 10_000
+    screen_factor: int = 4
+    attitudes: int = 256
+    rate_range_deg_s: tuple[float, float] = (0.05, 5.0)
+    shell_ratio: float = 1.5
+    arcs_s: tuple[float, ...] = (30.0, 60.0, 120.0, 240.0, 0.0)
+    keep: tuple[int, ...] = (1000, 300, 100, 50)
+    iterations: int = 5
+    final_iterations: int = 8
+    turn_rad: float = 0.35
+    cluster_angle_deg: float = 5.0
+    cluster_rate_deg_s: float = 0.05
+    seed: int = 0
+    nterms: int = 2
+
+    def __post_init__(self) -> None:
+        if self.starts < 1:
+            raise ValueError(f"--starts: {self.starts} must be >= 1")
+        lo, hi = self.rate_range_deg_s
+        if not 0.0 < lo < hi:
+            raise ValueError(f"rate range: need 0 < min < max (deg/s), got {lo:g} to {hi:g}")
+        if len(self.keep) != len(self.arcs_s) - 1 or not self.arcs_s:
+            raise ValueError(f"keep: {len(self.keep)} values for {len(self.arcs_s)} stages; need one per stage after "
+                             "the first")
+
+
+@dataclass
+class Inversion:
+    """Converged solutions on the whole light curve (``M`` rows) and how the search went.
+
+    Attributes:
+        q0: initial attitudes ``(M, 4)``; omega0: initial body rates ``(M, 3)`` (rad/s); log_rho: ``ln ρ̂ (M,)``.
+        cost: ``½ Σ r²`` on the whole light curve ``(M,)``; covariance: Laplace covariance ``(M, 7, 7)``.
+        periodogram: the periodogram and its rate candidates.
+        rate_grid: the screened rates ``(R, 3)`` (rad/s).
+        seconds: wall time per phase.
+    """
+
+    q0: Tensor
+    omega0: Tensor
+    log_rho: Tensor
+    cost: Tensor
+    covariance: Tensor
+    periodogram: Periodogram
+    rate_grid: Tensor
+    seconds: dict = field(default_factory=dict)
+
+
+def _fibonacci_sphere(n: int, *, dtype: torch.dtype, device) -> Tensor:
+    """``n`` near-uniform unit vectors ``(n, 3)`` (the golden-angle spiral)."""
+    k = torch.arange(n, dtype=dtype, device=device) + 0.5
+    z = 1.0 - 2.0 * k / n
+    phi = math.pi * (3.0 - math.sqrt(5.0)) * k
+    r = torch.sqrt((1.0 - z * z).clamp_min(0.0))
+    return torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], -1)
+
+
+def rate_starts(candidates_deg_s, *, count: int, rate_range_deg_s: tuple[float, float], span_s: float,
+                shell_ratio: float = 1.5, dtype: torch.dtype = torch.float64, device=None) -> Tensor:
+    """About ``count`` start rates ``(R, 3)`` (rad/s): shells at the periodogram's candidates (those above its
+    resolution, :func:`~.periodogram.resolution_rate_deg_s`) and at a log grid of ratio ``shell_ratio`` over the
+    rate range, each with directions on the sphere in proportion to its magnitude squared (at least 6)."""
+    lo, hi = rate_range_deg_s
+    grid = [lo * shell_ratio ** k for k in range(int(math.log(hi / lo) / math.log(shell_ratio)) + 1)]
+    floor = resolution_rate_deg_s(span_s)
+    shells = sorted(set(grid) | {float(c) for c in candidates_deg_s if c >= floor})
+    share = torch.tensor(shells, dtype=torch.float64) ** 2
+    per = torch.clamp(torch.round(count * share / share.sum()), min=6).long().tolist()
+    out = [math.radians(s) * _fibonacci_sphere(n, dtype=dtype, device=device) for s, n in zip(shells, per)]
+    return torch.cat(out)
+
+
+def screen(problem: TrajectoryProblem, *, rates: Tensor, attitudes: Tensor, starts: int) -> tuple[Tensor, Tensor]:
+    """The ``starts`` best points of the grid ``rates (R, 3)`` × ``attitudes (A, 4)`` on ``problem``'s arc, ρ
+    profiled: their anchors ``(N, 4)`` and states ``x (N, 7)`` (``θ = 0``)."""
+    cost, beta = problem.grid_cost(rates, attitudes)  # (R, A)
+    best = torch.topk(cost.flatten(), min(starts, cost.numel()), largest=False).indices
+    r, a = best // attitudes.shape[0], best % attitudes.shape[0]
+    x = torch.cat([torch.zeros(best.numel(), 3, dtype=rates.dtype, device=rates.device), rates[r],
+                   beta.flatten()[best].unsqueeze(-1)], -1)
+    return attitudes[a], x
+
+
+def _stage(problem: TrajectoryProblem, x: Tensor, *, prior_sd: float | None, iterations: int,
+           covariance: str = "none"):
+    """One Levenberg–Marquardt stage on ``problem`` (anchors set) from ``x (N, 7)``; the rate's prior is centred on
+    the starting rates with standard deviation ``prior_sd`` (rad/s), none when ``None``."""
+    prior = None
+    if prior_sd is not None:
+        precision = torch.zeros(7, dtype=x.dtype, device=x.device)
+        precision[3:6] = prior_sd ** -2
+        prior = GaussianPrior.independent(x.clone(), precision)
+    tolerance = torch.tensor([1e-7] * 3 + [1e-10] * 3 + [1e-6], dtype=x.dtype, device=x.device)
+    options = LeastSquaresOptions(method="levenberg_marquardt", iterations=iterations, jacobian="provided",
+                                  tolerance=tolerance, covariance=covariance)
+    return batch_least_squares(problem, x, prior=prior, options=options)
+
+
+def _reanchor(problem: TrajectoryProblem, x: Tensor) -> tuple[Tensor, Tensor]:
+    """Anchors ``q_0`` of the states and the states with ``θ = 0``."""
+    anchors = problem.initial_attitudes(x, torch.arange(x.shape[0], device=x.device))
+    return anchors, torch.cat([torch.zeros_like(x[:, :3]), x[:, 3:]], -1)
+
+
+def _prune(group: AmbiguityGroup, anchors: Tensor, x: Tensor, cost: Tensor, keep: int,
+           settings: InversionSettings) -> tuple[Tensor, Tensor]:
+    """The best ``keep`` rows, one per solution modulo ``group`` (the best ``4 keep`` by cost clustered)."""
+    top = torch.topk(cost, min(4 * keep, cost.numel()), largest=False).indices
+    _, heads = cluster(group, anchors[top], x[top, 3:6], cost[top], angle_deg=settings.cluster_angle_deg,
+                       rate_deg_s=settings.cluster_rate_deg_s)
+    rows = top[heads[:keep]]
+    return anchors[rows], x[rows]
+
+
+def _arc_samples(problem: TrajectoryProblem, arc_s: float) -> int:
+    """Samples of ``problem`` within the first ``arc_s`` seconds (all of them for 0)."""
+    if arc_s <= 0:
+        return problem.samples
+    return max(8, int((problem.index.to(torch.float64) * problem.dt <= arc_s).sum()))
+
+
+def invert(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: InversionSettings = InversionSettings(),
+           rate_grid: Tensor | None = None, progress: Callable[[str], None] | None = None) -> Inversion:
+    """Search ``problem`` (its anchors are ignored) from no initial guess (module docstring); ``rate_grid (R, 3)``
+    (rad/s) replaces the rates of :func:`rate_starts` (e.g. a known spin)."""
+    say = progress or (lambda message: None)
+    seconds, tick = {}, time.perf_counter()
+    t_s = (problem.index.to(torch.float64) * problem.dt).cpu().numpy()
+    pg = periodogram(t_s, problem.y.cpu().numpy(), problem.sigma.cpu().numpy(),
+                     rate_range_deg_s=settings.rate_range_deg_s, nterms=settings.nterms)
+    n_rates = max(1, settings.starts * settings.screen_factor // settings.attitudes)
+    rates = rate_starts(pg.rates_deg_s, count=n_rates, rate_range_deg_s=settings.rate_range_deg_s,
+                        span_s=float(t_s[-1] - t_s[0]), shell_ratio=settings.shell_ratio, dtype=problem.y.dtype,
+                        device=problem.y.device) if rate_grid is None else rate_grid
+    attitudes = sobol_attitudes(settings.attitudes, settings.seed, dtype=problem.y.dtype, device=problem.y.device)
+    seconds["periodogram"], tick = time.perf_counter() - tick, time.perf_counter()
+    first = problem.arc(_arc_samples(problem, settings.arcs_s[0]))
+    say(f"screening {rates.shape[0]} rates x {attitudes.shape[0]} attitudes on {first.samples} samples")
+    anchors, x = screen(first, rates=rates, attitudes=attitudes, starts=settings.starts)
+    seconds["screening"], tick = time.perf_counter() - tick, time.perf_counter()
+    cost = torch.empty(0)
+    for stage, arc_s in enumerate(settings.arcs_s):
+        if stage:
+            anchors, x = _prune(group, anchors, x, cost, settings.keep[stage - 1], settings)
+        part = problem.arc(_arc_samples(problem, arc_s))
+        whole = part.samples == problem.samples
+        say(f"stage {stage + 1}/{len(settings.arcs_s)}: {x.shape[0]} rows on {part.samples} samples")
+        res = _stage(part.with_anchors(anchors), x, prior_sd=None if whole else settings.turn_rad / max(arc_s, 1e-9),
+                     iterations=settings.final_iterations if whole else settings.iterations)
+        anchors, x = _reanchor(part.with_anchors(anchors), res.x)
+        cost = res.cost
+        seconds[f"stage {stage + 1}"], tick = time.perf_counter() - tick, time.perf_counter()
+    final = _stage(problem.with_anchors(anchors), x, prior_sd=None, iterations=0, covariance="solution")
+    seconds["covariance"] = time.perf_counter() - tick
+    return Inversion(q0=anchors, omega0=x[:, 3:6], log_rho=x[:, 6], cost=final.cost, covariance=final.covariance,
+                     periodogram=pg, rate_grid=rates, seconds=seconds)

@@ -1,0 +1,103 @@
+"""Rotation-rate candidates from the periodogram of a light curve (irregular times and gaps allowed).
+
+A multi-term Lomb–Scargle periodogram (``astropy.timeseries.LombScargle`` with ``nterms`` harmonics, the per-sample
+``mag_err`` as weights) of the magnitudes over a frequency grid that covers the rate range; its strongest local
+maxima ``f_k`` (the light curve's fundamental) give candidate rates. A facet model often repeats its light curve
+twice per turn (the box-wing is symmetric under 180° turns), sometimes once, and a peak may sit on the first
+harmonic, so each peak proposes ``|ω| = 180 f_k``, ``360 f_k`` and ``720 f_k`` °/s (the issue's ½×, 1× and 2×).
+
+What it cannot do: a tumbling object's body rate is not constant (torque-free nutation) and its light curve is not
+periodic, so the candidates are magnitudes to seed a search, not estimates. Below one turn over the arc
+(``|ω| < 360° / span``) the periodogram has no resolution; :func:`resolution_rate_deg_s` says where that is.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from astropy.timeseries import LombScargle
+
+__all__ = ["Periodogram", "periodogram", "resolution_rate_deg_s"]
+
+#: the rate factors each peak proposes: ½× (two light-curve cycles per turn), 1× and 2× of 360 f
+RATE_FACTORS = (0.5, 1.0, 2.0)
+
+
+@dataclass(frozen=True)
+class Periodogram:
+    """A periodogram and the rate candidates it proposes.
+
+    Attributes:
+        frequency_hz: the frequency grid ``(F,)`` (Hz).
+        power: the Lomb–Scargle power there ``(F,)`` (standard normalisation, in [0, 1]).
+        peak_frequency_hz: the strongest local maxima ``(P,)``, strongest first.
+        peak_power: their power ``(P,)``.
+        rates_deg_s: the candidate rate magnitudes ``(K,)`` (°/s), inside the rate range, from the strongest peak
+            down (for each peak its ½×, 1×, 2×), duplicates within the grid's resolution removed.
+        nterms: harmonics of the model.
+    """
+
+    frequency_hz: np.ndarray
+    power: np.ndarray
+    peak_frequency_hz: np.ndarray
+    peak_power: np.ndarray
+    rates_deg_s: np.ndarray
+    nterms: int
+
+
+def resolution_rate_deg_s(span_s: float) -> float:
+    """The slowest rate whose light curve completes a turn over ``span_s`` seconds: ``360 / span_s`` (°/s)."""
+    return 360.0 / float(span_s)
+
+
+def _local_maxima(power: np.ndarray) -> np.ndarray:
+    """Indices of the interior local maxima of ``power``, strongest first."""
+    inner = np.flatnonzero((power[1:-1] > power[:-2]) & (power[1:-1] >= power[2:])) + 1
+    return inner[np.argsort(power[inner])[::-1]]
+
+
+def periodogram(t_s: np.ndarray, mag: np.ndarray, mag_err: np.ndarray | None = None, *,
+                rate_range_deg_s: tuple[float, float] = (0.05, 5.0), nterms: int = 2, peaks: int = 3,
+                samples_per_peak: int = 10) -> Periodogram:
+    """The periodogram of a light curve and its rate candidates (module docstring).
+
+    Args:
+        t_s: sample times ``(T,)`` (s), any order of spacing; NaN magnitudes are dropped with their times.
+        mag: magnitudes ``(T,)``; mag_err: their 1σ errors ``(T,)`` (mag) or ``None`` (equal weights).
+        rate_range_deg_s: the rates searched (°/s): the candidates are kept inside it. The grid itself does not
+            depend on it (from ``1 / span`` to the sampling's pseudo-Nyquist frequency ``1 / (2 median Δt)``), so
+            a range that misses the light curve's strongest peaks is an error, not a search of the noise.
+        nterms: Fourier terms of the Lomb–Scargle model (the box-wing's curve is far from a sinusoid).
+        peaks: how many of the strongest local maxima propose rates.
+        samples_per_peak: grid points per ``1 / span`` of frequency.
+
+    Raises:
+        ValueError: too few samples, a bad range, or no candidate inside the rate range (one line each).
+    """
+    t, y = np.asarray(t_s, dtype=np.float64), np.asarray(mag, dtype=np.float64)
+    dy = None if mag_err is None else np.asarray(mag_err, dtype=np.float64)
+    ok = np.isfinite(t) & np.isfinite(y) & (True if dy is None else np.isfinite(dy) & (dy > 0))
+    t, y, dy = t[ok], y[ok], None if dy is None else dy[ok]
+    lo, hi = (float(v) for v in rate_range_deg_s)
+    if not 0.0 < lo < hi:
+        raise ValueError(f"rate range: need 0 < min < max (deg/s), got {lo:g} to {hi:g}")
+    if t.size < 2 * nterms + 3:
+        raise ValueError(f"periodogram: {t.size} finite samples are too few for {nterms} Fourier terms")
+    span = float(t.max() - t.min())
+    df = 1.0 / (span * samples_per_peak)
+    f_hi = max(0.5 / float(np.median(np.diff(np.sort(t)))), hi / 90.0)  # the sampling's pseudo-Nyquist frequency
+    frequency = np.arange(df, f_hi + df, df)
+    power = LombScargle(t, y, dy, nterms=nterms).power(frequency)
+    top = _local_maxima(power)[:peaks]
+    rates = []
+    for f in frequency[top]:
+        for factor in RATE_FACTORS:
+            rate = 360.0 * f * factor
+            if lo <= rate <= hi and all(abs(rate - r) > 360.0 * df for r in rates):
+                rates.append(rate)
+    if not rates:
+        raise ValueError(f"rate range {lo:g}-{hi:g} deg/s excludes every periodogram candidate (peaks at "
+                         f"{', '.join(f'{360 * f:.3g}' for f in frequency[top])} deg/s x 0.5, 1, 2)")
+    return Periodogram(frequency_hz=frequency, power=power, peak_frequency_hz=frequency[top], peak_power=power[top],
+                       rates_deg_s=np.asarray(rates), nterms=int(nterms))
