@@ -38,7 +38,7 @@ def test_default_config_holds_the_papers_setup():
         ("name=.hidden", "name: '.hidden' is not a safe folder name"),
         ("surface.f0=-0.1", "surface.f0: -0.1 is outside [0, 1]"),
         ("shape.box_m=[1, -1, 1]", "shape.box_m[1]: -1 must be > 0"),
-        ("scenario.noise_var=-0.5", "scenario.noise_var: -0.5 must be >= 0"),
+        ("scenario.noise_var=-0.5", "scenario.noise_var: -0.5 must be > 0"),
         ("data.dt_s=0", "data.dt_s: 0 must be > 0"),
         ("scenario.dt_s=-1", "scenario.dt_s: -1 must be > 0"),
         ("model.kind=fancy", "model.kind: 'fancy' is not one of exact, sparse"),

@@ -50,6 +50,7 @@ from lightcurve_gp.evaluation.reporting import scenario_summary
 from lightcurve_gp.files import RunFolder, write_json_atomic
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario
+from lightcurve_gp.simulation.truths import truth_material
 from lightcurve_gp.training.store import check_model_matches, model_file_record, open_model, training_mismatch
 
 __all__ = ["format_table", "write_outputs", "run_bytes_per_seed", "main"]
@@ -235,7 +236,7 @@ def _run(args: argparse.Namespace) -> int:
     estimators = _estimators(args.estimators, args.model is not None)
     model, model_info = _load_checked_model(args, cfg)
     check_output_root(args.out)
-    rho = args.rho_true if args.rho_true is not None else cfg.scenario.rho_true
+    rho = truth_material(cfg, args.rho_true)[0]
     folder = estimate_folder(args.out, cfg.name, rho)
     check_new_folder(folder, args.force)
     n_seeds = args.seeds if args.seeds is not None else cfg.scenario.seeds

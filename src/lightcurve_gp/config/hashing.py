@@ -50,7 +50,9 @@ def _left_out(f: dataclasses.Field, values: dict, root: dict | None) -> bool:
 
 
 def _default(f: dataclasses.Field) -> Any:
-    return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+    """The field's default as ``asdict`` holds it (a section's default as its plain dict)."""
+    value = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+    return dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
 
 
 def _holds(conditions: dict[str, Any], values: dict, root: dict | None) -> bool | None:

@@ -36,6 +36,7 @@ __all__ = [
     "ModelConfig",
     "ExactModelConfig",
     "SparseModelConfig",
+    "TruthSurfaceConfig",
     "ScenarioConfig",
     "FilterConfig",
     "EvaluationConfig",
@@ -291,6 +292,23 @@ class ModelConfig:
 
 
 @dataclass(kw_only=True)
+class TruthSurfaceConfig:
+    """The surface the simulated object is made of (``scenario.surface``), apart from the ``surface`` section (the
+    surface the models assume and the GP is trained with): ``--set scenario.surface.f0=0.9`` simulates another
+    material and leaves every model key as it was. A key left null takes the model's value (``rho``:
+    ``scenario.rho_true``)."""
+
+    rho: float | None = _spec(None, lo=0.0, lo_open=True, hi=1.0, omit_default=True,
+                              doc="the truth's diffuse reflectance; null: scenario.rho_true")
+    f0: float | None = _spec(None, lo=0.0, hi=1.0, omit_default=True,
+                             doc="the truth's Fresnel reflectance at normal incidence; null: surface.f0")
+    n_u: float | None = _spec(None, lo=0.0, lo_open=True, omit_default=True,
+                              doc="the truth's specular lobe exponent along u; null: surface.n_u")
+    n_v: float | None = _spec(None, lo=0.0, lo_open=True, omit_default=True,
+                              doc="the truth's specular lobe exponent along v; null: surface.n_v")
+
+
+@dataclass(kw_only=True)
 class ScenarioConfig:
     """Truth trajectory and its noisy light curve (paper section 4)."""
 
@@ -298,14 +316,16 @@ class ScenarioConfig:
     omega0_deg_s: list[float] = _spec(length=3)
     dt_s: float = _spec(lo=0.0, lo_open=True)
     duration_s: float = _spec(lo=0.0, lo_open=True)
-    rho_true: float = _spec(lo=0.0, lo_open=True, hi=1.0, doc="a reflectance of 0 renders no diffuse light")
-    noise_var: float = _spec(lo=0.0, doc="variance of the magnitude noise (mag^2)")
+    rho_true: float = _spec(lo=0.0, lo_open=True, hi=1.0, doc="the truth's diffuse reflectance (unless "
+                                                                 "scenario.surface.rho); 0 renders no diffuse light")
+    noise_var: float = _spec(lo=0.0, lo_open=True, doc="variance of the magnitude noise (mag^2), > 0")
     initial_error_deg: list[float] = _spec(length=3)
     initial_omega_error_deg_s: list[float] = _spec([0.0, 0.0, 0.0], length=3, omit_default=True,
                                                    doc="body-rate error of the filters' initial rate (deg/s): "
                                                        "omega_est,0 = omega0 + this; the omega-known filters "
                                                        "propagate with it")
     seeds: int = _spec(lo=1)
+    surface: TruthSurfaceConfig = field(default_factory=TruthSurfaceConfig, metadata=_hash_rule(omit_default=True))
 
 
 @dataclass(kw_only=True)
@@ -322,7 +342,7 @@ class FilterConfig:
     grp_a: float = _spec(lo=0.0, hi=1.0)
     grp_f: float = _spec(lo=0.0, lo_open=True)
     process_noise: float = _spec(lo=0.0)
-    measurement_noise: float = _spec(lo=0.0)
+    measurement_noise: float = _spec(lo=0.0, lo_open=True, doc="R: the noise variance the filters assume (mag^2), > 0")
     surface_measurement_noise: float | None = _spec(
         None, lo=0.0, lo_open=True, omit_default=True,
         doc="R of the surface-state filters surface_ukf and surface_ukf_select (mag^2); null: measurement_noise")

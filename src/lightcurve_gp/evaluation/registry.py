@@ -10,7 +10,8 @@ assumes. Along a pass every model predicts step ``k`` with the geometry of sampl
   reference light curve and the offset ``b`` is in the state (surface unknown, shape known; the generalisation
   suite's tables call it ``robust_gpukf``);
 * ``ukf`` — the conventional UKF: the renderer with the assumed ``filter.rho_assumed``;
-* ``matched_ukf`` — an oracle: the renderer with the true surface (the config's at ``rho_true``, or each seed's);
+* ``matched_ukf`` — an oracle: the renderer with the true surface (the config's truth, ``scenario.surface``, or each
+  seed's);
 * ``joint_ukf`` — the renderer at the reference surface (``model.rho_reference`` and the config's F0, n_u, n_v) with
   the offset in the state: a conventional UKF that estimates ρ but not F0, n_u, n_v;
 * ``surface_ukf`` — the renderer with the surface as states (log ρ, logit F0, log n_u, log n_v,
@@ -45,6 +46,7 @@ from lightcurve_gp.observation.parametric import Parametric
 from lightcurve_gp.observation.surface_state import reference_surface
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import Scenario
+from lightcurve_gp.simulation.truths import truth_is_model_surface
 
 __all__ = ["RunContext", "Estimator", "ESTIMATORS", "DEFAULT_ESTIMATORS", "SELECTED_LAM_RULES",
            "run_surface_filter_selected", "map_checkpoints", "map_estimate"]
@@ -105,7 +107,7 @@ def _ukf(ctx: RunContext) -> Estimate:
 
 def _matched_ukf(ctx: RunContext) -> Estimate:
     sc = ctx.scenario
-    model = Parametric(ctx.scene, sc.rho_true) if sc.rho_true is not None \
+    model = Parametric(ctx.scene, sc.rho_true) if sc.rho_true is not None and truth_is_model_surface(ctx.cfg) \
         else Parametric(ctx.scene, surface=sc.surface.to(device=sc.q_est0.device, dtype=sc.q_est0.dtype))
     return _usque(ctx, model, offset=False)
 

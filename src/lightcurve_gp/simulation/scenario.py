@@ -4,7 +4,8 @@ A :class:`Scenario` holds ``S`` truths, each field with the seed dimension first
 builders fill it:
 
 * :func:`simulate_scenario` — the config's truth (the paper's case): every seed starts at ``scenario.q0`` with rate
-  ``scenario.omega0_deg_s`` and the config's surface at ``scenario.rho_true``, the seeds differing by noise alone;
+  ``scenario.omega0_deg_s`` and the truth's material (``scenario.surface``, by default the model's ``surface``
+  section at ``scenario.rho_true``), the seeds differing by noise alone;
 * :func:`simulate_truths` — one random truth per seed (:func:`lightcurve_gp.simulation.truths.draw_truths`: attitude,
   spin, surface, initial error and ``σ0``), under the config's fixed geometry.
 
@@ -36,7 +37,7 @@ from lightcurve_gp.config.load import Config
 from lightcurve_gp.passes.geometry import PassGeometry, pass_geometry
 from lightcurve_gp.photometry.brdf import Surface
 from lightcurve_gp.photometry.render import Scene
-from lightcurve_gp.simulation.truths import TruthDraw, specular_share
+from lightcurve_gp.simulation.truths import TruthDraw, specular_share, truth_is_model_surface, truth_material
 
 __all__ = ["Scenario", "simulate_scenario", "simulate_truths", "noisy_observations", "span_increments"]
 
@@ -132,8 +133,7 @@ def _config_truth(cfg: Config, S: int, rho: float, like: Tensor) -> dict:
     sc = cfg.scenario
     tensor = lambda values: torch.tensor(values, dtype=like.dtype, device=like.device)  # noqa: E731
     error = euler321_to_quat(torch.deg2rad(tensor(sc.initial_error_deg)))
-    material = (rho, cfg.surface.f0, cfg.surface.n_u, cfg.surface.n_v)
-    return {"surface": Surface(*(tensor(float(v)).expand(S) for v in material)),
+    return {"surface": Surface(*(tensor(v).expand(S) for v in truth_material(cfg, rho))),
             "error": quat_to_rotvec(error).expand(S, 3),
             "sigma0": torch.tensor(math.radians(cfg.filter.p0_deg), dtype=torch.float64, device=like.device).expand(S),
             "noise_var": sc.noise_var,
@@ -145,6 +145,15 @@ def _per_seed(S: int, **fields: Tensor) -> dict[str, Tensor]:
     return {k: v.expand(S, *v.shape) for k, v in fields.items()}
 
 
+def _truth_magnitude(cfg: Config, scene: Scene, q_true: Tensor, rho: float) -> Tensor:
+    """Noise-free magnitudes ``(T+1,)`` of the config's truth ``q_true (T+1, 4)``: the scene's material at ``rho``,
+    or the truth's own material when ``scenario.surface`` gives another (:func:`truth_material`)."""
+    if truth_is_model_surface(cfg):
+        return scene.magnitude(q_true, rho=torch.tensor(rho, dtype=q_true.dtype, device=q_true.device))
+    material = Surface(*(torch.tensor([v], dtype=q_true.dtype, device=q_true.device) for v in truth_material(cfg, rho)))
+    return scene.magnitude(q_true.unsqueeze(0), surface=material)[0]
+
+
 def simulate_scenario(cfg: Config, seeds: Sequence[int] | None = None, rho_true: float | None = None,
                       scene: Scene | None = None) -> Scenario:
     """The config's truth for every seed, its clean and noisy light curves and the initial estimate.
@@ -152,13 +161,13 @@ def simulate_scenario(cfg: Config, seeds: Sequence[int] | None = None, rho_true:
     Args:
         cfg: validated config (``scenario``, ``shape``, ``surface``, ``geometry`` sections, ``filter.p0_deg``).
         seeds: noise seeds; default ``range(cfg.scenario.seeds)``.
-        rho_true: overrides ``cfg.scenario.rho_true``.
+        rho_true: overrides the truth's reflectance (``scenario.surface.rho``, else ``scenario.rho_true``).
         scene: renderer to use; default ``Scene.from_config(cfg)``.
     """
     sc = cfg.scenario
     dtype, device = cfg.torch_dtype, torch.device(cfg.device)
     seeds = _check_seeds(cfg, seeds)
-    rho = sc.rho_true if rho_true is None else float(rho_true)
+    rho = truth_material(cfg, rho_true)[0]
     if not 0.0 <= rho <= 1.0:
         raise ValueError(f"rho_true: {rho:g} is outside [0, 1]")
     if cfg.geometry.kind == "orbit":
@@ -172,7 +181,7 @@ def simulate_scenario(cfg: Config, seeds: Sequence[int] | None = None, rho_true:
     inertia = tensor(cfg.shape.inertia_kg_m2)
     q_true, omega_true = propagate(q0, omega0, inertia, sc.dt_s, n_steps)
     increments = quaternion_increments(omega0, inertia, sc.dt_s, n_steps)
-    m_clean = scene.magnitude(q_true, rho=tensor(rho))
+    m_clean = _truth_magnitude(cfg, scene, q_true, rho)
     if not bool(torch.isfinite(m_clean).all()):
         bad = int((~torch.isfinite(m_clean)).sum())
         raise ValueError(f"the true trajectory has {bad} samples with zero flux (object not lit and visible)")
@@ -209,7 +218,7 @@ def _simulate_pass(cfg: Config, seeds: list[int], rho: float, scene: Scene | Non
     q_grid, omega_grid = propagate(q0, omega0, inertia, sc.dt_s, int(index[-1]))
     increments = span_increments(quaternion_increments(omega0, inertia, sc.dt_s, int(index[-1])), index)
     q_true = q_grid[index]
-    m_clean = scene.magnitude(q_true, rho=tensor(rho))
+    m_clean = _truth_magnitude(cfg, scene, q_true, rho)
     seen = geometry.observable.to(device) & torch.isfinite(m_clean)
     m_clean = torch.where(seen, m_clean, torch.full_like(m_clean, math.nan))
     S = len(seeds)

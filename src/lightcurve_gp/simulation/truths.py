@@ -37,7 +37,7 @@ from lightcurve_gp.photometry.brdf import Surface
 from lightcurve_gp.photometry.render import Scene
 
 __all__ = ["TRUTH_STREAM", "SPECULAR_CLASSES", "TruthRanges", "TruthDraw", "draw_truths", "paper_case_draw",
-           "specular_share", "specular_class"]
+           "truth_material", "truth_is_model_surface", "specular_share", "specular_class"]
 
 #: offset of the truth generators' seeds from the noise seeds
 TRUTH_STREAM = 1 << 40
@@ -126,12 +126,26 @@ def draw_truths(seeds: Sequence[int], *, ranges: TruthRanges = TruthRanges(),
     return TruthDraw(seeds, q0, omega0, surface, error, sigma0)
 
 
+def truth_material(cfg: Config, rho: float | None = None) -> tuple[float, float, float, float]:
+    """``(ρ, F0, n_u, n_v)`` of the config's truth: ``rho`` when given, else ``scenario.surface.rho`` or
+    ``scenario.rho_true``; F0, n_u, n_v from ``scenario.surface`` where set, else the model's ``surface`` section."""
+    own = cfg.scenario.surface
+    rho = (cfg.scenario.rho_true if own.rho is None else own.rho) if rho is None else rho
+    return (float(rho), *(float(getattr(cfg.surface, k) if getattr(own, k) is None else getattr(own, k))
+                          for k in ("f0", "n_u", "n_v")))
+
+
+def truth_is_model_surface(cfg: Config) -> bool:
+    """Whether the config's truth has the material the models assume (its F0, n_u, n_v those of ``surface``)."""
+    return truth_material(cfg, 1.0)[1:] == tuple(float(getattr(cfg.surface, k)) for k in ("f0", "n_u", "n_v"))
+
+
 def paper_case_draw(cfg: Config, seeds: Sequence[int], *, rho: float) -> TruthDraw:
-    """The scenario of ``cfg`` for every seed: attitude ``scenario.q0``, spin ``scenario.omega0_deg_s``, the config's
-    surface with reflectance ``rho``, the initial error ``scenario.initial_error_deg`` (yaw, pitch, roll) and
-    ``σ0 = filter.p0_deg``. With the noise seeded per seed as in
-    :func:`lightcurve_gp.simulation.scenario.simulate_scenario`,
-    seed ``s`` is that command's seed ``s`` (the paper's case with ``cfg = configs/boxwing*.yaml``)."""
+    """The scenario of ``cfg`` for every seed: attitude ``scenario.q0``, spin ``scenario.omega0_deg_s``, the truth's
+    material (:func:`truth_material`) with reflectance ``rho``, the initial error ``scenario.initial_error_deg``
+    (yaw, pitch, roll) and ``σ0 = filter.p0_deg``. With the noise seeded per seed as in
+    :func:`lightcurve_gp.simulation.scenario.simulate_scenario`, seed ``s`` is that command's seed ``s`` (the paper's
+    case with ``cfg = configs/boxwing*.yaml``)."""
     seeds = [int(s) for s in seeds]
     if not seeds:
         raise ValueError("seeds must name at least one seed")
@@ -139,7 +153,7 @@ def paper_case_draw(cfg: Config, seeds: Sequence[int], *, rho: float) -> TruthDr
         raise ValueError(f"rho: {rho!r} must lie in (0, 1]")
     sc, S = cfg.scenario, len(seeds)
     full = lambda values: torch.tensor(values, dtype=torch.float64).expand(S, -1).clone()  # noqa: E731
-    material = (float(rho), cfg.surface.f0, cfg.surface.n_u, cfg.surface.n_v)
+    material = truth_material(cfg, float(rho))
     error = quat_to_rotvec(euler321_to_quat(torch.deg2rad(torch.tensor(sc.initial_error_deg, dtype=torch.float64))))
     return TruthDraw(seeds, quat_normalize(full(sc.q0)), torch.deg2rad(full(sc.omega0_deg_s)),
                      Surface(*(torch.full((S,), v, dtype=torch.float64) for v in material)), error.expand(S, 3).clone(),
