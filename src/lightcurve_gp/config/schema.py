@@ -375,6 +375,9 @@ class FilterConfig:
     q_placement: str = _spec("both", choices=("both", "after"), **_DEFAULT_USQUE,
                              doc="process noise added to P+ before the sigma points and to P- (both; Crassidis & "
                                  "Markley) or once to P- after the propagation (after; the paper)")
+    update_iterations: int = _spec(1, lo=1, omit_default=True,
+                                   doc="posterior linearisations per measurement update (iterated posterior "
+                                       "linearisation); 1: the ordinary unscented update")
     compile: bool = _spec(False, omit_default=True,
                           doc="run each omega-known filter step as compiled graphs (inductor): the same estimates to "
                               "rounding, faster per step; the first step of a shape compiles (seconds)")

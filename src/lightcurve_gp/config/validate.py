@@ -182,6 +182,9 @@ def _cross_check(cfg: Config) -> None:
     if cfg.filter.estimate_omega and cfg.geometry.kind == "orbit":
         raise ConfigError("filter.estimate_omega: not supported along a pass (geometry.kind: orbit) yet: the rate "
                           "filter steps a fixed scenario.dt_s")
+    if cfg.filter.compile and cfg.filter.update_iterations > 1:
+        raise ConfigError(f"filter.update_iterations: {cfg.filter.update_iterations} is not supported with "
+                          "filter.compile true (the compiled step has the ordinary update only)")
     _check_training_surfaces(cfg)
     _check_geometry(cfg)
     if cfg.model.inputs == "body_geometry" and cfg.data.surfaces is not None:

@@ -7,7 +7,8 @@ conjugates ``δq(χ_i)`` by ``δ``: its scalar part is kept and its vector part 
 the propagated sigma point is ``A(δ) χ_i`` and ``P⁻ = A (P⁺ + Q) Aᵀ + Q`` exactly (Crassidis & Markley 2003).
 :func:`usque_prior` computes the prior that way (steps 1–5 of :func:`lightcurve_gp.filters.usque.run_usque`, a
 fraction of the work of propagating every sigma quaternion) and :func:`usque_step` adds the measurement update
-(:func:`lightcurve_gp.filters.update.measurement_update`). :func:`step_matrices` builds the per-step matrices once
+(:func:`lightcurve_gp.filters.update.measurement_update`, or the iterated one of
+:mod:`lightcurve_gp.filters.iterated`). :func:`step_matrices` builds the per-step matrices once
 per run; :mod:`lightcurve_gp.filters.compiled` compiles the same step.
 """
 
@@ -19,9 +20,10 @@ import torch
 from torch import Tensor
 
 from lightcurve_gp.attitude.rotations import attitude_matrix, quat_left_matrix
+from lightcurve_gp.filters.iterated import step_update
 from lightcurve_gp.filters.state import FilterState, StateLayout, StepRecord
 from lightcurve_gp.filters.unscented import sqrt_psd
-from lightcurve_gp.filters.update import Prior, RunConstants, measurement_update, redrawn_sigma_points, sigma_set
+from lightcurve_gp.filters.update import Prior, RunConstants, redrawn_sigma_points, sigma_set
 
 __all__ = ["step_major", "step_matrices", "usque_prior", "usque_step"]
 
@@ -75,4 +77,4 @@ def usque_step(run: RunConstants, state: FilterState, *, L_k: Tensor, G_k: Tenso
         y_k: observation ``ỹ_k (B,)`` with missing values filled by 0; observed_k: where it is finite ``(B,)``.
     """
     prior = usque_prior(run, state, L_k=L_k, G_k=G_k)
-    return measurement_update(run, state, prior, y_k=y_k, observed_k=observed_k)
+    return step_update(run)(run, state, prior, y_k=y_k, observed_k=observed_k)

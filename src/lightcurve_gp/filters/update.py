@@ -21,8 +21,8 @@ from lightcurve_gp.filters.state import FilterState, StateLayout, StepRecord
 from lightcurve_gp.filters.unscented import sqrt_psd_with_zero_rows, symmetrise
 from lightcurve_gp.observation.base import ObservationModel, Variance
 
-__all__ = ["RunConstants", "Prior", "SigmaInputs", "measurement_update", "sigma_inputs", "update_with_predictions",
-           "redrawn_sigma_points", "adapted_noise", "sigma_set"]
+__all__ = ["RunConstants", "Prior", "SigmaInputs", "Gain", "measurement_update", "sigma_inputs",
+           "update_with_predictions", "kalman_gain", "posterior", "redrawn_sigma_points", "adapted_noise", "sigma_set"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -43,6 +43,7 @@ class RunConstants:
     sigma_redraw: bool = False  # update with sigma points drawn again from (x̂⁻, P⁻)
     q_in_sigma: bool = True  # Q also added to P⁺ before the sigma points (Crassidis & Markley); else after only
     stepper: Callable[[Tensor, Tensor], tuple[Tensor, Tensor]] | None = None  # (q, ω) ↦ RK4 step, rate filter
+    update_iterations: int = 1  # iterated posterior linearisation (filters.iterated) when > 1
 
 
 class Prior(NamedTuple):
@@ -105,15 +106,40 @@ def sigma_inputs(run: RunConstants, state: FilterState, prior: Prior) -> SigmaIn
     return SigmaInputs(q_sig, state.m_past.unsqueeze(1).expand(B, S), theta, R_qm)
 
 
+class Gain(NamedTuple):
+    """The Kalman update of one step in the prior's error coordinates (all ``(B, ...)``): the posterior mean ``dx``
+    (about ``[0, ω_0⁻, b̂]``, ``x̂⁻`` included) and covariance ``P``, the predicted observation ``y_hat``, its
+    variance ``P_yy`` (with ``R_k`` and the model variance), the mean model variance ``m_var`` (NaN without one),
+    the innovation ``nu``, where it updated ``upd`` and where the prediction was usable ``good``, and the noise
+    ``R_k`` it used."""
+
+    dx: Tensor
+    P: Tensor
+    y_hat: Tensor
+    P_yy: Tensor
+    m_var: Tensor
+    nu: Tensor
+    upd: Tensor
+    good: Tensor
+    R_k: Tensor
+
+
 def update_with_predictions(run: RunConstants, state: FilterState, prior: Prior, R_qm: Tensor, y_sig: Tensor,
                             var_sig: Tensor | None, *, y_k: Tensor,
                             observed_k: Tensor) -> tuple[FilterState, StepRecord]:
     """Steps 6–9 given the model's predictions ``y_sig (B, 2n+1)`` and variances (or ``None``) at
     :func:`sigma_inputs` (``R_qm``: its :attr:`SigmaInputs.R_qm`): predicted observation, gain, update, reset and
     the ``m_past`` recursion."""
-    q_m, omega_m, x_m, P_m, chi, failed = prior
+    gain = kalman_gain(run, state, prior, y_sig, var_sig, y_k=y_k, observed_k=observed_k)
+    return posterior(run, state, prior, R_qm, gain, y_k=y_k, observed_k=observed_k)
+
+
+def kalman_gain(run: RunConstants, state: FilterState, prior: Prior, y_sig: Tensor, var_sig: Tensor | None, *,
+                y_k: Tensor, observed_k: Tensor) -> Gain:
+    """Steps 6–7: the unscented predicted observation, its variance, the gain and the updated mean and covariance
+    (:class:`Gain`) from the predictions ``y_sig (B, 2n+1)`` (and variances) at the prior's sigma points."""
+    _, _, x_m, P_m, chi, _ = prior
     B = chi.shape[0]
-    a, f = run.grp
     layout = run.layout
     zero = torch.zeros((), dtype=chi.dtype, device=chi.device)
     if state.offset is not None:
@@ -140,12 +166,22 @@ def update_with_predictions(run: RunConstants, state: FilterState, prior: Prior,
         dx = dx + x_m
     P = torch.where(upd.view(B, 1, 1), symmetrise(P_m - P_yy.view(B, 1, 1) * (K.unsqueeze(-1) * K.unsqueeze(-2))),
                     P_m)
+    return Gain(dx, P, y_hat, P_yy, m_var, nu, upd, good, R_k)
+
+
+def posterior(run: RunConstants, state: FilterState, prior: Prior, R_qm: Tensor, gain: Gain, *, y_k: Tensor,
+              observed_k: Tensor) -> tuple[FilterState, StepRecord]:
+    """Steps 8–9 after :func:`kalman_gain`: the reset of the state to the posterior mean, the ``m_past``
+    recursion, the adaptive noise's average, and the step's record."""
+    dx, P, y_hat, P_yy, m_var, nu, upd, good, R_k = gain
+    a, f = run.grp
+    layout = run.layout
     # 8. reset q̂ ← δq(δp⁺) ⊗ q_0⁻ (the attitude error returns to zero); ω̂ ← ω_0⁻ + δω⁺; b̂ ← b̂ + δb⁺; θ̂ ← θ̂ + δθ⁺
     q_hat = torch.bmm(R_qm, grp_to_quat(dx[:, :3], a, f).unsqueeze(-1)).squeeze(-1)
     q_hat = q_hat / torch.linalg.vector_norm(q_hat, dim=-1, keepdim=True)
     offset = None if state.offset is None else state.offset + dx[:, layout.offset_index]
     theta_hat = None if state.theta is None else state.theta + dx[:, layout.parameter_slice]
-    omega = None if omega_m is None else omega_m + dx[:, layout.omega_slice]
+    omega = None if prior.omega_m is None else prior.omega_m + dx[:, layout.omega_slice]
     # 9. fold the observation into m_past (the record keeps the m_past used for this prediction)
     tsp = run.t_span_past
     m_past = torch.where(observed_k, (tsp * state.m_past + y_k) / (tsp + 1.0), state.m_past)
@@ -153,7 +189,7 @@ def update_with_predictions(run: RunConstants, state: FilterState, prior: Prior,
     if noise_excess is not None:
         noise_excess = torch.where(upd, adapted_noise(noise_excess, nu=nu, P_yy=P_yy, R_k=R_k, rate=run.adaptive_rate),
                                    noise_excess)
-    record = StepRecord(y_hat, P_yy, m_var, nu, state.m_past, upd, failed, observed_k & ~good)
+    record = StepRecord(y_hat, P_yy, m_var, nu, state.m_past, upd, prior.failed, observed_k & ~good)
     return FilterState(q_hat, offset, P, m_past, noise_excess, theta=theta_hat, omega=omega), record
 
 

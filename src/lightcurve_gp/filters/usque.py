@@ -54,28 +54,17 @@ from torch import Tensor
 
 from lightcurve_gp.attitude.dynamics import rk4_stepper
 from lightcurve_gp.filters.compiled import compiled_stepper
+from lightcurve_gp.filters.iterated import step_update
 from lightcurve_gp.filters.rates import rate_prior
 from lightcurve_gp.filters.state import FilterHistory, FilterState, HistoryBuilder, StateLayout, StepRecord
 from lightcurve_gp.filters.step import step_major, step_matrices, usque_step
 from lightcurve_gp.filters.unscented import UnscentedWeights, symmetrise, unscented_weights, warn_fallbacks
-from lightcurve_gp.filters.update import RunConstants, adapted_noise, measurement_update
+from lightcurve_gp.filters.update import RunConstants, adapted_noise
 from lightcurve_gp.observation.base import ObservationModel, Variance, check_variance
 
-__all__ = [
-    "FilterHistory",
-    "FilterState",
-    "StateLayout",
-    "StepRecord",
-    "UsqueParams",
-    "initial_covariance",
-    "model_error_variance",
-    "run_constants",
-    "run_usque",
-    "usque_step",
-    "adapted_noise",
-    "ADAPTIVE_NOISE",
-    "Q_PLACEMENTS",
-]
+__all__ = ["FilterHistory", "FilterState", "StateLayout", "StepRecord", "UsqueParams", "initial_covariance",
+           "model_error_variance", "run_constants", "run_usque", "usque_step", "adapted_noise", "ADAPTIVE_NOISE",
+           "Q_PLACEMENTS"]
 
 #: measurement-noise rules of :class:`UsqueParams`: fixed ``R`` or innovation-based covariance matching
 ADAPTIVE_NOISE = ("none", "innovation")
@@ -131,6 +120,8 @@ class UsqueParams:
         sigma_redraw: update with sigma points drawn again from ``(x̂⁻, P⁻)`` (the paper) instead of the
             propagated ones (Crassidis & Markley).
         q_placement: one of :data:`Q_PLACEMENTS`.
+        update_iterations: posterior linearisations per measurement update (:mod:`lightcurve_gp.filters.iterated`);
+            1: the ordinary unscented update.
         compile: with ω known, run each step as compiled graphs (:mod:`lightcurve_gp.filters.compiled`): the same
             estimates to rounding, a fraction of the per-step dispatch; the first step of each shape compiles
             (seconds: off by default, it pays from thousands of steps on, ``benchmarks/bench_compile.py``).
@@ -157,8 +148,13 @@ class UsqueParams:
     sigma_redraw: bool = False
     q_placement: str = "both"
     compile: bool = False
+    update_iterations: int = 1
 
     def __post_init__(self):
+        if int(self.update_iterations) < 1:
+            raise ValueError(f"update_iterations must be >= 1, got {self.update_iterations!r}")
+        if self.compile and int(self.update_iterations) > 1:
+            raise ValueError("compile: the compiled step has the ordinary update only (update_iterations 1)")
         if self.lam_rule not in LAM_RULES:
             raise ValueError(f"lam_rule must be one of {', '.join(LAM_RULES)}, got {self.lam_rule!r}")
         if self.q_placement not in Q_PLACEMENTS:
@@ -183,8 +179,9 @@ class UsqueParams:
         ``filter.add_model_variance``) and the adaptive noise rule with
         ``λ = min(1, scenario.dt_s / filter.adaptive_noise_time_s)``, the rate filter's ``filter.omega_process_noise``,
         ``filter.inertia_kg_m2`` (default ``shape.inertia_kg_m2``) and ``scenario.dt_s``, the variant
-        (``filter.sigma_redraw``, ``filter.q_placement``) and ``filter.compile``. With ``filter.model_error: heldout``
-        ``R`` also holds the trained ``model``'s held-out excess variance (:func:`model_error_variance`)."""
+        (``filter.sigma_redraw``, ``filter.q_placement``), ``filter.update_iterations`` and ``filter.compile``. With
+        ``filter.model_error: heldout`` ``R`` also holds the trained ``model``'s held-out excess variance
+        (:func:`model_error_variance`)."""
         f = cfg.filter
         return cls(
             alpha=float(f.alpha), beta=float(f.beta), kappa=float(f.kappa), lam=None if f.lam is None else float(f.lam),
@@ -197,7 +194,7 @@ class UsqueParams:
             omega_process_noise=float(f.omega_process_noise),
             inertia=tuple(float(j) for j in (f.inertia_kg_m2 or cfg.shape.inertia_kg_m2)),
             dt=float(cfg.scenario.dt_s), sigma_redraw=bool(f.sigma_redraw), q_placement=f.q_placement,
-            compile=bool(f.compile),
+            compile=bool(f.compile), update_iterations=int(f.update_iterations),
         )
 
     def weights(self, n: int = 3, *, dtype: torch.dtype | None = None, device=None) -> UnscentedWeights:
@@ -358,7 +355,7 @@ def _stepper(run: RunConstants, increments: Tensor | None, *,
     matrices; without, the rate prediction (:func:`~lightcurve_gp.filters.rates.rate_prior`) and the update."""
     if increments is None:
         def rate_step(run_k: RunConstants, state: FilterState, k: int, **obs: Tensor):
-            return measurement_update(run_k, state, rate_prior(run_k, state), **obs)
+            return step_update(run_k)(run_k, state, rate_prior(run_k, state), **obs)
 
         return rate_step
     like = run.Q
@@ -391,4 +388,5 @@ def run_constants(params: UsqueParams, layout: StateLayout, model: ObservationMo
         R=R[:, 0] if R.ndim == 2 else R.expand(B), grp=(float(params.grp_a), float(params.grp_f)),
         variance=params.variance, t_span_past=float(params.t_span_past),
         adaptive_rate=float(params.adaptive_noise_rate) if params.adaptive_noise == "innovation" else None,
-        sigma_redraw=bool(params.sigma_redraw), q_in_sigma=params.q_placement == "both", stepper=stepper), R_steps
+        sigma_redraw=bool(params.sigma_redraw), q_in_sigma=params.q_placement == "both", stepper=stepper,
+        update_iterations=int(params.update_iterations)), R_steps
