@@ -51,7 +51,8 @@ def estimate_args(out: Path, *extra: str) -> list[str]:
     (["--estimators", "gpukf"], "error: --model: the gpukf estimator needs a trained model file "
                                 "(python -m lightcurve_gp.train)\n"),
     (["--estimators", ","], "error: --estimators: ',' names no estimator; choose from gpukf, ukf, matched_ukf, "
-                            "joint_ukf, surface_ukf, surface_ukf_select, map_surface, map_offset, no_update\n"),
+                            "joint_ukf, surface_ukf, surface_ukf_select, map_surface, map_offset, map, matched_map, "
+                            "no_update\n"),
 ])
 def test_estimator_list_is_checked_before_anything_is_written(tmp_path, capsys, args, message):
     assert estimate.main(estimate_args(tmp_path, *args)) == 2

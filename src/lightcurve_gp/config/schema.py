@@ -22,26 +22,10 @@ from typing import Any
 
 import torch
 
-__all__ = [
-    "ConfigError",
-    "Config",
-    "GeometryConfig",
-    "OrbitElementsConfig",
-    "SiteConfig",
-    "ShapeConfig",
-    "SurfaceConfig",
-    "DataConfig",
-    "TrainingSurfacesConfig",
-    "SpinRangeConfig",
-    "ModelConfig",
-    "ExactModelConfig",
-    "SparseModelConfig",
-    "TruthSurfaceConfig",
-    "ScenarioConfig",
-    "FilterConfig",
-    "EvaluationConfig",
-    "MODEL_KIND_SECTIONS",
-]
+__all__ = ["ConfigError", "Config", "GeometryConfig", "OrbitElementsConfig", "SiteConfig", "ShapeConfig",
+           "SurfaceConfig", "DataConfig", "TrainingSurfacesConfig", "SpinRangeConfig", "ModelConfig",
+           "ExactModelConfig", "SparseModelConfig", "TruthSurfaceConfig", "ScenarioConfig", "FilterConfig",
+           "EvaluationConfig", "MODEL_KIND_SECTIONS"]
 
 
 class ConfigError(ValueError):
@@ -377,7 +361,8 @@ class FilterConfig:
                                  "Markley) or once to P- after the propagation (after; the paper)")
     update_iterations: int = _spec(1, lo=1, omit_default=True,
                                    doc="posterior linearisations per measurement update (iterated posterior "
-                                       "linearisation); 1: the ordinary unscented update")
+                                       "linearisation); 1: the ordinary unscented update (more is worse here: "
+                                       "filters/iterated.py)")
     compile: bool = _spec(False, omit_default=True,
                           doc="run each omega-known filter step as compiled graphs (inductor): the same estimates to "
                               "rounding, faster per step; the first step of a shape compiles (seconds)")

@@ -20,6 +20,7 @@ import torch
 
 from lightcurve_gp.attitude.metrics import chi2_band
 from lightcurve_gp.config.load import Config
+from lightcurve_gp.evaluation.bounds import ScenarioBounds
 from lightcurve_gp.evaluation.registry import DEFAULT_ESTIMATORS, ESTIMATORS, RunContext
 from lightcurve_gp.evaluation.scoring import EstimatorResult, score
 from lightcurve_gp.observation.base import ObservationModel
@@ -75,7 +76,7 @@ def check_estimators(cfg: Config, estimators: Sequence[str], model: ObservationM
 
 def run_estimators(cfg: Config, scenario: Scenario, *, estimators: Sequence[str] = DEFAULT_ESTIMATORS,
                    model: ObservationModel | None = None, scene: Scene | None = None,
-                   map_every_s: float = 50.0) -> ScenarioResult:
+                   map_every_s: float = 50.0, map_screen: int = 0, bounds: bool = True) -> ScenarioResult:
     """Run the chosen estimators on every seed of ``scenario`` and score them over ``evaluation.rmse_window_s``.
 
     Args:
@@ -86,18 +87,24 @@ def run_estimators(cfg: Config, scenario: Scenario, *, estimators: Sequence[str]
         model: the trained GP observation model (needed by ``gpukf``).
         scene: the renderer of the scenario (default ``Scene.from_config(cfg)``: fixed, or per sample along the
             pass).
-        map_every_s: checkpoint spacing of the MAP estimators inside the window (s).
+        map_every_s: checkpoint spacing of the checkpoint MAP estimators inside the window (s).
+        map_screen: prior draws the whole-arc MAPs screen by cost for starts (0: none).
+        bounds: put each estimator's Cramér–Rao bound beside its scores (``crb_deg``,
+            :mod:`lightcurve_gp.evaluation.bounds`; computed once per scenario and set of unknowns, not timed).
     """
     check_estimators(cfg, estimators, model, along_pass=scenario.geometry is not None)
     scene = (scene or Scene.from_config(cfg)).to(device=torch.device(cfg.device), dtype=cfg.torch_dtype)
-    context = RunContext(cfg, scenario, scene, model, map_every_s)
+    context = RunContext(cfg, scenario, scene, model, map_every_s, map_screen)
     window = tuple(cfg.evaluation.rmse_window_s)
     q_sym = symmetry_quaternions(scene.facets)
     grp = (float(cfg.filter.grp_a), float(cfg.filter.grp_f))
     out = ScenarioResult(scenario, window)
+    crb = ScenarioBounds(cfg, scene, scenario) if bounds else None
     for name in estimators:
         start = time.perf_counter()
         estimate = ESTIMATORS[name].run(context)
         out.results[name] = score(scenario, estimate, window=window, q_sym=q_sym, grp=grp,
                                   seconds=time.perf_counter() - start)
+        if crb is not None:
+            out.results[name].crb_deg = crb.for_estimator(name)
     return out

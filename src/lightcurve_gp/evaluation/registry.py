@@ -21,6 +21,11 @@ assumes. Along a pass every model predicts step ``k`` with the geometry of sampl
 * ``map_surface`` — the batch MAP reference with attitude, ρ, F0, n_u, n_v unknown, at checkpoints every
   ``map_every_s`` inside the scoring window (:func:`map_estimate`; fixed geometry, ω known);
 * ``map_offset`` — the batch MAP with attitude and offset on the reference surface (the joint UKF's model);
+* ``map`` — the whole-arc batch MAP of the initial attitude and the surface state (surface unknown, shape known,
+  ω known) from every sample at once: started from the ``surface_ukf`` run and seven prior starts, its Laplace
+  covariance (a mixture where several basins fit) carried to every sample
+  (:mod:`lightcurve_gp.evaluation.whole_arc`);
+* ``matched_map`` — the same with the truth's surface known (an oracle, started from the ``matched_ukf`` run);
 * ``no_update`` — the initial estimate propagated with the assumed rate (a filter that learned nothing; its
   covariance stays ``P0``).
 """
@@ -37,6 +42,7 @@ from torch import Tensor
 from lightcurve_gp.attitude.dynamics import propagate_only
 from lightcurve_gp.config.load import Config
 from lightcurve_gp.evaluation.scoring import Estimate
+from lightcurve_gp.evaluation.whole_arc import arc_estimate, whole_arc_map
 from lightcurve_gp.filters.selection import select_by_likelihood
 from lightcurve_gp.filters.setup import run_filter, run_surface_filter
 from lightcurve_gp.filters.state import FilterHistory
@@ -58,13 +64,15 @@ SELECTED_LAM_RULES = ("given", "julier")
 @dataclass(frozen=True)
 class RunContext:
     """What an estimator runs with: the config, the scenario, its renderer (fixed, or per sample along the pass),
-    the trained GP (or ``None``) and the MAP's checkpoint spacing (s)."""
+    the trained GP (or ``None``), the checkpoint MAPs' spacing (s) and the prior draws the whole-arc MAPs screen
+    for starts (:func:`~lightcurve_gp.evaluation.whole_arc.whole_arc_map`)."""
 
     cfg: Config
     scenario: Scenario
     scene: Scene
     model: ObservationModel | None = None
     map_every_s: float = 50.0
+    map_screen: int = 0
 
 
 @dataclass(frozen=True)
@@ -167,6 +175,21 @@ def map_estimate(cfg: Config, scene: Scene, sc: Scenario, *, surface: bool, ever
                     offset_final=None if surface else est.x[:, -1, 3])
 
 
+def _map(ctx: RunContext) -> Estimate:
+    sc = ctx.scenario
+    start = run_surface_filter(ctx.cfg, ctx.scene, q_est0=sc.q_est0, observations=sc.observations,
+                               increments=sc.increments_assumed, sigma0=sc.sigma0, geometry=sc.geometry)
+    return arc_estimate(sc, whole_arc_map(ctx.cfg, ctx.scene, sc, start=start, surface_known=False,
+                                          screen=ctx.map_screen))
+
+
+def _matched_map(ctx: RunContext) -> Estimate:
+    sc = ctx.scenario
+    start = _matched_ukf(ctx).history
+    return arc_estimate(sc, whole_arc_map(ctx.cfg, ctx.scene, sc, start=start, surface_known=True,
+                                          screen=ctx.map_screen))
+
+
 def _no_update(ctx: RunContext) -> Estimate:
     sc = ctx.scenario
     q_est = propagate_only(sc.q_est0, sc.increments_assumed.transpose(0, 1))  # (S, T+1, 4)
@@ -188,6 +211,8 @@ ESTIMATORS: dict[str, Estimator] = {e.name: e for e in (
     Estimator("map_offset", lambda ctx: map_estimate(ctx.cfg, ctx.scene, ctx.scenario, surface=False,
                                                      every_s=ctx.map_every_s), estimates_omega=False,
               along_pass=False),
+    Estimator("map", _map, estimates_omega=False),
+    Estimator("matched_map", _matched_map, estimates_omega=False),
     Estimator("no_update", _no_update),
 )}
 #: what the tables and the estimate command run unless told otherwise

@@ -29,12 +29,12 @@ from torch import Tensor
 
 from lightcurve_gp.attitude.metrics import chi2_band
 from lightcurve_gp.evaluation.harness import ScenarioResult
-from lightcurve_gp.evaluation.scoring import EstimatorResult
+from lightcurve_gp.evaluation.scoring import EstimatorResult, nees_band
 from lightcurve_gp.files import write_text_atomic
 
 __all__ = ["Quantiles", "quantiles", "format_quantiles", "finite_or_none", "SeedRow", "RESULT_COLUMNS", "CaseRecord",
-           "CASE_FORMAT", "seed_rows", "scenario_summary", "markdown_table", "csv_text", "write_report_table",
-           "SUMMARY_HEADER", "summary_row"]
+           "CASE_FORMAT", "seed_rows", "bound_summary", "scenario_summary", "markdown_table", "csv_text",
+           "write_report_table", "SUMMARY_HEADER", "summary_row"]
 
 #: version of the stored case-record layout; a record of another version is rerun
 CASE_FORMAT = 1
@@ -78,7 +78,9 @@ class SeedRow:
     the last sample (deg/s), ``nees_full_mean`` the mean NEES of the whole estimated state ``[δp, ω]`` (the
     attitude NEES for filters that take ω as known). The ``…_mod_symmetry…`` fields score the estimate against the
     nearest of the truths the shape's symmetries make indistinguishable by the light curve, ``symmetry`` that
-    truth's index (0: the truth itself); ``None`` in records made before they existed."""
+    truth's index (0: the truth itself); ``None`` in records made before they existed. ``crb_…_deg`` is the
+    Cramér–Rao bound of the same problem in the RMSE's units (:mod:`lightcurve_gp.evaluation.bounds`), ``None``
+    where none was computed."""
 
     seed: int
     estimator: str
@@ -100,6 +102,9 @@ class SeedRow:
     symmetry: int | None = None
     omega_error_final_mod_symmetry_deg_s: float | None = None
     nees_full_mean_mod_symmetry: float | None = None
+    crb_yaw_deg: float | None = None
+    crb_pitch_deg: float | None = None
+    crb_roll_deg: float | None = None
 
     def rmse_deg(self) -> tuple[float, float, float]:
         """RMSE (yaw, pitch, roll) in degrees, NaN where missing."""
@@ -134,8 +139,16 @@ def seed_rows(result: ScenarioResult) -> list[SeedRow]:
                                 cell(r.lc_rmse_noisy), cell(r.lc_rmse_clean), cell(nees_mean),
                                 r.seconds / result.steps, omega_rmse_deg_s=cell(r.omega_rmse_deg_s),
                                 omega_error_final_deg_s=cell(r.omega_error_final_deg_s),
-                                nees_full_mean=cell(nees_full), **_symmetric_cells(r, i)))
+                                nees_full_mean=cell(nees_full), **_symmetric_cells(r, i), **_bound_cells(r, i)))
     return rows
+
+
+def _bound_cells(r: EstimatorResult, i: int) -> dict[str, float | None]:
+    """The :class:`SeedRow` bound fields of seed ``i``."""
+    if r.crb_deg is None:
+        return {}
+    yaw, pitch, roll = (finite_or_none(float(v)) for v in r.crb_deg[i])
+    return {"crb_yaw_deg": yaw, "crb_pitch_deg": pitch, "crb_roll_deg": roll}
 
 
 def _symmetric_cells(r: EstimatorResult, i: int) -> dict[str, Any]:
@@ -152,11 +165,25 @@ def _nanmean(x: Tensor | None) -> float:
     return float(torch.nanmean(x)) if x is not None and x.numel() else float("nan")
 
 
+def bound_summary(rmse_deg: Tensor, crb_deg: Tensor | None, nees_mean: Tensor | None) -> dict[str, Any]:
+    """Beside the RMSE: the median bound per axis, the median RMSE over the median bound per axis (same seeds) and
+    the NEES's median and the share of seeds inside the one-draw band (:func:`~lightcurve_gp.evaluation.scoring.
+    nees_band`); NaN where missing."""
+    nan3 = [math.nan] * 3
+    crb = nan3 if crb_deg is None else [quantiles(crb_deg[:, i]).median for i in range(3)]
+    ratio = [quantiles(rmse_deg[:, i]).median / c if c and math.isfinite(c) else math.nan for i, c in enumerate(crb)]
+    band = nees_band()
+    inside = None if nees_mean is None else ((nees_mean >= band[0]) & (nees_mean <= band[1])).double().mean()
+    return {"crb_deg_median": crb, "rmse_over_crb": ratio,
+            "nees_median": math.nan if nees_mean is None else quantiles(nees_mean).median,
+            "share_nees_in_band": math.nan if inside is None else float(inside), "nees_band_one_draw": list(band)}
+
+
 def _estimator_summary(r: EstimatorResult, steps: int, seeds: int) -> dict[str, Any]:
     """One estimator's entry of :func:`scenario_summary`."""
     per_axis = [quantiles(r.rmse_deg[:, i]) for i in range(3)]
     h = r.history
-    return {
+    return {**bound_summary(r.rmse_deg, r.crb_deg, _reported_nees(r, r.nees_mean)),
         "rmse_deg_median": [q.median for q in per_axis],
         "rmse_deg_q25": [q.q25 for q in per_axis],
         "rmse_deg_q75": [q.q75 for q in per_axis],
@@ -183,7 +210,8 @@ def _estimator_summary(r: EstimatorResult, steps: int, seeds: int) -> dict[str, 
 
 def scenario_summary(result: ScenarioResult) -> dict[str, Any]:
     """Plain-python summary: per estimator the median and IQR of the RMSE per axis over the seeds
-    (:func:`quantiles`, NaN ignored), light-curve RMSE, NEES, the scores modulo symmetry and timing."""
+    (:func:`quantiles`, NaN ignored), the bound beside it (:func:`bound_summary`), light-curve RMSE, NEES, the
+    scores modulo symmetry and timing."""
     S = len(result.scenario.seeds)
     return {"rho_true": result.scenario.rho_true, "seeds": S, "window_s": list(result.window),
             "nees_band_95": list(result.nees_band()),
@@ -280,11 +308,22 @@ def write_report_table(folder: Path, stem: str, header: Sequence[str], rows: Seq
 
 
 #: header of the one-line-per-estimator summary tables (:func:`summary_row`)
-SUMMARY_HEADER = ("estimator", "yaw", "pitch", "roll", "< 10 deg all axes", "mean NEES", "s (all seeds)")
+SUMMARY_HEADER = ("estimator", "yaw", "pitch", "roll", "CRB yaw / pitch / roll", "RMSE / CRB", "< 10 deg all axes",
+                  "mean NEES", "median NEES", "NEES in band", "s (all seeds)")
+
+
+def _triple(values, digits: int = 2) -> str:
+    """``"a / b / c"``, ``"–"`` when missing or not finite."""
+    if values is None or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
+        return "–"
+    return " / ".join(f"{v:.{digits}f}" for v in values)
 
 
 def summary_row(name: str, entry: dict[str, Any]) -> list[str]:
-    """Cells of :data:`SUMMARY_HEADER` for one estimator's entry of :func:`scenario_summary`."""
-    return [name, *(f"{m:.2f}" for m in entry["rmse_deg_median"]),
-            f"{100 * entry['fraction_all_axes_below_10deg']:.0f} %", f"{entry['nees_mean']:.2f}",
-            f"{entry['seconds']:.1f}"]
+    """Cells of :data:`SUMMARY_HEADER` for one estimator's entry of :func:`scenario_summary` (an entry written
+    before the bound was reported shows "–" there)."""
+    share = entry.get("share_nees_in_band", math.nan)
+    return [name, *(f"{m:.2f}" for m in entry["rmse_deg_median"]), _triple(entry.get("crb_deg_median")),
+            _triple(entry.get("rmse_over_crb"), 1), f"{100 * entry['fraction_all_axes_below_10deg']:.0f} %",
+            f"{entry['nees_mean']:.2f}", f"{entry.get('nees_median', math.nan):.2f}",
+            "–" if math.isnan(share) else f"{100 * share:.0f} %", f"{entry['seconds']:.1f}"]

@@ -91,6 +91,8 @@ class EstimatorResult:
         samples: the scored estimate's sample indices ``(K,)``.
         uses_observations: as :attr:`Estimate.uses_observations`.
         history: the filter history (``None`` for other estimators).
+        crb_deg: the Cramér–Rao bound of the same problem ``(S, 3)`` (deg; RMS over the window of each Euler
+            angle's bound, :mod:`lightcurve_gp.evaluation.bounds`), or ``None`` when not computed.
     """
 
     q_est: Tensor
@@ -114,6 +116,7 @@ class EstimatorResult:
     samples: Tensor
     uses_observations: bool = True
     history: FilterHistory | None = None
+    crb_deg: Tensor | None = None
 
     @property
     def trajectory(self) -> bool:

@@ -5,7 +5,9 @@ A row is one (seed, estimator): its truth (surface, specular share and class, |�
 A summary groups rows by estimator and by one of :data:`GROUPINGS` — all seeds, the surface class (specular share of
 the flux along the truth), the |ω0| bin, the initial-error bin — and gives per group: the seed count, the share of
 seeds below 10° on all axes, the median RMSE per axis, the share of seeds whose time-averaged NEES lies in the
-single-run band (:func:`~lightcurve_gp.evaluation.scoring.nees_band`) and the mean and median NEES.
+single-run band (:func:`~lightcurve_gp.evaluation.scoring.nees_band`) and the mean and median NEES, and beside the
+RMSE the median Cramér–Rao bound per axis and the median RMSE over it (:mod:`lightcurve_gp.evaluation.bounds`; NaN
+for rows stored before the bound was computed).
 """
 
 from __future__ import annotations
@@ -30,8 +32,10 @@ ERROR_BINS = (("<10", 0.0, 10.0), ("10-20", 10.0, 20.0), (">20", 20.0, math.inf)
 #: grouping name -> row column holding the group label
 GROUPINGS = {"all": None, "surface class": "surface_class", "|omega0| (deg/s)": "omega_bin",
              "initial error (deg)": "error_bin"}
+_AXES = ("yaw", "pitch", "roll")
 SUMMARY_COLUMNS = ("estimator", "grouping", "group", "seeds", "share_below_10deg", "rmse_yaw_median",
-                   "rmse_pitch_median", "rmse_roll_median", "share_nees_in_band", "nees_mean", "nees_median")
+                   "rmse_pitch_median", "rmse_roll_median", "share_nees_in_band", "nees_mean", "nees_median",
+                   *(f"crb_{a}_median" for a in _AXES), *(f"rmse_over_crb_{a}" for a in _AXES))
 
 
 def bin_label(value: float, bins: Sequence[tuple[str, float, float]]) -> str:
@@ -55,11 +59,13 @@ def suite_rows(result: ScenarioResult, band: tuple[float, float], *, error_mode:
     for name, r in result.results.items():
         for i, seed in enumerate(sc.seeds):
             rmse = [float(v) for v in r.rmse_deg[i]]
+            crb = [math.nan] * 3 if r.crb_deg is None else [float(v) for v in r.crb_deg[i]]
             nees = float(r.nees_mean[i])
             rows.append({
                 "seed": seed, "estimator": name, "error_mode": error_mode,
                 "rmse_yaw_deg": finite_or_none(rmse[0]), "rmse_pitch_deg": finite_or_none(rmse[1]),
                 "rmse_roll_deg": finite_or_none(rmse[2]), "below_10deg": bool(all(v < 10.0 for v in rmse)),
+                **{f"crb_{a}_deg": finite_or_none(c) for a, c in zip(_AXES, crb)},
                 "nees_mean": finite_or_none(nees), "nees_in_band": bool(band[0] <= nees <= band[1]),
                 "specular_share": float(sc.specular_share[i]), "surface_class": SPECULAR_CLASSES[classes[i]][0],
                 "omega_deg_s": omega[i], "omega_bin": bin_label(omega[i], OMEGA_BINS),
@@ -80,11 +86,16 @@ def _group_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
                      for r in rows], dtype=float)
     nees = np.array([np.nan if r["nees_mean"] is None else r["nees_mean"] for r in rows], dtype=float)
     med = np.nanmedian(rmse, axis=0) if len(rows) else [math.nan] * 3
+    crb = np.array([[np.nan if r.get(f"crb_{a}_deg") is None else r[f"crb_{a}_deg"] for a in _AXES] for r in rows],
+                   dtype=float).reshape(-1, 3)
+    crb_med = [float(np.nanmedian(c)) if np.isfinite(c).any() else math.nan for c in crb.T]
     return {"seeds": len(rows), "share_below_10deg": float(np.mean([r["below_10deg"] for r in rows])),
             "rmse_yaw_median": float(med[0]), "rmse_pitch_median": float(med[1]), "rmse_roll_median": float(med[2]),
             "share_nees_in_band": float(np.mean([r["nees_in_band"] for r in rows])),
             "nees_mean": float(np.nanmean(nees)) if np.isfinite(nees).any() else math.nan,
-            "nees_median": float(np.nanmedian(nees)) if np.isfinite(nees).any() else math.nan}
+            "nees_median": float(np.nanmedian(nees)) if np.isfinite(nees).any() else math.nan,
+            **{f"crb_{a}_median": c for a, c in zip(_AXES, crb_med)},
+            **{f"rmse_over_crb_{a}": float(m) / c if c > 0 else math.nan for a, m, c in zip(_AXES, med, crb_med)}}
 
 
 def summarize(rows: Sequence[dict[str, Any]], groupings: dict[str, str | None] = GROUPINGS) -> list[dict[str, Any]]:

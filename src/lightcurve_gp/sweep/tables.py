@@ -9,6 +9,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from lightcurve_gp.evaluation.reporting import RESULT_COLUMNS, CaseRecord, csv_text, quantiles
+from lightcurve_gp.evaluation.scoring import nees_band
 from lightcurve_gp.files import write_json_atomic, write_text_atomic
 from lightcurve_gp.sweep.grid import Case, value_text
 
@@ -16,11 +17,15 @@ __all__ = ["SUMMARY_METRICS", "SUMMARY_COLUMNS", "table_rows", "summarize_rows",
            "print_summary"]
 
 #: the metrics summarised by median and quartiles
-SUMMARY_METRICS = ("rmse_yaw_deg", "rmse_pitch_deg", "rmse_roll_deg", "lc_rmse_noisy", "lc_rmse_clean")
-#: columns of ``summary.csv`` after ``case_id`` and the grid columns
+SUMMARY_METRICS = ("rmse_yaw_deg", "rmse_pitch_deg", "rmse_roll_deg", "lc_rmse_noisy", "lc_rmse_clean",
+                   "crb_yaw_deg", "crb_pitch_deg", "crb_roll_deg")
+_AXES = ("yaw", "pitch", "roll")
+#: columns of ``summary.csv`` after ``case_id`` and the grid columns: the RMSE's median over the bound's median per
+#: axis beside them, the NEES's mean, median and the share of seeds in its one-draw band
 SUMMARY_COLUMNS = ("estimator", "seeds_ok", "seeds_failed",
                    *(f"{m}_{s}" for m in SUMMARY_METRICS for s in ("median", "q25", "q75")),
-                   "nees_mean", "seconds_per_step")
+                   *(f"rmse_over_crb_{a}" for a in _AXES), "nees_mean", "nees_median", "share_nees_in_band",
+                   "seconds_per_step")
 
 
 def table_rows(cases: Sequence[Case], records: dict[str, CaseRecord]) -> list[dict[str, Any]]:
@@ -38,7 +43,8 @@ def table_rows(cases: Sequence[Case], records: dict[str, CaseRecord]) -> list[di
 
 def summarize_rows(rows: Sequence[dict[str, Any]], keys: Sequence[str]) -> list[dict[str, Any]]:
     """Median, 25 % and 75 % quantiles (:func:`~lightcurve_gp.evaluation.reporting.quantiles`) of each metric per
-    (case, estimator) over the seeds with status ok; mean NEES and the time per step.
+    (case, estimator) over the seeds with status ok (the bound's too), the median RMSE over the median bound per
+    axis, the NEES's mean, median and share in its one-draw band, and the time per step.
 
     ``keys`` are the columns copied from the first row of each group (``case_id`` and the grid columns).
     """
@@ -53,8 +59,15 @@ def summarize_rows(rows: Sequence[dict[str, Any]], keys: Sequence[str]) -> list[
         for metric in SUMMARY_METRICS:
             q = quantiles([r[metric] for r in ok])
             entry.update({f"{metric}_median": q.median, f"{metric}_q25": q.q25, f"{metric}_q75": q.q75})
+        for a in _AXES:
+            crb = entry[f"crb_{a}_deg_median"]
+            finite = crb and math.isfinite(crb)
+            entry[f"rmse_over_crb_{a}"] = entry[f"rmse_{a}_deg_median"] / crb if finite else math.nan
         nees = [r["nees_mean"] for r in ok if r["nees_mean"] is not None]
+        band = nees_band()
         entry["nees_mean"] = float(np.mean(nees)) if nees else math.nan
+        entry["nees_median"] = quantiles(nees).median
+        entry["share_nees_in_band"] = float(np.mean([band[0] <= v <= band[1] for v in nees])) if nees else math.nan
         entry["seconds_per_step"] = ok[0]["seconds_per_step"] if ok else math.nan
         out.append(entry)
     return out
@@ -71,10 +84,11 @@ def write_sweep_tables(folder: Path, sweep_id: str, keys: Sequence[str], rows: S
 
 
 def print_summary(summary: Sequence[dict[str, Any]], grid_keys: Sequence[str]) -> None:
-    """Fixed-width medians per case and estimator on stdout."""
+    """Fixed-width medians per case and estimator on stdout, the RMSE over the bound and the mean NEES beside them."""
     print(" ".join(f"{k:>22}" for k in grid_keys)
-          + f" {'estimator':>12} {'yaw':>8} {'pitch':>8} {'roll':>8} {'LC':>6}")
+          + f" {'estimator':>12} {'yaw':>8} {'pitch':>8} {'roll':>8} {'LC':>6} {'RMSE/CRB':>17} {'NEES':>7}")
     for e in summary:
         cells = " ".join(f"{str(e[k]):>22}" for k in grid_keys)
+        ratio = " / ".join(f"{e[f'rmse_over_crb_{a}']:.1f}" for a in _AXES)
         print(f"{cells} {e['estimator']:>12} {e['rmse_yaw_deg_median']:8.2f} {e['rmse_pitch_deg_median']:8.2f} "
-              f"{e['rmse_roll_deg_median']:8.2f} {e['lc_rmse_noisy_median']:6.3f}")
+              f"{e['rmse_roll_deg_median']:8.2f} {e['lc_rmse_noisy_median']:6.3f} {ratio:>17} {e['nees_mean']:7.2f}")

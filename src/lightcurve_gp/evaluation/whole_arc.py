@@ -1,0 +1,109 @@
+"""The whole-arc batch MAP as an estimator: started from a filter's result and a small set of prior starts, solved on
+every seed of a scenario at once (:mod:`lightcurve_gp.inference.arc`), its covariance carried to every sample.
+
+Starts (``K`` per seed, one batch): the filter's final attitude moved back to ``t_0`` by the known motion (and its
+final surface state), the prior mean ``q_est,0`` and the prior mean turned by ``±√3 σ0`` about each body axis; with
+``screen > 0`` also the ``keep`` best by posterior cost of ``screen`` quasi-random draws from the prior (a scrambled
+Sobol' sequence mapped to ``N(0, σ0² I)``, the surface at its prior mean), which costs one rendering of the arc per
+draw. The measurement noise is the filters' ``R`` (``filter.measurement_noise``, or a per-sample ``R``); ω is known
+(the scenario's assumed rate). The estimate at sample ``k`` is ``q̂_k = Δ_k ⊗ q̂_0`` with covariance
+``A(Δ_k) Σ A(Δ_k)ᵀ`` (``Σ`` the reported attitude covariance at ``t_0``), so the NEES is scored at every sample.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from lightcurve_gp.attitude.rotations import attitude_matrix, quat_conj, quat_mul, rotvec_to_quat
+from lightcurve_gp.config.load import Config
+from lightcurve_gp.evaluation.scoring import Estimate
+from lightcurve_gp.filters.setup import first_observation
+from lightcurve_gp.filters.state import FilterHistory
+from lightcurve_gp.inference.arc import ArcProblem, ArcSolution, prior_axis_starts, solve_arc
+from lightcurve_gp.inference.solver import GaussianPrior, least_squares_cost
+from lightcurve_gp.inference.surface import cumulative_increments
+from lightcurve_gp.observation.surface_state import reference_surface, surface_state_prior
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.simulation.scenario import Scenario
+
+__all__ = ["SCREEN_SEED", "whole_arc_map", "arc_estimate"]
+
+#: seed of the scrambled Sobol' draws of the screening
+SCREEN_SEED = 27
+
+
+def _weights(observations: Tensor, R: float | Tensor) -> Tensor:
+    """``1/σ_k`` ``(S, T+1)``: 0 at ``k = 0`` and where a sample is missing."""
+    R = torch.as_tensor(R, dtype=observations.dtype, device=observations.device)
+    w = torch.where(torch.isfinite(observations), R.rsqrt().expand_as(observations), 0.0).clone()
+    w[:, 0] = 0.0
+    return w
+
+
+def _screened(problem: ArcProblem, prior: GaussianPrior, theta: Tensor | None, sigma0: Tensor, *, count: int,
+              keep: int) -> Tensor:
+    """The ``keep`` best of ``count`` prior draws per seed by posterior cost ``(keep, S, 4)``."""
+    S = sigma0.shape[0]
+    engine = torch.quasirandom.SobolEngine(3, scramble=True, seed=SCREEN_SEED)
+    u = engine.draw(count).to(sigma0).clamp(1e-6, 1 - 1e-6)
+    z = math.sqrt(2.0) * torch.erfinv(2.0 * u - 1.0)  # (count, 3) standard normals
+    e = (z.unsqueeze(1) * sigma0.view(1, S, 1)).reshape(count * S, 3)
+    x = e if theta is None else torch.cat([e, theta.repeat(count, 1)], -1)
+    rows = torch.arange(S, device=sigma0.device).repeat(count)
+    costs = []
+    for xc, rc in zip(x.split(1024), rows.split(1024)):
+        costs.append(least_squares_cost(problem(xc, rc), xc, rc, prior=prior, invalid_residual=1e3))
+    best = torch.cat(costs).view(count, S).topk(keep, dim=0, largest=False).indices  # (keep, S)
+    e_best = e.view(count, S, 3).gather(0, best.unsqueeze(-1).expand(keep, S, 3))
+    return quat_mul(rotvec_to_quat(e_best), problem.q_ref.unsqueeze(0))
+
+
+def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHistory | None, surface_known: bool,
+                  R: float | Tensor | None = None, screen: int = 0, keep: int = 4) -> ArcSolution:
+    """The whole-arc MAP of every seed of ``sc`` (module docstring).
+
+    Args:
+        cfg: the config (``filter.measurement_noise``, ``filter.offset_prior_std``, the reference surface).
+        scene: the renderer of the known shape (fixed, or per sample along the pass).
+        sc: the scenario; its ``q_est0`` and ``sigma0`` are the prior, its assumed increments the motion.
+        start: a filter's run on the same seeds (its final estimate is one start), or ``None``.
+        surface_known: render with the truth's surface (an oracle, like ``matched_ukf``); else the surface state
+            is estimated with the surface-state filter's prior.
+        R: the noise variance (mag²), a number or per sample ``(S, T+1)``; default ``filter.measurement_noise``.
+        screen, keep: prior draws screened by cost and how many of them become starts (0: none).
+    """
+    cum = cumulative_increments(sc.increments_assumed.to(sc.q_est0))
+    S = sc.q_est0.shape[0]
+    weight = _weights(sc.observations, cfg.filter.measurement_noise if R is None else R)
+    problem = ArcProblem(scene, q_ref=sc.q_est0, seed=torch.arange(S), cumulative=cum, observations=sc.observations,
+                         weight=weight, surface=sc.surface if surface_known else None)
+    sigma0 = sc.sigma0.to(sc.q_est0)
+    mean, precision = torch.zeros(S, 3, dtype=cum.dtype), sigma0.pow(-2).unsqueeze(-1).expand(S, 3)
+    theta0 = None
+    if not surface_known:
+        first = scene.sample(0) if scene.per_sample else scene
+        theta0, std = surface_state_prior(scene=first, q_est0=sc.q_est0, y0=first_observation(sc.observations),
+                                          reference=reference_surface(cfg), offset_std=cfg.filter.offset_prior_std)
+        mean, precision = torch.cat([mean, theta0], -1), torch.cat([precision, std.pow(-2).expand(S, 4)], -1)
+    starts = [prior_axis_starts(sc.q_est0, sigma0)]
+    thetas = [None if theta0 is None else theta0.expand(7, S, 4)]
+    if start is not None:
+        starts.insert(0, quat_mul(quat_conj(cum[:, -1]), start.q_est[:, -1]).unsqueeze(0))
+        thetas.insert(0, None if theta0 is None else start.theta[:, -1].unsqueeze(0))
+    if screen:
+        prior = GaussianPrior.independent(mean, precision)
+        starts.append(_screened(problem, prior, theta0, sigma0, count=screen, keep=keep))
+        thetas.append(None if theta0 is None else theta0.expand(keep, S, 4))
+    return solve_arc(problem, starts=torch.cat(starts), theta_starts=None if theta0 is None else torch.cat(thetas),
+                     prior_mean=mean, prior_precision=precision)
+
+
+def arc_estimate(sc: Scenario, solution: ArcSolution) -> Estimate:
+    """The :class:`~lightcurve_gp.evaluation.scoring.Estimate` of a whole-arc solution at every sample."""
+    cum = cumulative_increments(sc.increments_assumed.to(sc.q_est0))
+    rot = attitude_matrix(cum)  # A(Δ_k) turns the error at t_0 to sample k
+    P = rot @ solution.attitude_covariance.unsqueeze(1) @ rot.mT
+    return Estimate(quat_mul(cum, solution.q0.unsqueeze(1)), P)

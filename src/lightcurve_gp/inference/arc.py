@@ -1,0 +1,209 @@
+"""The batch MAP over the whole arc: the initial attitude (and the surface) from every sample at once, from several
+starts, with an honest Laplace covariance.
+
+Model (ω known, so every attitude follows the initial one by the cumulative increments ``q_k = Δ_k ⊗ q_0``): samples
+``ỹ_k = h(q_k; surface) + v_k``, ``v_k ~ N(0, σ_k²)``, ``k = 1 … T`` (``ỹ_0`` is the filters' ``m_past,0`` only; a
+missing sample is left out). State ``x = [e, θ]``: ``e`` the rotation vector (rad) of ``q_0 = q(e) ⊗ q̄_0`` about the
+prior mean ``q̄_0``, and, with the surface unknown, ``θ = (log ρ, logit F0, log n_u, log n_v)``
+(:mod:`lightcurve_gp.observation.surface_state`); prior ``e ~ N(0, σ0² I)`` (the filters' ``P0``) and ``θ`` the
+surface-state filter's. The cost is the negative log posterior ``½ Σ_k r_k² + ½ (x − μ)ᵀ Λ (x − μ)`` with whitened
+residuals ``r_k = (ỹ_k − h_k(x)) / σ_k``; a sample the renderer cannot predict (zero flux) costs ``(1e3)²/2``.
+
+Solved by Levenberg–Marquardt on the one least-squares core (:func:`~lightcurve_gp.inference.solver.
+batch_least_squares`, forward-difference Jacobian of all samples in one rendering call), every start of every
+object in one batch. The cost landscape of a light curve has several basins (the weak direction, the shape's
+near-symmetries, a wide prior), so one start is not enough: each object is solved from ``K`` starts and its
+**modes** are the distinct solutions (more than ``mode_angle_deg`` apart) within ``max_log_ratio`` nats of the best.
+Each mode's Laplace covariance is taken in its own chart (``q_0 = q(δ) ⊗ q̂_0``, linearised at ``δ = 0``) and the modes
+are weighted by their Laplace evidence ``w_m ∝ exp(−c_m) det(Σ_m)^{1/2}`` (as :mod:`lightcurve_gp.inference.
+families` weights inversion families). The estimate is the best mode (the MAP); its reported attitude covariance is
+the mixture's second moment about it, ``Σ_m w_m (Σ_m + d_m d_mᵀ)`` with ``d_m`` the rotation vector of
+``q_m ⊗ q̂⁻¹`` — the best mode's own covariance when it stands alone, wide when another basin fits almost as well, so
+that an ambiguous object is not a confident wrong one.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from lightcurve_gp.attitude.rotations import quat_conj, quat_mul, quat_to_rotvec, rotvec_to_quat
+from lightcurve_gp.inference.jacobian import jacobian
+from lightcurve_gp.inference.solver import GaussianPrior, LeastSquaresOptions, batch_least_squares
+from lightcurve_gp.observation.surface_state import surface_from_state
+from lightcurve_gp.photometry.brdf import Surface
+from lightcurve_gp.photometry.render import Scene
+
+__all__ = ["ArcProblem", "ArcSolution", "ARC_OPTIONS", "solve_arc", "prior_axis_starts", "mixture_covariance"]
+
+#: the solver's settings: Levenberg–Marquardt, forward differences (1e-6 in rad and surface units), a problem stops
+#: once every component of its step is below 1e-6 or its damping reaches 1e6; an unpredictable sample costs 1e3²/2
+ARC_OPTIONS = LeastSquaresOptions(method="levenberg_marquardt", iterations=25, tolerance=1e-6,
+                                  jacobian="forward_difference", step=1e-6, invalid_residual=1e3, covariance="none",
+                                  chunk=256)
+
+
+class ArcProblem:
+    """The whitened residuals of ``M`` problems (object ``seed[i]`` seen from the reference ``q_ref[i]``).
+
+    Args:
+        scene: the renderer of the known shape (fixed, or per sample along a pass).
+        q_ref: the chart's centre of each problem ``(M, 4)``: ``q_0 = q(e) ⊗ q_ref``.
+        seed: the object of each problem ``(M,)`` (int64 into the objects' rows below).
+        cumulative: ``Δ_k`` of each object ``(S, T+1, 4)``; observations: ``(S, T+1)`` (mag, NaN: missing).
+        weight: ``1/σ_k`` ``(S, T+1)`` (mag⁻¹), 0 for a sample left out (``k = 0``, missing).
+        surface: the known surface of each object (fields ``(S,)``); ``None``: the surface state is in ``x``.
+    """
+
+    def __init__(self, scene: Scene, *, q_ref: Tensor, seed: Tensor, cumulative: Tensor, observations: Tensor,
+                 weight: Tensor, surface: Surface | None) -> None:
+        self.scene, self.q_ref, self.seed, self.cum, self.surface = scene, q_ref, seed, cumulative, surface
+        self.y = torch.where(weight > 0, observations, 0.0)
+        self.weight = weight
+
+    def recentred(self, q_ref: Tensor, seed: Tensor) -> ArcProblem:
+        """The same objects seen from other chart centres ``q_ref (M', 4)`` of objects ``seed (M',)``."""
+        return ArcProblem(self.scene, q_ref=q_ref, seed=seed, cumulative=self.cum, observations=self.y,
+                          weight=self.weight, surface=self.surface)
+
+    def attitude(self, x: Tensor, rows: Tensor) -> Tensor:
+        """Initial attitudes ``q_0 = q(e) ⊗ q_ref`` ``(A, 4)`` of states ``x (A, n)`` of problems ``rows``."""
+        return quat_mul(rotvec_to_quat(x[:, :3]), self.q_ref[rows])
+
+    def magnitudes(self, x: Tensor, rows: Tensor) -> Tensor:
+        """Predicted magnitudes ``(A, T+1)`` (mag) of states ``x (A, n)`` of problems ``rows``."""
+        s = self.seed[rows]
+        q = quat_mul(self.cum[s], self.attitude(x, rows).unsqueeze(1))
+        surface = surface_from_state(x[:, 3:7]) if self.surface is None else Surface(*(t[s] for t in self.surface))
+        return self.scene.magnitude(q, surface=surface)
+
+    def __call__(self, x: Tensor, rows: Tensor) -> Tensor:
+        """Whitened residuals ``(A, T+1)``; 0 where a sample is left out."""
+        s = self.seed[rows]
+        w = self.weight[s]
+        return torch.where(w > 0, (self.y[s] - self.magnitudes(x, rows)) * w, 0.0)
+
+
+@dataclass
+class ArcSolution:
+    """The whole-arc MAP of ``S`` objects from ``K`` starts each.
+
+    Attributes:
+        q0: the estimate, the best mode's initial attitude ``(S, 4)``; theta: its surface state ``(S, 4)`` or
+            ``None``.
+        covariance: the best mode's Laplace covariance of ``[δ, θ]`` in its own chart ``(S, n, n)``.
+        attitude_covariance: the reported attitude covariance ``(S, 3, 3)`` (rad²): the modes' mixture about the
+            estimate (module docstring).
+        cost: the best cost ``(S,)``; modes: the number of modes kept ``(S,)``; best_start: the start that found
+            it ``(S,)``; weight_best: the best mode's evidence weight ``(S,)``.
+        start_q0, start_cost: every start's solution ``(K, S, 4)`` and cost ``(K, S)``.
+    """
+
+    q0: Tensor
+    theta: Tensor | None
+    covariance: Tensor
+    attitude_covariance: Tensor
+    cost: Tensor
+    modes: Tensor
+    best_start: Tensor
+    weight_best: Tensor
+    start_q0: Tensor
+    start_cost: Tensor
+
+
+def prior_axis_starts(q_prior: Tensor, sigma0: Tensor, *, spread: float = math.sqrt(3.0)) -> Tensor:
+    """The prior mean and ``±spread · σ0`` about each body axis of it: ``(7, S, 4)`` from ``q_prior (S, 4)``,
+    ``sigma0 (S,)`` (rad)."""
+    S = q_prior.shape[0]
+    starts = [q_prior]
+    for axis in range(3):
+        for sign in (1.0, -1.0):
+            e = torch.zeros(S, 3, dtype=q_prior.dtype, device=q_prior.device)
+            e[:, axis] = sign * spread * sigma0.to(q_prior)
+            starts.append(quat_mul(rotvec_to_quat(e), q_prior))
+    return torch.stack(starts)
+
+
+def solve_arc(problem: ArcProblem, *, starts: Tensor, theta_starts: Tensor | None, prior_mean: Tensor,
+              prior_precision: Tensor, options: LeastSquaresOptions = ARC_OPTIONS, max_log_ratio: float = 10.0,
+              mode_angle_deg: float = 1.0) -> ArcSolution:
+    """The whole-arc MAP of the ``S`` objects of ``problem`` (whose ``q_ref (S, 4)`` is the prior mean, ``seed`` the
+    identity) from the starts ``(K, S, 4)`` (and surface states ``(K, S, 4)`` with the surface unknown), all ``K S``
+    in one batch (module docstring).
+
+    Args:
+        prior_mean: ``μ`` of ``x = [e, θ]`` ``(S, n)`` (``e``'s part 0); prior_precision: ``Λ``'s diagonal ``(S, n)``.
+        max_log_ratio: modes more than this many nats above the best are dropped.
+        mode_angle_deg: solutions closer than this are one mode.
+    """
+    K, S = starts.shape[:2]
+    seed = torch.arange(S, device=starts.device).repeat(K)
+    q_prior = problem.q_ref
+    e0 = quat_to_rotvec(quat_mul(starts.reshape(K * S, 4), quat_conj(q_prior[seed])))
+    x0 = e0 if theta_starts is None else torch.cat([e0, theta_starts.reshape(K * S, -1)], -1)
+    tiled = problem.recentred(q_prior[seed], seed)
+    gaussian = GaussianPrior.independent(prior_mean[seed], prior_precision[seed])
+    result = batch_least_squares(tiled, x0, prior=gaussian, variance=1.0, options=options)
+    q_all = tiled.attitude(result.x, torch.arange(K * S, device=starts.device))
+    theta_all = None if theta_starts is None else result.x[:, 3:]
+    cov_all = _local_covariance(problem, q_all, theta_all, seed, prior_precision[seed], options)
+    cost = result.cost.view(K, S)
+    return _modes(q_all.view(K, S, 4), None if theta_all is None else theta_all.view(K, S, -1),
+                  cov_all.view(K, S, *cov_all.shape[-2:]), cost, max_log_ratio, mode_angle_deg)
+
+
+def _local_covariance(problem: ArcProblem, q0: Tensor, theta: Tensor | None, seed: Tensor, precision: Tensor,
+                      options: LeastSquaresOptions) -> Tensor:
+    """Laplace covariances ``(M, n, n)`` of solutions ``q0 (M, 4)`` (and ``θ``) of objects ``seed``, each in its own
+    chart (``δ = 0`` at the solution): ``(JᵀJ + Λ)⁻¹``, NaN where singular."""
+    local = problem.recentred(q0, seed)
+    x = torch.zeros(q0.shape[0], 3, dtype=q0.dtype, device=q0.device)
+    x = x if theta is None else torch.cat([x, theta], -1)
+    rows = torch.arange(q0.shape[0], device=q0.device)
+    size = options.chunk or q0.shape[0]
+    blocks = []
+    for xc, rc in zip(x.split(size), rows.split(size)):
+        r, J = jacobian(local, xc, rc, method=options.jacobian, step=options.step)
+        J = torch.where((torch.isfinite(r) & torch.isfinite(J).all(-1)).unsqueeze(-1), J, 0.0)
+        blocks.append(J.mT @ J + torch.diag_embed(precision[rc]))
+    cov, info = torch.linalg.inv_ex(torch.cat(blocks))
+    return torch.where((info != 0)[:, None, None], torch.nan, cov)
+
+
+def _modes(q0: Tensor, theta: Tensor | None, cov: Tensor, cost: Tensor, max_log_ratio: float,
+           mode_angle_deg: float) -> ArcSolution:
+    """The best start per object, its modes and the mixture covariance about it (module docstring)."""
+    K, S = cost.shape
+    finite = torch.isfinite(cost) & torch.isfinite(cov).flatten(-2).all(-1)
+    cost = torch.where(finite, cost, math.inf)
+    best = cost.argmin(0)
+    cols = torch.arange(S, device=cost.device)
+    q_best, cost_best = q0[best, cols], cost[best, cols]
+    d = quat_to_rotvec(quat_mul(q0, quat_conj(q_best).unsqueeze(0)))  # (K, S, 3)
+    candidate = finite & (cost - cost_best <= max_log_ratio)
+    # one mode per cluster: a start counts when no better start lies within the angle (greedy, best first)
+    order = torch.argsort(cost, dim=0)
+    head = torch.zeros_like(candidate)
+    for rank in range(K):
+        i = order[rank]
+        apart = quat_to_rotvec(quat_mul(q0, quat_conj(q0[i, cols]).unsqueeze(0)))
+        near = torch.rad2deg(torch.linalg.vector_norm(apart, dim=-1)) < mode_angle_deg  # (K, S)
+        head[i, cols] = candidate[i, cols] & ~(head & near).any(0)
+    eye = torch.eye(3, dtype=cov.dtype, device=cov.device)
+    att = torch.where(head[..., None, None], cov[..., :3, :3], eye)
+    logdet = torch.linalg.slogdet(att)
+    log_w = torch.where(head & (logdet.sign > 0), -cost + 0.5 * logdet.logabsdet, -math.inf)
+    w = torch.softmax(log_w, dim=0)  # (K, S), zero off the modes
+    mixture = mixture_covariance(att, torch.where(head.unsqueeze(-1), d, 0.0), w)
+    return ArcSolution(q0=q_best, theta=None if theta is None else theta[best, cols], covariance=cov[best, cols],
+                       attitude_covariance=mixture, cost=cost_best, modes=head.sum(0), best_start=best,
+                       weight_best=w[best, cols], start_q0=q0, start_cost=cost)
+
+
+def mixture_covariance(covariances: Tensor, offsets: Tensor, weights: Tensor) -> Tensor:
+    """``Σ_m w_m (Σ_m + d_m d_mᵀ)`` ``(..., 3, 3)`` of mode covariances ``(M, ..., 3, 3)``, offsets from the estimate
+    ``(M, ..., 3)`` and weights ``(M, ...)`` (summing to 1 over ``M``)."""
+    return (weights[..., None, None] * (covariances + offsets.unsqueeze(-1) * offsets.unsqueeze(-2))).sum(0)
