@@ -73,7 +73,7 @@ def test_bad_config_value_is_reported_with_its_key(tmp_path, capsys):
 
 def test_estimate_prints_the_table_and_writes_results(trained, tmp_path, capsys):
     code = estimate.main([BOXWING, "--model", str(trained / "tiny" / "model.pt"), "--seeds", "3", "--rho-true", "0.7",
-                          "--out", str(tmp_path), *sets(TINY)])
+                          "--estimators", "paper", "--out", str(tmp_path), *sets(TINY)])
     assert code == 0
     printed = capsys.readouterr().out
     for name in ("gpukf", "ukf", "matched_ukf", "no_update", "rho_true = 0.7"):
@@ -99,7 +99,7 @@ def test_estimate_errors_are_clear(tmp_path, capsys):
                           *sets(TINY)]) == 2
     assert capsys.readouterr().err == ("error: --estimators: unknown estimator 'kalman'; choose from gpukf, ukf, "
                                        "matched_ukf, joint_ukf, surface_ukf, surface_ukf_select, map_surface, "
-                                       "map_offset, no_update\n")
+                                       "map_offset, map, matched_map, no_update\n")
     assert list(tmp_path.iterdir()) == [bad]
 
 

@@ -1,12 +1,15 @@
-"""``python -m lightcurve_gp.estimate CONFIG --model runs/<name>/model.pt``: GPUKF vs UKF on the paper's scenario.
+"""``python -m lightcurve_gp.estimate CONFIG [--model runs/<name>/model.pt]``: the config's scenario estimated.
 
 With ``--light-curve FILE`` it runs the GPUKF on a light-curve file instead
 (:mod:`lightcurve_gp.commands.estimate_file`).
 
-Runs the GPUKF (trained model), the conventional UKF (renderer with ``filter.rho_assumed``), the matched-ρ UKF
-(an oracle knowing ``rho_true``) and the no-update baseline over ``--seeds`` noise realisations, prints median
-and inter-quartile RMSE per axis, and writes to ``OUT/estimates/<name>/rho<rho>/`` (beside the training run
-``OUT/<name>/``, never inside it: :mod:`lightcurve_gp.commands.layout`): ``results.json``,
+Without ``--estimators`` it runs the recommended estimator for the config and its noise
+(:func:`~lightcurve_gp.evaluation.recommend.recommend_estimator`; it prints what it picked and why); ``--estimators
+paper`` runs the paper's: the GPUKF (trained model), the conventional UKF (renderer with ``filter.rho_assumed``), the
+matched-ρ UKF (an oracle knowing ``rho_true``) and the no-update baseline. Over ``--seeds`` noise realisations it
+prints median and inter-quartile RMSE per axis with the Cramér–Rao bound, RMSE/CRB and the NEES beside them, and
+writes to ``OUT/estimates/<name>/rho<rho>/`` (beside the training run ``OUT/<name>/``, never inside it:
+:mod:`lightcurve_gp.commands.layout`): ``results.json`` (with the recommendation's line under ``run``),
 ``euler_errors.png`` and ``light_curves.png`` (seed 0, paper style: GPUKF blue, UKF red, observations black) and
 ``rmse_boxplot.png`` (all seeds).
 
@@ -21,6 +24,7 @@ config, the model file and its SHA-256, the seeds, the package/torch/Python vers
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from tqdm.auto import tqdm
@@ -45,6 +49,7 @@ from lightcurve_gp.commands.layout import estimate_folder
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.evaluation.harness import ScenarioResult, check_estimators, run_estimators
 from lightcurve_gp.evaluation.plots import euler_errors, light_curves, rmse_boxplot
+from lightcurve_gp.evaluation.recommend import Recommendation, recommend_estimator
 from lightcurve_gp.evaluation.registry import DEFAULT_ESTIMATORS, ESTIMATORS
 from lightcurve_gp.evaluation.reporting import scenario_summary
 from lightcurve_gp.files import RunFolder, write_json_atomic
@@ -79,6 +84,13 @@ def format_table(summary: dict) -> str:
                      f"{e['nees_mean']:6.2f} {1e3 * e['seconds_per_step']:8.3f} "
                      f"{1e6 * e['seconds_per_filter_step']:14.1f}")
     lo, hi = summary["nees_band_95"]
+    lines.append(f"{'':<{width}} {'CRB yaw / pitch / roll':>24} {'RMSE/CRB':>17} {'NEES mean':>10} {'median':>7} "
+                 f"{'in band':>8}")
+    for name, e in summary["estimators"].items():
+        share = e["share_nees_in_band"]
+        lines.append(f"{name:<{width}} {_triple(e['crb_deg_median'], 2):>24} {_triple(e['rmse_over_crb'], 1):>17} "
+                     f"{e['nees_mean']:10.2f} {e['nees_median']:7.2f} "
+                     f"{'-' if math.isnan(share) else f'{100 * share:.0f}%':>8}")
     if summary.get("omega_estimated"):
         lines.append("body rate estimated: median omega RMSE over the window / final omega error (deg/s), mean NEES "
                      "of [attitude, omega] (95 % band)")
@@ -92,6 +104,10 @@ def format_table(summary: dict) -> str:
     return "\n".join(lines)
 
 
+def _triple(values: list[float], digits: int) -> str:
+    return "-" if not all(math.isfinite(v) for v in values) else " / ".join(f"{v:.{digits}f}" for v in values)
+
+
 COLUMN_NOTES = (
     "yaw/pitch/roll: RMSE of the 3-2-1 Euler-angle error over the scoring window, per seed; median [q25, q75] "
     "over the seeds, deg",
@@ -99,6 +115,11 @@ COLUMN_NOTES = (
     "LC rmse: median over seeds of the RMS difference between the estimator's predicted and the observed (noisy) "
     "light curve, mag (NaN for no_update, which predicts none)",
     "NEES: normalised estimation error squared, mean over the window and the seeds (3 for a consistent filter)",
+    "CRB: the Cramer-Rao bound of the same problem (the estimator's unknowns, the filters' prior; the filtering bound "
+    "for filters, the smoothing bound for the whole-arc MAP), RMS over the window, median over the seeds, deg; "
+    "RMSE/CRB: median RMSE over median CRB per axis",
+    "NEES median and in band: median over the seeds of the time-averaged NEES and the share of seeds inside its "
+    "one-draw 95 % chi-square(3) band",
     "ms/step: wall time of one filter step for all seeds in one batch; us/filter-step: the same per seed",
 )
 
@@ -127,9 +148,10 @@ def write_outputs(result: ScenarioResult, folder: Path, title: str = "", record:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m lightcurve_gp.estimate",
-        description="Estimate the attitude of the config's simulated scenario with the GPUKF (a trained model file), "
-                    "the conventional UKF (renderer with filter.rho_assumed), a matched-rho UKF and the no-update "
-                    "baseline, over many noise seeds batched in one filter run each. Writes the new folder "
+        description="Estimate the attitude of the config's simulated scenario over many noise seeds batched in one "
+                    "run per estimator: the recommended estimator for the config and its noise (printed with the "
+                    "reason), or --estimators (paper: the GPUKF, the conventional UKF, a matched-rho UKF and the "
+                    "no-update baseline). Writes the new folder "
                     "OUT/estimates/<name>/rho<rho>/ (results.json, three figures) atomically, beside the training "
                     "run OUT/<name>/ (never inside it); an existing one is refused unless --force. With "
                     "--light-curve: OUT/estimates/<name>/light_curve_<file stem>/.",
@@ -140,8 +162,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seeds", type=int, default=None, help="number of noise seeds (default: scenario.seeds)")
     parser.add_argument("--rho-true", type=float, default=None, help="true rho in (0, 1] (default: scenario.rho_true)")
     parser.add_argument("--estimators", default=None,
-                        help=f"comma-separated subset of {','.join(ESTIMATORS)} (default: "
-                             f"{','.join(DEFAULT_ESTIMATORS)}, without gpukf when no --model is given)")
+                        help=f"comma-separated subset of {','.join(ESTIMATORS)}, or paper (= "
+                             f"{','.join(DEFAULT_ESTIMATORS)}, without gpukf when no --model is given) (default: the "
+                             f"recommended estimator for the config and its noise, printed with the reason)")
     parser.add_argument("--allow-model-mismatch", action="store_true",
                         help="run a model trained with other data/model settings than the config's (recorded in "
                              "results.json)")
@@ -154,7 +177,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _estimators(text: str | None, have_model: bool) -> list[str]:
-    if text is None:
+    if text is None or text.strip() == "paper":
         return [e for e in DEFAULT_ESTIMATORS if have_model or e != "gpukf"]
     names = [e.strip() for e in text.split(",") if e.strip()]
     if not names:
@@ -223,6 +246,12 @@ def _run_all(cfg, model, estimators: list[str], args: argparse.Namespace, progre
     return merged
 
 
+def _announce(recommended: Recommendation | None) -> None:
+    """Say which estimator runs by default and why (one line), and how to run the paper's."""
+    if recommended is not None:
+        print(f"{recommended.line()} (--estimators paper: the paper's estimators)", flush=True)
+
+
 def _run(args: argparse.Namespace) -> int:
     apply_threads(args.threads)
     check_overrides(args.overrides)
@@ -233,7 +262,16 @@ def _run(args: argparse.Namespace) -> int:
         if args.model is None:
             raise UserError("--model: --light-curve runs the GPUKF, which needs a trained model file")
         return run_on_file(args, cfg, *_load_checked_model(args, cfg))
-    estimators = _estimators(args.estimators, args.model is not None)
+    recommended = None
+    if args.estimators is None:
+        try:
+            recommended = recommend_estimator(cfg, noise_std=math.sqrt(cfg.scenario.noise_var),
+                                              have_model=args.model is not None)
+        except ValueError as exc:
+            raise UserError(str(exc)) from exc
+        estimators = [recommended.name]
+    else:
+        estimators = _estimators(args.estimators, args.model is not None)
     model, model_info = _load_checked_model(args, cfg)
     check_output_root(args.out)
     rho = truth_material(cfg, args.rho_true)[0]
@@ -243,7 +281,8 @@ def _run(args: argparse.Namespace) -> int:
     _check_memory(cfg, model, n_seeds, estimators)
     seeds = list(range(n_seeds))
     record = provenance(cfg, seeds=seeds, config_file=str(args.config), estimators=estimators, rho_true=rho,
-                        **model_info)
+                        recommended=None if recommended is None else recommended.line(), **model_info)
+    _announce(recommended)
     try:
         result = _run_all(cfg, model, estimators, args, progress_enabled(args.no_progress))
     except ValueError as exc:  # e.g. a model whose target the filter cannot use
