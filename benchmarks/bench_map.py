@@ -38,8 +38,8 @@ def whole_arc(cfg, scene, sc, surface_known: bool):
 
 
 def measure(fn, repeats: int) -> tuple[float, float]:
-    """Median wall and process CPU seconds of ``repeats`` calls (after one untimed warm-up call)."""
-    fn()
+    """Median wall and process CPU seconds of ``repeats`` calls (no warm-up: nothing here compiles; the first call's
+    start-up is part of its time)."""
     walls, cpus = [], []
     for _ in range(repeats):
         wall, cpu = time.perf_counter(), time.process_time()
