@@ -89,6 +89,7 @@ def print_summary(summary: Sequence[dict[str, Any]], grid_keys: Sequence[str]) -
           + f" {'estimator':>12} {'yaw':>8} {'pitch':>8} {'roll':>8} {'LC':>6} {'RMSE/CRB':>17} {'NEES':>7}")
     for e in summary:
         cells = " ".join(f"{str(e[k]):>22}" for k in grid_keys)
-        ratio = " / ".join(f"{e[f'rmse_over_crb_{a}']:.1f}" for a in _AXES)
+        ratio = " / ".join(f"{e.get(f'rmse_over_crb_{a}', math.nan):.1f}" for a in _AXES)  # NaN: not computed
         print(f"{cells} {e['estimator']:>12} {e['rmse_yaw_deg_median']:8.2f} {e['rmse_pitch_deg_median']:8.2f} "
-              f"{e['rmse_roll_deg_median']:8.2f} {e['lc_rmse_noisy_median']:6.3f} {ratio:>17} {e['nees_mean']:7.2f}")
+              f"{e['rmse_roll_deg_median']:8.2f} {e['lc_rmse_noisy_median']:6.3f} {ratio:>17} "
+              f"{e.get('nees_mean', math.nan):7.2f}")
