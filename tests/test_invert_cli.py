@@ -30,6 +30,7 @@ def observed(tmp_path_factory):
     return folder, obs
 
 
+@pytest.mark.slow  # ~20 s on two loaded cores
 def test_invert_writes_solutions_that_round_trip_and_hold_the_truth(observed):
     folder, obs = observed
     out = folder / "runs"

@@ -147,6 +147,7 @@ def test_write_json_atomic_writes_null_for_nan_and_infinity(tmp_path):
     assert strict_json(path) == {"a": None, "b": [None, None, 1.5], "c": {"d": None}, "e": [None, 2]}
 
 
+@pytest.mark.slow  # ~7 s on two loaded cores
 def test_estimate_results_are_strict_json(tmp_path):
     assert run_estimate("--estimators", "ukf,no_update", "--seeds", "1", "--out", str(tmp_path)) == 0
     results = strict_json(tmp_path / "estimates" / "tiny" / "rho0.5" / "results.json")
@@ -313,6 +314,7 @@ def test_the_box_wing_images_are_its_four_symmetries():
     assert torch.equal(images[0], torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=torch.float64))
 
 
+@pytest.mark.slow  # ~5 s on two loaded cores
 def test_a_flat_bank_on_a_file_says_ambiguous_in_words_and_in_the_summary(tmp_path, capsys, model_file, observed):
     out = tmp_path / "out"
     assert run_estimate("--model", str(model_file), "--light-curve", str(observed), "--out", str(out),

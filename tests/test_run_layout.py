@@ -19,6 +19,7 @@ TINY = ["data.icosphere_subdivisions=0", "data.phi_step_deg=120", "data.heldout_
 SETS = [arg for o in TINY for arg in ("--set", o)]
 
 
+@pytest.mark.slow  # ~7 s on two loaded cores
 def test_train_estimate_sweep_then_train_force_and_the_sweep_trains_nothing(tmp_path, monkeypatch, capsys):
     out = tmp_path / "runs"
     assert train.main([BOXWING, "--out", str(out), "--no-progress", *SETS]) == 0

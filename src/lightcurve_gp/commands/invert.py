@@ -30,7 +30,6 @@ from lightcurve_gp.commands.common import (
     apply_threads,
     check_new_folder,
     check_output_root,
-    exit_process,
     progress_enabled,
     provenance,
     run_command,
@@ -193,6 +192,3 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     return run_command(lambda: _run(args), debug=args.debug)
 
-
-if __name__ == "__main__":
-    exit_process(main())
