@@ -183,7 +183,7 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
     check_light_curve(cfg, lc)
     try:
         check_model_takes_geometry(model, lc)
-        file_geometry(lc)
+        geometry = file_geometry(lc)
     except FileGeometryError as exc:
         raise UserError(str(exc)) from None
     check_output_root(args.out)
@@ -205,7 +205,8 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
                                                          prune_keep=args.bank_prune_keep),
                             status=f"running the {status}", progress=progress_enabled(args.no_progress))
     table = history_table(run, cfg.model.rho_reference if cfg.filter.estimate_offset else None)
-    verdict = None if run.bank is None else bank_verdict(run.bank, ambiguity_images(cfg))
+    verdict = None if run.bank is None else bank_verdict(
+        run.bank, ambiguity_images(cfg, samples=len(lc.t), geometry=geometry))
     result = summary(run, record, verdict)
     with RunFolder(folder, force=args.force) as tmp:
         write_table(table, tmp / "attitude_history.ecsv", fmt="ascii.ecsv")
