@@ -60,6 +60,14 @@ def run_estimate(*args: str) -> int:
                               "alone)\n"),
     (["--initial-attitude=0,0,0,1", "--bank-size", "64"],
      "error: --bank-size: does not apply with --initial-attitude (no bank runs)\n"),
+    (["--solutions", "solutions.ecsv", "--bank-size", "64"],
+     "error: --bank-size: does not apply with --solutions (no bank runs)\n"),
+    (["--solutions", "solutions.ecsv", "--bank-keep", "2"],
+     "error: --bank-keep: does not apply with --solutions (no bank runs)\n"),
+    (["--solutions", "solutions.ecsv", "--bank-prune-after-s", "10"],
+     "error: --bank-prune-after-s: does not apply with --solutions (no bank runs)\n"),
+    (["--solutions", "solutions.ecsv", "--bank-prune-after-s", "10", "--bank-prune-keep", "8"],
+     "error: --bank-prune-after-s: does not apply with --solutions (no bank runs)\n"),
 ])
 def test_options_that_do_not_apply_to_a_file_are_refused(tmp_path, capsys, args, message):
     code = run_estimate("--model", str(tmp_path / "absent.pt"), "--light-curve", str(tmp_path / "absent.ecsv"),
@@ -68,8 +76,8 @@ def test_options_that_do_not_apply_to_a_file_are_refused(tmp_path, capsys, args,
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize("option", ["--initial-attitude=0,0,0,1", "--bank-size=64", "--bank-keep=2",
-                                    "--bank-prune-after-s=10", "--bank-prune-keep=8"])
+@pytest.mark.parametrize("option", ["--initial-attitude=0,0,0,1", "--solutions=solutions.ecsv", "--bank-size=64",
+                                    "--bank-keep=2", "--bank-prune-after-s=10", "--bank-prune-keep=8"])
 def test_file_options_without_a_file_are_refused(tmp_path, capsys, option):
     assert run_estimate("--estimators", "ukf", "--seeds", "1", "--out", str(tmp_path), option) == 2
     name = option.split("=")[0]

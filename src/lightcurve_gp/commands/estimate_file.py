@@ -10,9 +10,10 @@ Without ``--initial-attitude`` the run starts from the global-start bank (``--ba
 without a bank) and an ambiguous answer is printed as a warning in words; the exit code stays 0.
 
 Options that do not apply are refused before anything is read (:func:`check_options`): ``--seeds``, ``--rho-true``
-and ``--estimators`` with ``--light-curve``; ``--initial-attitude`` and the bank options without it; the bank
-options with ``--initial-attitude``. A light curve too short for the filter's state, or too long for the known-spin
-propagation, is refused before the filter runs (:func:`lightcurve_gp.observed.run.check_light_curve`).
+and ``--estimators`` with ``--light-curve``; ``--initial-attitude``, ``--solutions`` and the bank options without
+it; the bank options with ``--initial-attitude`` or ``--solutions`` (no bank runs then). A light curve too short
+for the filter's state, or too long for the known-spin propagation, is refused before the filter runs
+(:func:`lightcurve_gp.observed.run.check_light_curve`).
 
 A file with per-sample geometry or a TLE and site runs along its pass
 (:func:`lightcurve_gp.observed.run.file_geometry`) with a model that takes geometry.
@@ -100,11 +101,12 @@ def check_options(args: argparse.Namespace) -> None:
         for name, why in SCENARIO_OPTIONS.items():
             if given(name):
                 raise UserError(f"{_option(name)}: does not apply with --light-curve ({why})")
-    for name in ("initial_attitude", *BANK_DEFAULTS):
+    for name in ("initial_attitude", "solutions", *BANK_DEFAULTS):
         if given(name) and args.light_curve is None:
             raise UserError(f"{_option(name)}: applies only with --light-curve")
-        if given(name) and name != "initial_attitude" and given("initial_attitude"):
-            raise UserError(f"{_option(name)}: does not apply with --initial-attitude (no bank runs)")
+        for start in ("initial_attitude", "solutions"):
+            if given(name) and name in BANK_DEFAULTS and given(start):
+                raise UserError(f"{_option(name)}: does not apply with {_option(start)} (no bank runs)")
     if given("bank_prune_keep") and not given("bank_prune_after_s"):
         raise UserError("--bank-prune-keep: applies only with --bank-prune-after-s")
     for name, value in BANK_DEFAULTS.items():
