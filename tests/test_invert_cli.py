@@ -35,7 +35,7 @@ def test_invert_writes_solutions_that_round_trip_and_hold_the_truth(observed):
     out = folder / "runs"
     assert invert_main([CONFIG, "--light-curve", str(obs), "--starts", "256", "--out", str(out), "--no-progress",
                         *SHORT]) == 0
-    run = out / "boxwing" / "invert_obs"
+    run = out / "estimates" / "boxwing" / "invert_obs"
     assert {p.name for p in run.iterdir()} == {"solutions.ecsv", "summary.json", "periodogram.png", "light_curve.png"}
     table = read_solutions(run / "solutions.ecsv")
     assert list(table["rank"]) == list(range(1, len(table) + 1))
