@@ -121,6 +121,17 @@ def test_the_harness_scores_modulo_the_scenarios_derived_images(case, estimate_o
     assert float(r.rmse_deg.min()) > 10.0
 
 
+def test_along_a_pass_with_the_spin_known_the_only_image_is_the_truth():
+    """Along the GEO pass (120 s) the moving Sun and observer break the inertial turns and the known rate rules out
+    the body turns: the derived group is the identity alone, so the scores modulo symmetry are the strict ones."""
+    cfg = load_config(CONFIGS / "geo_pass.yaml", ["scenario.duration_s=120", "evaluation.rmse_window_s=[0, 120]",
+                                                  "shape.box_grid=1", "shape.wing_grid=1"])
+    sc = simulate_scenario(cfg, seeds=[0])
+    group = scenario_ambiguity_group(cfg, sc)
+    assert group.labels == ("body identity · inertial identity",)
+    assert torch.equal(group.body, torch.tensor([[0.0, 0.0, 0.0, 1.0]], dtype=DT))
+
+
 def test_the_map_runs_through_the_harness_at_its_checkpoints(case):
     cfg, scene, sc = case
     result = run_estimators(cfg, sc, estimators=["map_offset"], scene=scene, map_every_s=10.0)
