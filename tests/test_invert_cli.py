@@ -1,6 +1,7 @@
 """The invert command on a file from simulate: the solutions file round-trips and holds the truth's family; bad
 files and impossible settings are one-line errors that write nothing."""
 
+import json
 import math
 from pathlib import Path
 
@@ -40,6 +41,10 @@ def test_invert_writes_solutions_that_round_trip_and_hold_the_truth(observed):
     table = read_solutions(run / "solutions.ecsv")
     assert list(table["rank"]) == list(range(1, len(table) + 1))
     assert abs(float(np.sum(table["weight"])) - 1.0) < 1e-9 and len(table.meta["images"]) == 16
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["ambiguity_images"]["labels"] == table.meta["images"] and summary["periodogram_detection"]
+    assert summary["ambiguity_images"]["source"].startswith("derived by") and not summary["ambiguity_images"][
+        "rate_known"]
     q, w, rho = best_solution(table)
     cfg = load_config(CONFIG, SHORT[1::2])
     scene = Scene.from_config(cfg)

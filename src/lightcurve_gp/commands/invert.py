@@ -152,8 +152,9 @@ def _figures(folder: Path, t: np.ndarray, problem: TrajectoryProblem, inv: Inver
 
 def _summary(inv: Inversion, fam: Families, group, settings: InversionSettings, record: dict) -> dict:
     return {"families": len(fam), "converged_solutions": int(inv.q0.shape[0]), "images": list(group.labels),
-            "top_weight": float(fam.weight[0]), "rate_candidates_deg_s": [float(r) for r in
-                                                                          inv.periodogram.rates_deg_s],
+            "ambiguity_images": group.as_dict(), "top_weight": float(fam.weight[0]),
+            "rate_candidates_deg_s": [float(r) for r in inv.periodogram.rates_deg_s],
+            "periodogram_detection": inv.periodogram.detection,
             "screened_rates": int(inv.rate_grid.shape[0]), "seconds": inv.seconds,
             "settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(settings).items()},
             "run": record}
