@@ -10,9 +10,10 @@ Without ``--initial-attitude`` the run starts from the global-start bank (``--ba
 without a bank) and an ambiguous answer is printed as a warning in words; the exit code stays 0.
 
 Options that do not apply are refused before anything is read (:func:`check_options`): ``--seeds``, ``--rho-true``
-and ``--estimators`` with ``--light-curve``; ``--initial-attitude`` and the bank options without it; the bank
-options with ``--initial-attitude``. A light curve too short for the filter's state, or too long for the known-spin
-propagation, is refused before the filter runs (:func:`lightcurve_gp.observed.run.check_light_curve`).
+and ``--estimators`` with ``--light-curve``; ``--initial-attitude``, ``--solutions`` and the bank options without
+it; the bank options with ``--initial-attitude`` or ``--solutions`` (no bank runs then). A light curve too short
+for the filter's state, or too long for the known-spin propagation, is refused before the filter runs
+(:func:`lightcurve_gp.observed.run.check_light_curve`).
 
 A file with per-sample geometry or a TLE and site runs along its pass
 (:func:`lightcurve_gp.observed.run.file_geometry`) with a model that takes geometry.
@@ -97,11 +98,12 @@ def check_options(args: argparse.Namespace) -> None:
         for name, why in SCENARIO_OPTIONS.items():
             if given(name):
                 raise UserError(f"{_option(name)}: does not apply with --light-curve ({why})")
-    for name in ("initial_attitude", *BANK_DEFAULTS):
+    for name in ("initial_attitude", "solutions", *BANK_DEFAULTS):
         if given(name) and args.light_curve is None:
             raise UserError(f"{_option(name)}: applies only with --light-curve")
-        if given(name) and name != "initial_attitude" and given("initial_attitude"):
-            raise UserError(f"{_option(name)}: does not apply with --initial-attitude (no bank runs)")
+        for start in ("initial_attitude", "solutions"):
+            if given(name) and name in BANK_DEFAULTS and given(start):
+                raise UserError(f"{_option(name)}: does not apply with {_option(start)} (no bank runs)")
     if given("bank_prune_keep") and not given("bank_prune_after_s"):
         raise UserError("--bank-prune-keep: applies only with --bank-prune-after-s")
     for name, value in BANK_DEFAULTS.items():
@@ -156,7 +158,7 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
     check_light_curve(cfg, lc)
     try:
         check_model_takes_geometry(model, lc)
-        file_geometry(lc)
+        geometry = file_geometry(lc)
     except FileGeometryError as exc:
         raise UserError(str(exc)) from None
     check_output_root(args.out)
@@ -177,7 +179,8 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
                                                          prune_after_s=args.bank_prune_after_s,
                                                          prune_keep=args.bank_prune_keep),
                             status=f"running the {status}", progress=progress_enabled(args.no_progress))
-    result = finish(run, record=record, status=status, images=ambiguity_images(cfg),
+    group = None if run.bank is None else ambiguity_images(cfg, samples=len(lc.t), geometry=geometry)
+    result = finish(run, record=record, status=status, group=group,
                     rho_reference=cfg.model.rho_reference if cfg.filter.estimate_offset else None)
     with RunFolder(folder, force=args.force) as tmp:
         write_table(result.history, tmp / "attitude_history.ecsv", fmt="ascii.ecsv")

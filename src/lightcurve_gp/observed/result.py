@@ -3,7 +3,7 @@
 :func:`finish` turns an :class:`~lightcurve_gp.observed.run.ObservedRun` into a :class:`FileResult` that a command
 only writes and prints: the attitude history (:func:`~lightcurve_gp.observed.run.history_table`), the bank's members
 (:func:`~lightcurve_gp.observed.run.bank_table`, when a bank ran), the bank's verdict
-(:func:`~lightcurve_gp.observed.verdict.bank_verdict` against the ambiguity images it is given), ``summary.json``'s
+(:func:`~lightcurve_gp.observed.verdict.bank_verdict` modulo the file's exact ambiguity group), ``summary.json``'s
 content (:func:`summary`) and the report in words (:meth:`FileResult.report`).
 """
 
@@ -12,10 +12,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from astropy.table import Table
-from torch import Tensor
 
 from lightcurve_gp.observed.run import ObservedRun, bank_table, history_table, nis_summary
 from lightcurve_gp.observed.verdict import BankVerdict, bank_verdict
+from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
 
 __all__ = ["FileResult", "finish", "summary"]
 
@@ -57,7 +57,7 @@ class FileResult:
 
 
 def finish(run: ObservedRun, *, record: dict, status: str, rho_reference: float | None,
-           images: Tensor) -> FileResult:
+           group: AmbiguityGroup | None) -> FileResult:
     """The finished result of ``run``.
 
     Args:
@@ -65,9 +65,10 @@ def finish(run: ObservedRun, *, record: dict, status: str, rho_reference: float 
         record: the provenance (config, files, options, versions) kept in ``summary.json``'s ``run``.
         status: what ran, in words.
         rho_reference: the reference ρ the estimated offset is turned into ρ̂ with (``None``: no offset estimated).
-        images: the ambiguity images the bank's verdict counts as one answer ``(G, 4)`` (identity first).
+        group: the exact ambiguity group of the file (:func:`~lightcurve_gp.observed.verdict.ambiguity_images`)
+            whose images the bank's verdict counts as one answer; needed when a bank ran, else ``None``.
     """
-    verdict = None if run.bank is None else bank_verdict(run.bank, images)
+    verdict = None if run.bank is None else bank_verdict(run.bank, group)
     return FileResult(run=run, history=history_table(run, rho_reference),
                       bank=None if run.bank is None else bank_table(run.bank), verdict=verdict,
                       summary=summary(run, record, verdict), status=status)
