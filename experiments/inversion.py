@@ -94,7 +94,9 @@ def run_seed(cfg, seed: int, sigma: float, args) -> dict:
                                 cfg.scenario.dt_s, q0[None])
     group = ambiguity_group(scene, times_s=times, inertia=inertia, rate_known=False, dt_s=cfg.scenario.dt_s)
     start = time.perf_counter()
-    inv = invert(problem, group, settings=InversionSettings(starts=args.starts, attitudes=args.attitudes))
+    settings = InversionSettings(starts=args.starts, attitudes=args.attitudes,
+                                 keep=tuple(args.keep) if args.keep else InversionSettings.keep)
+    inv = invert(problem, group, settings=settings)
     seconds = time.perf_counter() - start
     fam = families(group, q0=inv.q0, omega0=inv.omega0, log_rho=inv.log_rho, cost=inv.cost,
                    covariance=inv.covariance, sigma=problem.sigma, rate_max_rad_s=math.radians(5.0))
@@ -183,6 +185,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--starts", type=int, default=10_000)
     parser.add_argument("--attitudes", type=int, default=InversionSettings.attitudes,
                         help="Sobol' attitudes of the screening grid (the rest of the grid goes to rates)")
+    parser.add_argument("--keep", type=int, nargs="+", default=None,
+                        help="rows carried into each continuation stage after the first (default "
+                             f"{' '.join(map(str, InversionSettings.keep))})")
     parser.add_argument("--duration-s", type=float, default=600.0)
     parser.add_argument("--bank-size", type=int, default=0, help="filters of today's global start beside it (0: none)")
     parser.add_argument("--bank-config", default=str(ROOT / "configs" / "boxwing_robust.yaml"))
@@ -198,6 +203,8 @@ def main(argv: list[str] | None = None) -> int:
     for sigma in args.sigma:
         for seed in tqdm(args.seeds, desc=f"{cfg.name} σ {sigma:g}"):
             grid = "" if args.attitudes == InversionSettings.attitudes else f"_a{args.attitudes}"
+            if args.keep and tuple(args.keep) != InversionSettings.keep:
+                grid += "_k" + "-".join(map(str, args.keep))
             path = cases / f"{cfg.name}_s{sigma:g}_n{args.starts}{grid}_b{args.bank_size}_v{FORMAT}_{seed}.json"
             if path.exists():
                 rows.append(json.loads(path.read_text()))

@@ -68,9 +68,8 @@ NAN_QUANTILES = Quantiles(math.nan, math.nan, math.nan)
 
 
 # ----------------------------------------------------------------------------------------------- statistics
-
 def _ok(record: CaseRecord | None) -> bool:
-    return record is not None and record.ok
+    return record is not None and record.ok  # a failed case (None) or one whose seeds all failed
 
 
 def _axis_stats(record: CaseRecord | None, estimator: str) -> list[Quantiles]:
@@ -139,9 +138,9 @@ def estimator_table(records: dict[Any, CaseRecord], label: str, stem: str, resul
             st = _axis_stats(rec, est)
             lcn, lcc = _metric_stats(rec, est, "lc_rmse_noisy"), _metric_stats(rec, est, "lc_rmse_clean")
             summary = rec.summary["estimators"][est]
-            nees = summary["nees_mean"]
+            nees = math.nan if summary["nees_mean"] is None else summary["nees_mean"]  # a stored NaN reads as None
             rows.append([key, est, *(format_quantiles(x) for x in st), format_quantiles(lcn, 3),
-                         format_quantiles(lcc, 3), "" if nees is None or math.isnan(nees) else f"{nees:.2f}"])
+                         format_quantiles(lcc, 3), "" if math.isnan(nees) else f"{nees:.2f}"])
             csv_rows.append({label: key, "estimator": est, **_axes_columns("rmse_", st),
                              **_columns("lc_rmse_noisy", lcn), **_columns("lc_rmse_clean", lcc), "nees_mean": nees,
                              "fraction_all_axes_below_10deg": summary["fraction_all_axes_below_10deg"]})

@@ -36,6 +36,7 @@ def test_command_help_is_the_command_s_own(name, capsys):
     assert f"python -m lightcurve_gp.{name}" in capsys.readouterr().out
 
 
+@pytest.mark.slow  # ~8 s on two loaded cores
 def test_python_dash_m_package_dispatches():
     done = subprocess.run([sys.executable, "-m", "lightcurve_gp", "simulate", "--help"], capture_output=True,
                           text=True, timeout=120)

@@ -87,6 +87,7 @@ def test_matched_ukf_converges_with_noise_free_observations():
     assert float(final) < 1.0
 
 
+@pytest.mark.slow  # ~6 s on two loaded cores
 def test_conventional_ukf_suffers_from_a_rho_mismatch_that_the_matched_one_does_not_have():
     """The paper's Fig. 10 without noise: ρ_ukf = 0.5 on ρ_true = 0.7 loses the attitude."""
     cfg = load_config(BOXWING, ["scenario.noise_var=1e-12", "filter.measurement_noise=0.02"])
@@ -97,6 +98,7 @@ def test_conventional_ukf_suffers_from_a_rho_mismatch_that_the_matched_one_does_
     assert ukf["lc_rmse_clean_median"] > 10 * matched["lc_rmse_clean_median"]
 
 
+@pytest.mark.slow  # ~5 s on two loaded cores
 def test_rho_is_a_pure_offset_for_the_matched_filter():
     """Diffuse-dominated light curve: the matched filter at ρ = 0.7 behaves as the one at ρ = 0.5 on the same noise.
 
@@ -117,6 +119,7 @@ def test_unknown_estimator_and_missing_model_are_reported():
         estimate_scenario(cfg, seeds=[0], estimators=("gpukf",))
 
 
+@pytest.mark.slow  # ~5 s on two loaded cores
 def test_joint_ukf_estimates_the_offset_of_an_unknown_rho():
     """The renderer at rho_reference with the offset in the state: its offset converges to -2.5 log10(rho/rho_ref)
     within its own uncertainty and its attitude is as good as the matched-rho UKF's (every axis below 10°), while

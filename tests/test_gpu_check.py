@@ -94,6 +94,7 @@ def test_cpu_rehearsal_writes_every_row(tmp_path):
         f"gpu_check: error: --out {tmp_path}: gpu_check.md exists from an earlier run (pass --overwrite to replace it)"]
 
 
+@pytest.mark.slow  # ~6 s on two loaded cores
 def test_spent_budget_skips_every_section(tmp_path):
     proc = _run("--out", str(tmp_path), "--device", "cpu", "--quick", "--time-budget-s", "0.001")
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -103,6 +104,7 @@ def test_spent_budget_skips_every_section(tmp_path):
     assert "best not measured" in md and "* finished after" in md
 
 
+@pytest.mark.slow  # ~4 s on two loaded cores
 @pytest.mark.skipif(torch.cuda.is_available(), reason="checks the refusal on a machine without CUDA")
 def test_cuda_without_a_device_is_refused(tmp_path):
     proc = _run("--out", str(tmp_path))

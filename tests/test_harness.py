@@ -8,8 +8,10 @@ from pathlib import Path
 import pytest
 import torch
 
+from lightcurve_gp.attitude.dynamics import propagate
+from lightcurve_gp.attitude.rotations import quat_mul
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.evaluation.harness import check_estimators, run_estimators
+from lightcurve_gp.evaluation.harness import check_estimators, run_estimators, scenario_ambiguity_group
 from lightcurve_gp.evaluation.registry import ESTIMATORS, map_checkpoints, run_surface_filter_selected
 from lightcurve_gp.evaluation.reporting import scenario_summary, seed_rows
 from lightcurve_gp.evaluation.scoring import Estimate, score
@@ -17,7 +19,6 @@ from lightcurve_gp.evaluation.suite_summary import suite_rows
 from lightcurve_gp.filters.setup import run_filter, run_surface_filter
 from lightcurve_gp.observation.parametric import Parametric
 from lightcurve_gp.photometry.render import Scene
-from lightcurve_gp.photometry.symmetry import symmetry_quaternions
 from lightcurve_gp.simulation.scenario import simulate_scenario
 
 from helpers import ToyModel
@@ -66,19 +67,69 @@ def test_an_entry_is_the_setups_filter_on_the_scenario(case):
 
 def test_scores_at_an_estimators_own_samples(case):
     cfg, scene, sc = case
-    q_sym = symmetry_quaternions(scene.facets)
+    group = scenario_ambiguity_group(cfg, sc, scene)
     full = run_estimators(cfg, sc, estimators=["matched_ukf"], scene=scene).results["matched_ukf"]
     samples = torch.tensor([20, 30, 40])
     part = score(sc, Estimate(full.q_est[:, samples], full.history.P[:, samples], samples=samples),
-                 window=(20.0, 40.0), q_sym=q_sym, grp=(1.0, 4.0), seconds=0.0)
+                 window=(20.0, 40.0), group=group, grp=(1.0, 4.0), seconds=0.0)
     assert torch.equal(part.errors_deg, full.errors_deg[:, samples])
     by_hand = full.errors_deg[:, samples].pow(2).mean(1).sqrt()
     torch.testing.assert_close(part.rmse_deg, by_hand, rtol=1e-14, atol=0)
     torch.testing.assert_close(part.white_last, full.white_last, rtol=1e-12, atol=0)  # both end at t = 40 s
     # the truth itself scores zero everywhere, strictly and modulo symmetry, and has no NEES without a covariance
-    truth = score(sc, Estimate(sc.q_true, None), window=(20.0, 40.0), q_sym=q_sym, grp=(1.0, 4.0), seconds=0.0)
+    truth = score(sc, Estimate(sc.q_true, None), window=(20.0, 40.0), group=group, grp=(1.0, 4.0), seconds=0.0)
     assert float(truth.rmse_deg.abs().max()) < 1e-6 and float(truth.rmse_mod_symmetry_deg.abs().max()) < 1e-6
     assert truth.symmetry_index.tolist() == [0, 0, 0] and bool(torch.isnan(truth.nees_mean).all())
+
+
+def _image_curves(scene, sc, group, inertia):
+    """Light curves ``(K, S, T+1)`` of the images of the scenario's initial states, each propagated with its own
+    image rate (the known rate when the group keeps it), and the truths' curves ``(S, T+1)``."""
+    q_img = group.attitudes(sc.q_true[:, 0])  # (K, S, 4)
+    w_img = sc.omega_true[:, 0].expand(len(group), -1, 3) if group.rate_known else group.rates(sc.omega_true[:, 0])
+    q, _ = propagate(q_img, w_img, inertia, sc.times[1] - sc.times[0], sc.steps)
+    return scene.magnitude(q), scene.magnitude(sc.q_true)
+
+
+@pytest.mark.parametrize("estimate_omega", [False, True])
+def test_the_harness_scores_modulo_the_scenarios_derived_images(case, estimate_omega):
+    """The harness's images are the scenario's derived group: with the spin known the four inertial turns and no
+    body rotation (a body turn would turn the known rate: its curve differs), with the rate estimated body × inertial
+    (16). Every image used reproduces the scenario's light curves to 1e-9 mag, is named in the summary, and the
+    truth's image scores zero modulo the group."""
+    cfg, scene, sc = case
+    if estimate_omega:
+        cfg = dataclasses.replace(cfg, filter=dataclasses.replace(cfg.filter, estimate_omega=True))
+    group = scenario_ambiguity_group(cfg, sc, scene)
+    inertia = torch.tensor(cfg.shape.inertia_kg_m2, dtype=DT)
+    curves, truth = _image_curves(scene, sc, group, inertia)
+    assert float((curves - truth).abs().max()) < 1e-9
+    identity = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=DT)
+    if estimate_omega:
+        assert len(group) == 16 and not group.rate_known
+    else:
+        assert len(group) == 4 and torch.equal(group.body, identity.expand(4, 4))
+        turned = scene.magnitude(propagate(quat_mul(torch.tensor([0.0, 0.0, 1.0, 0.0], dtype=DT), sc.q_true[:, 0]),
+                                           sc.omega_true[:, 0], inertia, 1.0, sc.steps)[0])
+        assert float((turned - truth).abs().max()) > 1e-3  # the body 180° z turn with the known rate: no image
+    result = run_estimators(cfg, sc, estimators=["no_update"], scene=scene)
+    assert result.group.labels == group.labels
+    assert scenario_summary(result)["ambiguity_images"]["labels"] == list(group.labels)
+    q_est = group.attitudes(sc.q_true)[len(group) - 1]  # every seed on the last image
+    r = score(sc, Estimate(q_est, None), window=(20.0, 40.0), group=group, grp=(1.0, 4.0), seconds=0.0)
+    assert r.symmetry_index.tolist() == [len(group) - 1] * 3 and float(r.rmse_mod_symmetry_deg.max()) < 1e-6
+    assert float(r.rmse_deg.min()) > 10.0
+
+
+def test_along_a_pass_with_the_spin_known_the_only_image_is_the_truth():
+    """Along the GEO pass (120 s) the moving Sun and observer break the inertial turns and the known rate rules out
+    the body turns: the derived group is the identity alone, so the scores modulo symmetry are the strict ones."""
+    cfg = load_config(CONFIGS / "geo_pass.yaml", ["scenario.duration_s=120", "evaluation.rmse_window_s=[0, 120]",
+                                                  "shape.box_grid=1", "shape.wing_grid=1"])
+    sc = simulate_scenario(cfg, seeds=[0])
+    group = scenario_ambiguity_group(cfg, sc)
+    assert group.labels == ("body identity · inertial identity",)
+    assert torch.equal(group.body, torch.tensor([[0.0, 0.0, 0.0, 1.0]], dtype=DT))
 
 
 def test_the_map_runs_through_the_harness_at_its_checkpoints(case):

@@ -88,6 +88,7 @@ if given is None:
     def test_random_invalid_configs_never_give_a_traceback_or_a_file():
         pytest.skip("hypothesis is not installed (pip install -e '.[dev]')")
 else:
+    @pytest.mark.slow  # ~5 s on two loaded cores
     @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
     @given(rng=strategies.randoms(use_true_random=False))
     def test_random_invalid_configs_never_give_a_traceback_or_a_file(tmp_path_factory, capsys, rng):

@@ -115,6 +115,7 @@ def test_families_merge_exact_images_and_cut_by_likelihood(setup):
     assert float(fam.weight[0] / fam.weight[1]) == pytest.approx(math.e, rel=1e-9)  # equal volumes, Δℓ = 1
 
 
+@pytest.mark.slow  # ~11 s on two loaded cores
 def test_inversion_recovers_a_noise_free_truth_from_a_coarse_start_set(setup):
     scene, inertia = setup
     T = 240

@@ -1,6 +1,7 @@
 """The invert command on a file from simulate: the solutions file round-trips and holds the truth's family; bad
 files and impossible settings are one-line errors that write nothing."""
 
+import json
 import math
 from pathlib import Path
 
@@ -30,16 +31,21 @@ def observed(tmp_path_factory):
     return folder, obs
 
 
+@pytest.mark.slow  # ~20 s on two loaded cores
 def test_invert_writes_solutions_that_round_trip_and_hold_the_truth(observed):
     folder, obs = observed
     out = folder / "runs"
     assert invert_main([CONFIG, "--light-curve", str(obs), "--starts", "256", "--out", str(out), "--no-progress",
                         *SHORT]) == 0
-    run = out / "boxwing" / "invert_obs"
+    run = out / "estimates" / "boxwing" / "invert_obs"
     assert {p.name for p in run.iterdir()} == {"solutions.ecsv", "summary.json", "periodogram.png", "light_curve.png"}
     table = read_solutions(run / "solutions.ecsv")
     assert list(table["rank"]) == list(range(1, len(table) + 1))
     assert abs(float(np.sum(table["weight"])) - 1.0) < 1e-9 and len(table.meta["images"]) == 16
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["ambiguity_images"]["labels"] == table.meta["images"] and summary["periodogram_detection"]
+    assert summary["ambiguity_images"]["source"].startswith("derived by") and not summary["ambiguity_images"][
+        "rate_known"]
     q, w, rho = best_solution(table)
     cfg = load_config(CONFIG, SHORT[1::2])
     scene = Scene.from_config(cfg)

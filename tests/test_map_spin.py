@@ -53,6 +53,7 @@ def test_a_certain_rate_gives_the_known_rate_map():
         torch.testing.assert_close(std, torch.full_like(std, math.radians(1e-9)), rtol=1e-6, atol=0)
 
 
+@pytest.mark.slow  # ~21 s on two loaded cores
 @pytest.mark.parametrize("offset", [False, True])
 def test_the_map_is_a_minimum_of_its_negative_log_posterior(offset):
     _, _, y, q_est0, omega_est0 = toy_truth(80, [0.2, -0.1, 0.1], noise=0.2)
@@ -91,6 +92,7 @@ def test_noise_free_light_curves_give_the_true_attitude_and_rate(offset):
         torch.testing.assert_close(est[120].x[:, 6], torch.full((2,), 0.4, dtype=DT), rtol=0, atol=1e-8)
 
 
+@pytest.mark.slow  # ~14 s on two loaded cores
 def test_renderer_light_curve_started_off_in_rate_gives_the_truth():
     cfg = load_config(BOXWING, ["scenario.duration_s=300", "evaluation.rmse_window_s=[200, 300]",
                                 "scenario.initial_error_deg=[-3, 2, -3]",
@@ -110,6 +112,7 @@ def test_renderer_light_curve_started_off_in_rate_gives_the_truth():
     assert float((omega_est0 - omega_true[0]).norm()) > math.radians(0.03)
 
 
+@pytest.mark.slow  # ~5 s on two loaded cores
 def test_the_numbers_of_the_first_rate_map_are_kept():
     # computed by the solver this one replaced (commit 7be9713). It differenced the predictions, the shared core the
     # residuals: on this toy (values near zero) they round apart, and the rate columns' 1e-8 rad/s central step

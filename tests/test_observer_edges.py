@@ -60,6 +60,14 @@ def run_estimate(*args: str) -> int:
                               "alone)\n"),
     (["--initial-attitude=0,0,0,1", "--bank-size", "64"],
      "error: --bank-size: does not apply with --initial-attitude (no bank runs)\n"),
+    (["--solutions", "solutions.ecsv", "--bank-size", "64"],
+     "error: --bank-size: does not apply with --solutions (no bank runs)\n"),
+    (["--solutions", "solutions.ecsv", "--bank-keep", "2"],
+     "error: --bank-keep: does not apply with --solutions (no bank runs)\n"),
+    (["--solutions", "solutions.ecsv", "--bank-prune-after-s", "10"],
+     "error: --bank-prune-after-s: does not apply with --solutions (no bank runs)\n"),
+    (["--solutions", "solutions.ecsv", "--bank-prune-after-s", "10", "--bank-prune-keep", "8"],
+     "error: --bank-prune-after-s: does not apply with --solutions (no bank runs)\n"),
 ])
 def test_options_that_do_not_apply_to_a_file_are_refused(tmp_path, capsys, args, message):
     code = run_estimate("--model", str(tmp_path / "absent.pt"), "--light-curve", str(tmp_path / "absent.ecsv"),
@@ -68,8 +76,8 @@ def test_options_that_do_not_apply_to_a_file_are_refused(tmp_path, capsys, args,
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize("option", ["--initial-attitude=0,0,0,1", "--bank-size=64", "--bank-keep=2",
-                                    "--bank-prune-after-s=10", "--bank-prune-keep=8"])
+@pytest.mark.parametrize("option", ["--initial-attitude=0,0,0,1", "--solutions=solutions.ecsv", "--bank-size=64",
+                                    "--bank-keep=2", "--bank-prune-after-s=10", "--bank-prune-keep=8"])
 def test_file_options_without_a_file_are_refused(tmp_path, capsys, option):
     assert run_estimate("--estimators", "ukf", "--seeds", "1", "--out", str(tmp_path), option) == 2
     name = option.split("=")[0]
@@ -147,6 +155,7 @@ def test_write_json_atomic_writes_null_for_nan_and_infinity(tmp_path):
     assert strict_json(path) == {"a": None, "b": [None, None, 1.5], "c": {"d": None}, "e": [None, 2]}
 
 
+@pytest.mark.slow  # ~7 s on two loaded cores
 def test_estimate_results_are_strict_json(tmp_path):
     assert run_estimate("--estimators", "ukf,no_update", "--seeds", "1", "--out", str(tmp_path)) == 0
     results = strict_json(tmp_path / "estimates" / "tiny" / "rho0.5" / "results.json")
@@ -271,13 +280,23 @@ def fake_bank(last_q, weights):
                       kept_seconds=0.0)
 
 
+def body_group(body):
+    """An :class:`AmbiguityGroup` of the body turns ``body (K, 4)`` alone (inertial identity)."""
+    from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
+
+    identity = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=torch.float64)
+    return AmbiguityGroup(body=body, inertial=identity.expand(len(body), 4), labels=tuple(f"b{i}" for i in
+                                                                                           range(len(body))),
+                          rate_known=False)
+
+
 def test_the_bank_verdict_merges_members_modulo_the_images():
     from lightcurve_gp.attitude.rotations import quat_mul, rotvec_to_quat
     from lightcurve_gp.observed.verdict import bank_verdict
 
     q = torch.nn.functional.normalize(torch.tensor([0.2, -0.4, 0.1, 0.9], dtype=torch.float64), dim=0)
     turn_x = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=torch.float64)  # 180 deg about body x
-    images = torch.stack([torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=torch.float64), turn_x])
+    images = body_group(torch.stack([torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=torch.float64), turn_x]))
     near = quat_mul(rotvec_to_quat(torch.tensor([0.0, 0.0, 0.1], dtype=torch.float64)), q)  # 5.7 deg away
     far = quat_mul(rotvec_to_quat(torch.tensor([0.0, 0.5, 0.0], dtype=torch.float64)), q)  # 28.6 deg away
     members = torch.stack([q, near, quat_mul(turn_x, q), -q, far])
@@ -287,7 +306,7 @@ def test_the_bank_verdict_merges_members_modulo_the_images():
     assert verdict.effective_members == pytest.approx(1 / sum(w * w for w in weights), rel=1e-14)
     assert verdict.verdict == "unique"
     # without the image the turned member is another answer: 30 % of the weight elsewhere
-    alone = bank_verdict(fake_bank(members, weights), images[:1])
+    alone = bank_verdict(fake_bank(members, weights), body_group(images.body[:1]))
     assert alone.top_family_weight == pytest.approx(0.7, abs=1e-15) and alone.verdict == "ambiguous"
     assert "warning: the answer is not unique: 30.0 % of the posterior weight lies on other attitudes" in \
         "\n".join(alone.sentences(5))
@@ -299,20 +318,46 @@ def test_a_uniform_bank_is_ambiguous_with_n_effective_members():
 
     n = 64
     verdict = bank_verdict(fake_bank(bank_attitudes(n), [1.0 / n] * n),
-                           torch.tensor([[0.0, 0.0, 0.0, 1.0]], dtype=torch.float64))
+                           body_group(torch.tensor([[0.0, 0.0, 0.0, 1.0]], dtype=torch.float64)))
     assert verdict.effective_members == pytest.approx(n, rel=1e-12) and verdict.verdict == "ambiguous"
     assert verdict.top_family_weight < 0.1
 
 
-def test_the_box_wing_images_are_its_four_symmetries():
+def test_the_files_images_are_derived_the_inertial_turns_with_the_spin_known_16_with_it_estimated():
+    """The verdict's images are the file's derived group: with the spin known (the paper's config) the four
+    inertial 180° turns and no body turn (a body turn would turn the known rate); with the rate estimated the body
+    symmetries join them (4 × 4). Each image reproduces a torque-free light curve of the config to 1e-9 mag."""
+    from lightcurve_gp.attitude.dynamics import propagate
     from lightcurve_gp.config.load import load_config
     from lightcurve_gp.observed.verdict import ambiguity_images
+    from lightcurve_gp.photometry.ambiguity import INERTIAL_TURNS
+    from lightcurve_gp.photometry.render import Scene
 
-    images = ambiguity_images(load_config(BOXWING, TINY))
-    assert images.shape == (4, 4)
-    assert torch.equal(images[0], torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=torch.float64))
+    cfg = load_config(BOXWING, TINY)
+    known = ambiguity_images(cfg, samples=61)
+    identity = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=torch.float64)
+    assert known.rate_known and len(known) == 4
+    assert torch.equal(known.body, identity.expand(4, 4))  # no body rotation
+    assert known.labels == tuple(f"body identity · inertial {t}" for t in INERTIAL_TURNS)
+    rates = load_config(BOXWING, TINY + ["filter.estimate_omega=true", "model.inputs=attitude_matrix"])
+    estimated = ambiguity_images(rates, samples=61)
+    assert not estimated.rate_known and len(estimated) == 16
+    scene = Scene.from_config(cfg, dtype=torch.float64, device="cpu")
+    inertia = torch.tensor(cfg.shape.inertia_kg_m2, dtype=torch.float64)
+    q0 = torch.nn.functional.normalize(torch.tensor([0.3, -0.2, 0.5, 0.7], dtype=torch.float64), dim=0)
+    w0 = torch.tensor([0.01, -0.02, 0.015], dtype=torch.float64)
+    reference = scene.magnitude(propagate(q0, w0, inertia, 1.0, 60)[0])
+    for group in (known, estimated):
+        q_img = group.attitudes(q0)
+        w_img = w0.expand(len(group), 3) if group.rate_known else group.rates(w0)
+        curves = scene.magnitude(propagate(q_img, w_img, inertia, 1.0, 60)[0])
+        assert float((curves - reference).abs().max()) < 1e-9
+    # the body turns are no images with the rate known: the curve from (q_R ⊗ q0, ω0) differs
+    body_only = scene.magnitude(propagate(estimated.attitudes(q0)[4], w0, inertia, 1.0, 60)[0])
+    assert estimated.labels[4].startswith("body 180°") and float((body_only - reference).abs().max()) > 1e-3
 
 
+@pytest.mark.slow  # ~5 s on two loaded cores
 def test_a_flat_bank_on_a_file_says_ambiguous_in_words_and_in_the_summary(tmp_path, capsys, model_file, observed):
     out = tmp_path / "out"
     assert run_estimate("--model", str(model_file), "--light-curve", str(observed), "--out", str(out),
@@ -323,8 +368,9 @@ def test_a_flat_bank_on_a_file_says_ambiguous_in_words_and_in_the_summary(tmp_pa
     assert summary["verdict"] == posterior["verdict"]
     weights = np.asarray(Table.read(out / "estimates" / "tiny" / "light_curve_obs" / "bank.ecsv")["weight"])
     assert posterior["effective_members"] == pytest.approx(1 / np.sum(weights ** 2), rel=1e-9)
-    assert posterior["ambiguity_images"]["source"].startswith("the shape's symmetry rotations")
-    assert len(posterior["ambiguity_images"]["quaternions"]) == 4
+    images = posterior["ambiguity_images"]
+    assert images["source"].startswith("derived by lightcurve_gp.photometry.ambiguity.ambiguity_group")
+    assert images["rate_known"] and len(images["labels"]) == 4 and images["body"] == [[0.0, 0.0, 0.0, 1.0]] * 4
     assert f"posterior: effective number of members {posterior['effective_members']:.1f} of 16" in printed
     if summary["verdict"] == "ambiguous":
         assert "warning: the answer is not unique" in printed

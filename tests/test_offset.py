@@ -71,6 +71,7 @@ def test_attitude_matrix_inputs_are_sign_invariant_and_measure_the_rotation_angl
     assert InputMap("attitude_matrix").dim == 9
 
 
+@pytest.mark.slow  # ~3 s on two loaded cores
 def test_known_offset_reduces_to_usque_with_matching_sigma_spread():
     """With b known (variance → 0), n = 4 and λ = 0 spread and weigh the attitude sigma points exactly like
     USQUE with n = 3 and λ = 1 (the two b sigma points coincide with the centre): same estimates."""

@@ -6,11 +6,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from astropy.timeseries import LombScargle
 
 from lightcurve_gp.attitude.dynamics import propagate
 from lightcurve_gp.attitude.rotations import axis_angle_to_quat
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.inference.periodogram import periodogram, resolution_rate_deg_s
+from lightcurve_gp.inference.periodogram import FALSE_ALARM, detection_power, periodogram, resolution_rate_deg_s
 from lightcurve_gp.photometry.render import Scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -55,3 +56,29 @@ def test_rate_range_that_excludes_the_periodogram_is_one_line():
 
 def test_resolution_rate():
     assert resolution_rate_deg_s(600.0) == pytest.approx(0.6)
+
+
+def test_a_curve_of_pure_noise_has_no_detection_and_proposes_no_rate_outside_the_range():
+    """White noise at 0.71 mag: the strongest peak is no detection, so a range that excludes it is no error and the
+    search gets no candidate from it; the clean curve's peak is a detection far above the threshold."""
+    t, y = _gapped_curve(2.0)
+    noise = np.random.default_rng(7).normal(13.0, 0.71, t.size)
+    pg = periodogram(t, noise, np.full(t.size, 0.71), rate_range_deg_s=(10.0, 20.0), peaks=1)
+    assert not pg.detection and pg.peak_power[0] <= pg.threshold_power and pg.rates_deg_s.size <= 3
+    assert periodogram(t, y, rate_range_deg_s=(0.05, 5.0)).detection
+
+
+def test_the_detection_threshold_holds_its_false_alarm_rate_on_white_noise():
+    """Independent check by simulation (astropy's periodogram on the module's grid, 1 Hz samples to 0.5 Hz): the
+    strongest peak of white noise exceeds the threshold no more often than its false-alarm probability (Bonferroni is
+    conservative; binomial slack), the threshold is not vacuous at a loose probability, and it grows as that falls."""
+    rng = np.random.default_rng(11)
+    t = np.arange(300.0)
+    span = t[-1] - t[0]
+    frequency = np.arange(1.0, 10.0 * span * 0.5 + 1.0) / (10.0 * span)
+    peaks = np.array([LombScargle(t, rng.normal(0.0, 1.0, t.size), nterms=2).power(frequency).max()
+                      for _ in range(100)])
+    independent = 2 * 2 * span * 0.5  # as the module counts them for nterms = 2
+    assert np.mean(peaks > detection_power(t.size, 2, independent, false_alarm=0.1)) <= 0.16
+    assert np.mean(peaks > detection_power(t.size, 2, independent, false_alarm=0.9)) >= 0.2
+    assert detection_power(300, 2, 150.0, FALSE_ALARM) > detection_power(300, 2, 150.0, 0.1)

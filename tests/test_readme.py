@@ -38,7 +38,7 @@ def test_readme_snippet_runs_and_scores_every_seed(capsys):
     assert namespace["history"].fallbacks.sum() == 0
     # every filter starts from the configured initial error (yaw, pitch, roll) = (-10, 5, -10) deg
     truth, cfg = namespace["truth"], namespace["cfg"]
-    start = total_angle_deg(truth.q_true[0], namespace["history"].q_est[:, 0])
+    start = total_angle_deg(truth.q_true[:, 0], namespace["history"].q_est[:, 0])  # (10,)
     initial = euler321_to_quat(torch.deg2rad(torch.tensor(cfg.scenario.initial_error_deg, dtype=torch.float64)))
     assert torch.allclose(start, total_angle_deg(identity_quat(dtype=torch.float64), initial), atol=1e-9)
     # what it prints is the per-axis median over the seeds of the RMSE over 400-600 s, recomputed here by hand

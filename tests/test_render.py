@@ -140,6 +140,7 @@ def test_float32_matches_float64(scene, true_trajectory):
     assert float((m32.double() - m64).abs().max()) < 1e-4
 
 
+@pytest.mark.slow  # ~3 s on two loaded cores
 def test_grouped_equals_per_facet_and_chunking(scene):
     q = random_quats(3000).reshape(30, 100, 4)
     grouped = scene.magnitude(q, rho=torch.tensor([[[0.2]], [[0.8]]], dtype=F64))

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from lightcurve_gp.commands import estimate, train
+from lightcurve_gp.commands import estimate, invert, train
+from lightcurve_gp.commands.layout import invert_folder, light_curve_folder
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.sweep import cli as sweep_cli
 from lightcurve_gp.training import store
@@ -19,6 +20,7 @@ TINY = ["data.icosphere_subdivisions=0", "data.phi_step_deg=120", "data.heldout_
 SETS = [arg for o in TINY for arg in ("--set", o)]
 
 
+@pytest.mark.slow  # ~7 s on two loaded cores
 def test_train_estimate_sweep_then_train_force_and_the_sweep_trains_nothing(tmp_path, monkeypatch, capsys):
     out = tmp_path / "runs"
     assert train.main([BOXWING, "--out", str(out), "--no-progress", *SETS]) == 0
@@ -57,9 +59,15 @@ def test_a_run_named_like_a_shared_folder_is_refused(tmp_path, capsys):
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize("command", ["train", "estimate"])
+@pytest.mark.parametrize("command", ["train", "estimate", "invert"])
 def test_the_help_says_where_estimates_and_sweeps_go(command, capsys):
     with pytest.raises(SystemExit):
-        {"train": train, "estimate": estimate}[command].main(["--help"])
+        {"train": train, "estimate": estimate, "invert": invert}[command].main(["--help"])
     text = " ".join(capsys.readouterr().out.split())
-    assert "OUT/estimates/<name>/" in text and ("OUT/sweeps/<name>/" in text or command == "estimate")
+    assert "OUT/estimates/<name>/" in text and ("OUT/sweeps/<name>/" in text or command != "train")
+
+
+def test_invert_writes_beside_the_estimates_of_the_same_file():
+    assert invert_folder(Path("OUT"), "boxwing", Path("data/obs.ecsv")) == Path("OUT/estimates/boxwing/invert_obs")
+    assert invert_folder(Path("OUT"), "boxwing", Path("obs.ecsv")).parent == \
+        light_curve_folder(Path("OUT"), "boxwing", Path("obs.ecsv")).parent

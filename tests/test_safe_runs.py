@@ -61,6 +61,7 @@ def test_estimator_list_is_checked_before_anything_is_written(tmp_path, capsys, 
 
 
 # 2. runs never clobber; results.json records the model file, its hash, the config and the command
+@pytest.mark.slow  # ~6 s on two loaded cores
 def test_estimate_refuses_an_existing_folder_and_records_its_inputs(model_file, tmp_path, capsys):
     args = estimate_args(tmp_path, "--model", str(model_file), "--estimators", "gpukf,no_update")
     assert estimate.main(args) == 0
@@ -82,6 +83,7 @@ def test_estimate_refuses_an_existing_folder_and_records_its_inputs(model_file, 
 
 
 # 3. a model trained with other settings is refused with the first differing key, unless overridden (recorded)
+@pytest.mark.slow  # ~5 s on two loaded cores
 def test_a_model_of_another_t_span_past_is_refused_unless_allowed(model_file, tmp_path, capsys):
     args = estimate_args(tmp_path, "--model", str(model_file), "--estimators", "gpukf", "--set",
                          "data.t_span_past=10")
@@ -169,6 +171,7 @@ def test_foreign_files_as_model_are_one_clear_line(tmp_path, capsys, content, re
 
 
 # 9. one thread policy: --threads sets torch's thread count for the whole command and is recorded
+@pytest.mark.slow  # ~3 s on two loaded cores
 def test_threads_option_is_applied_and_recorded(model_file, tmp_path):
     try:
         assert estimate.main(estimate_args(tmp_path, "--estimators", "no_update", "--threads", "2")) == 0
@@ -259,6 +262,7 @@ def test_long_steps_show_a_status_line(capsys):
     assert cli.progress_enabled(no_progress=True) is False
 
 
+@pytest.mark.slow  # ~17 s on two loaded cores
 @pytest.mark.parametrize("command", ["train", "estimate"])
 def test_the_module_entry_points_exit_with_the_error_code(tmp_path, command):
     """``python -m lightcurve_gp.<command>`` as a user runs it: one line on stderr, exit 2, no traceback."""

@@ -34,6 +34,7 @@ def test_gaps_on_the_grid_land_on_the_regularly_propagated_attitudes():
     assert torch.allclose(q_gaps, q_regular[keep], atol=1e-13)
 
 
+@pytest.mark.slow  # ~6 s on two loaded cores
 def test_irregular_steps_converge_to_the_true_motion():
     t = torch.tensor([0.0, 0.3, 1.1, 4.0, 4.05, 9.7, 15.0], dtype=DT)
     reference, _ = propagate(Q0, OMEGA0, INERTIA, 0.001, 15000)  # RK4 at 1 ms

@@ -18,6 +18,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("lightcurve_gp.commands.train", "generate the training set, fit the GP observation model, evaluate it"),
     "estimate": ("lightcurve_gp.commands.estimate", "run the estimators on simulated seeds or on a light-curve file"),
     "simulate": ("lightcurve_gp.commands.simulate", "write a synthetic light curve in the light-curve file format"),
+    "invert": ("lightcurve_gp.commands.invert", "attitude and spin from a light curve alone, every ambiguity family"),
     "sweep": ("lightcurve_gp.sweep.cli", "run the estimators over a grid of config values, resumable"),
 }
 
@@ -44,10 +45,11 @@ def main(argv: list[str] | None = None) -> int:
     return importlib.import_module(COMMANDS[name][0]).main(rest)
 
 
-def run() -> None:
-    """The ``lightcurve-gp`` console script: :func:`main`, then the process ends the way every command ends."""
+def run(argv: list[str] | None = None) -> None:
+    """The ``lightcurve-gp`` console script (and the ``python -m lightcurve_gp.<command>`` shims): :func:`main` of
+    ``argv`` (default ``sys.argv[1:]``), then the process ends the way every command ends."""
     try:
-        code = main()
+        code = main(argv)
     except KeyboardInterrupt:  # only while a command's module loads: a running command handles its own
         print("interrupted; nothing written", file=sys.stderr)
         sys.exit(130)

@@ -1,16 +1,7 @@
-"""``python -m lightcurve_gp.estimate``: the command of :mod:`lightcurve_gp.commands.estimate`.
-
-The command's imports (torch: seconds) run inside the interrupt handler, so Ctrl-C while they load is the one line
-and exit code 130 of every interrupt (:mod:`lightcurve_gp.commands.common`), not a traceback.
-"""
-
+"""``python -m lightcurve_gp.estimate``, i.e. ``lightcurve-gp estimate`` (:func:`lightcurve_gp.__main__.run`)."""
 import sys
 
+from lightcurve_gp.__main__ import run
+
 if __name__ == "__main__":
-    try:
-        from lightcurve_gp.commands.common import exit_process
-        from lightcurve_gp.commands.estimate import main
-    except KeyboardInterrupt:
-        print("interrupted; nothing written", file=sys.stderr)
-        sys.exit(130)
-    exit_process(main())
+    run(["estimate", *sys.argv[1:]])

@@ -1,7 +1,7 @@
-"""``python -m lightcurve_gp.invert``: the command of :mod:`lightcurve_gp.commands.invert`."""
+"""``python -m lightcurve_gp.invert``, i.e. ``lightcurve-gp invert`` (:func:`lightcurve_gp.__main__.run`)."""
+import sys
 
-from lightcurve_gp.commands.common import exit_process
-from lightcurve_gp.commands.invert import main
+from lightcurve_gp.__main__ import run
 
 if __name__ == "__main__":
-    exit_process(main())
+    run(["invert", *sys.argv[1:]])

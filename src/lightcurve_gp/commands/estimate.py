@@ -37,7 +37,6 @@ from lightcurve_gp.commands.common import (
     check_new_folder,
     check_output_root,
     check_overrides,
-    exit_process,
     format_bytes,
     progress_enabled,
     provenance,
@@ -299,6 +298,3 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     return run_command(lambda: _run(args), debug=args.debug)
 
-
-if __name__ == "__main__":
-    exit_process(main())

@@ -10,9 +10,10 @@ Without ``--initial-attitude`` the run starts from the global-start bank (``--ba
 without a bank) and an ambiguous answer is printed as a warning in words; the exit code stays 0.
 
 Options that do not apply are refused before anything is read (:func:`check_options`): ``--seeds``, ``--rho-true``
-and ``--estimators`` with ``--light-curve``; ``--initial-attitude`` and the bank options without it; the bank
-options with ``--initial-attitude``. A light curve too short for the filter's state, or too long for the known-spin
-propagation, is refused before the filter runs (:func:`lightcurve_gp.observed.run.check_light_curve`).
+and ``--estimators`` with ``--light-curve``; ``--initial-attitude``, ``--solutions`` and the bank options without
+it; the bank options with ``--initial-attitude`` or ``--solutions`` (no bank runs then). A light curve too short
+for the filter's state, or too long for the known-spin propagation, is refused before the filter runs
+(:func:`lightcurve_gp.observed.run.check_light_curve`).
 
 A file with per-sample geometry or a TLE and site runs along its pass
 (:func:`lightcurve_gp.observed.run.file_geometry`) with a model that takes geometry.
@@ -41,21 +42,18 @@ from lightcurve_gp.commands.layout import light_curve_folder
 from lightcurve_gp.files import RunFolder, write_json_atomic
 from lightcurve_gp.observed.lightcurve_file import read_light_curve, write_table
 from lightcurve_gp.observed.plots import attitude_with_uncertainty, light_curve_band
+from lightcurve_gp.observed.result import finish
 from lightcurve_gp.observed.run import (
     FileGeometryError,
-    ObservedRun,
-    bank_table,
     check_light_curve,
     check_model_takes_geometry,
     estimate_light_curve,
     file_geometry,
-    history_table,
-    nis_summary,
 )
 from lightcurve_gp.observed.solutions import SolutionsFileError, best_solution, read_solutions
-from lightcurve_gp.observed.verdict import BankVerdict, ambiguity_images, bank_verdict
+from lightcurve_gp.observed.verdict import ambiguity_images
 
-__all__ = ["BANK_DEFAULTS", "add_file_arguments", "check_options", "parse_quaternion", "run_on_file", "summary"]
+__all__ = ["BANK_DEFAULTS", "add_file_arguments", "check_options", "parse_quaternion", "run_on_file"]
 
 #: the bank options' values when not given
 BANK_DEFAULTS = {"bank_size": 1024, "bank_keep": 5, "bank_prune_after_s": None, "bank_prune_keep": 64}
@@ -100,11 +98,12 @@ def check_options(args: argparse.Namespace) -> None:
         for name, why in SCENARIO_OPTIONS.items():
             if given(name):
                 raise UserError(f"{_option(name)}: does not apply with --light-curve ({why})")
-    for name in ("initial_attitude", *BANK_DEFAULTS):
+    for name in ("initial_attitude", "solutions", *BANK_DEFAULTS):
         if given(name) and args.light_curve is None:
             raise UserError(f"{_option(name)}: applies only with --light-curve")
-        if given(name) and name != "initial_attitude" and given("initial_attitude"):
-            raise UserError(f"{_option(name)}: does not apply with --initial-attitude (no bank runs)")
+        for start in ("initial_attitude", "solutions"):
+            if given(name) and name in BANK_DEFAULTS and given(start):
+                raise UserError(f"{_option(name)}: does not apply with {_option(start)} (no bank runs)")
     if given("bank_prune_keep") and not given("bank_prune_after_s"):
         raise UserError("--bank-prune-keep: applies only with --bank-prune-after-s")
     for name, value in BANK_DEFAULTS.items():
@@ -123,30 +122,6 @@ def parse_quaternion(text: str) -> torch.Tensor:
         raise UserError(f"--initial-attitude: {text!r} must be four finite numbers q1,q2,q3,q4 (scalar last), "
                         f"not all zero")
     return q
-
-
-def summary(run: ObservedRun, record: dict, verdict: BankVerdict | None = None) -> dict:
-    """``summary.json``: the bank's verdict (``null`` without a bank), NIS statistics, timing, the bank's best
-    members and its posterior's shape, and the provenance ``record``."""
-    out = {"verdict": None if verdict is None else verdict.verdict,
-           "light_curve": run.lc.source, "samples": int(run.lc.t.size), "span_s": float(run.lc.t[-1]),
-           "per_sample_noise": run.lc.mag_err is not None, "nis": nis_summary(run.history),
-           "geometry": "per-sample columns" if run.lc.geometry is not None else "TLE and site" if run.lc.has_tle
-           else "config (fixed)",
-           "initial_attitude": run.q_est0.tolist(), "seconds": run.seconds,
-           "rejected_updates": int(run.history.rejected.sum()), "sqrt_fallbacks": int(run.history.fallbacks.sum())}
-    if run.bank is not None:
-        b = run.bank
-        best = b.order[:len(b.kept.q_est)]
-        out["bank"] = {"size": int(b.q0.shape[0]), "seconds": b.seconds, "kept_seconds": b.kept_seconds,
-                       "pruned_to": None if b.survivors is None else int(b.survivors.numel()),
-                       "best": [{"member": int(i), "q0": b.q0[i].tolist(),
-                                 "log_likelihood": float(b.log_likelihood[i]), "weight": float(b.weights[i])}
-                                for i in best]}
-        if verdict is not None:
-            out["bank"]["posterior"] = verdict.as_dict()
-    out["run"] = record
-    return out
 
 
 def _check_arguments(args: argparse.Namespace) -> torch.Tensor | None:
@@ -183,7 +158,7 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
     check_light_curve(cfg, lc)
     try:
         check_model_takes_geometry(model, lc)
-        file_geometry(lc)
+        geometry = file_geometry(lc)
     except FileGeometryError as exc:
         raise UserError(str(exc)) from None
     check_output_root(args.out)
@@ -204,26 +179,17 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
                                                          prune_after_s=args.bank_prune_after_s,
                                                          prune_keep=args.bank_prune_keep),
                             status=f"running the {status}", progress=progress_enabled(args.no_progress))
-    table = history_table(run, cfg.model.rho_reference if cfg.filter.estimate_offset else None)
-    verdict = None if run.bank is None else bank_verdict(run.bank, ambiguity_images(cfg))
-    result = summary(run, record, verdict)
+    group = None if run.bank is None else ambiguity_images(cfg, samples=len(lc.t), geometry=geometry)
+    result = finish(run, record=record, status=status, group=group,
+                    rho_reference=cfg.model.rho_reference if cfg.filter.estimate_offset else None)
     with RunFolder(folder, force=args.force) as tmp:
-        write_table(table, tmp / "attitude_history.ecsv", fmt="ascii.ecsv")
-        if run.bank is not None:
-            write_table(bank_table(run.bank), tmp / "bank.ecsv", fmt="ascii.ecsv")
-        write_json_atomic(result, tmp / "summary.json")
+        write_table(result.history, tmp / "attitude_history.ecsv", fmt="ascii.ecsv")
+        if result.bank is not None:
+            write_table(result.bank, tmp / "bank.ecsv", fmt="ascii.ecsv")
+        write_json_atomic(result.summary, tmp / "summary.json")
         title = f"{lc.source}: {status}"
-        light_curve_band(table, tmp / "light_curve.png", title=title)
-        attitude_with_uncertainty(table, tmp / "attitude.png", title=title)
-    nis = result["nis"]
-    print(f"{lc.source}: {result['samples']} samples over {result['span_s']:g} s; mean NIS {nis['mean']:.3f} over "
-          f"{nis['n']} updates, 95 % band {nis['band_95'][0]:.3f}-{nis['band_95'][1]:.3f} "
-          f"({'consistent' if nis['in_band'] else 'outside the band'}); {100 * nis['share_above_3.84']:.1f} % of "
-          f"NIS above 3.84 (5 % expected)")
-    if run.bank is not None:
-        best = result["bank"]["best"][0]
-        print(f"bank: {result['bank']['size']} filters in {run.bank.seconds:.1f} s; best member {best['member']} "
-              f"(weight {best['weight']:.3f}, log-likelihood {best['log_likelihood']:.1f})")
-        print("\n".join(verdict.sentences(result["bank"]["size"])))
+        light_curve_band(result.history, tmp / "light_curve.png", title=title)
+        attitude_with_uncertainty(result.history, tmp / "attitude.png", title=title)
+    print("\n".join(result.report()))
     print(f"written: {folder}")
     return 0

@@ -3,7 +3,8 @@
 The global inversion of :mod:`lightcurve_gp.inference.inversion` on a light-curve file (the config gives the shape,
 the surface's ``F0``, ``n_u``, ``n_v``, the inertia, the propagation step ``scenario.dt_s`` and, for a file
 without geometry, the fixed Sun and observer; ρ is estimated). Writes the new folder
-``OUT/<name>/invert_<file stem>/`` atomically (an existing one is refused unless ``--force``):
+``OUT/estimates/<name>/invert_<file stem>/`` (:func:`lightcurve_gp.commands.layout.invert_folder`, beside the
+estimates of the same file) atomically (an existing one is refused unless ``--force``):
 
 * ``solutions.ecsv`` — one row per family, ranked by weight (:mod:`lightcurve_gp.observed.solutions`);
 * ``summary.json`` — the ambiguity group used, the periodogram's candidates, timings, the settings, provenance;
@@ -30,11 +31,11 @@ from lightcurve_gp.commands.common import (
     apply_threads,
     check_new_folder,
     check_output_root,
-    exit_process,
     progress_enabled,
     provenance,
     run_command,
 )
+from lightcurve_gp.commands.layout import invert_folder
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.evaluation.plots import save_figure
 from lightcurve_gp.files import RunFolder, write_json_atomic
@@ -60,7 +61,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--light-curve", type=Path, required=True, help="light-curve file (.ecsv, .csv, .fits)")
     parser.add_argument("--starts", type=int, default=10_000, help="local optimisations started (default 10000)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the Sobol' attitudes (default 0)")
-    parser.add_argument("--out", type=Path, default=Path("runs"), help="output root (default runs/)")
+    parser.add_argument("--out", type=Path, default=Path("runs"),
+                        help="output root (default runs/); writes OUT/estimates/<name>/invert_<file stem>/")
     parser.add_argument("--rate-min", type=float, default=0.05, help="slowest rate searched, deg/s (default 0.05)")
     parser.add_argument("--rate-max", type=float, default=5.0, help="fastest rate searched, deg/s (default 5)")
     parser.add_argument("--mag-err", type=float, default=None,
@@ -149,8 +151,9 @@ def _figures(folder: Path, t: np.ndarray, problem: TrajectoryProblem, inv: Inver
 
 def _summary(inv: Inversion, fam: Families, group, settings: InversionSettings, record: dict) -> dict:
     return {"families": len(fam), "converged_solutions": int(inv.q0.shape[0]), "images": list(group.labels),
-            "top_weight": float(fam.weight[0]), "rate_candidates_deg_s": [float(r) for r in
-                                                                          inv.periodogram.rates_deg_s],
+            "ambiguity_images": group.as_dict(), "top_weight": float(fam.weight[0]),
+            "rate_candidates_deg_s": [float(r) for r in inv.periodogram.rates_deg_s],
+            "periodogram_detection": inv.periodogram.detection,
             "screened_rates": int(inv.rate_grid.shape[0]), "seconds": inv.seconds,
             "settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(settings).items()},
             "run": record}
@@ -163,7 +166,7 @@ def _run(args: argparse.Namespace) -> int:
     lc = read_light_curve(args.light_curve)
     problem, scene, t = file_problem(cfg, lc, args.mag_err)
     check_output_root(args.out)
-    folder = args.out / cfg.name / f"invert_{args.light_curve.stem}"
+    folder = invert_folder(args.out, cfg.name, args.light_curve)
     check_new_folder(folder, args.force)
     show = progress_enabled(args.no_progress)
     say = (lambda message: tqdm.write(message)) if show else None
@@ -193,6 +196,3 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     return run_command(lambda: _run(args), debug=args.debug)
 
-
-if __name__ == "__main__":
-    exit_process(main())

@@ -5,6 +5,7 @@
     OUT/cache/                              training sets, by content hash
     OUT/estimates/<name>/rho<rho>/          estimate on the config's simulated scenario
     OUT/estimates/<name>/light_curve_<stem>/  estimate --light-curve FILE
+    OUT/estimates/<name>/invert_<stem>/       invert --light-curve FILE
     OUT/sweeps/<name>/cases/                sweep: one file per finished case (resumable)
     OUT/sweeps/<name>/sweep/<sweep-id>/     sweep: its tables
 
@@ -20,7 +21,7 @@ from pathlib import Path
 from lightcurve_gp.commands.common import UserError
 
 __all__ = ["SHARED_FOLDERS", "check_run_name", "train_folder", "model_store", "data_cache", "estimate_folder",
-           "light_curve_folder", "sweeps_root"]
+           "light_curve_folder", "invert_folder", "sweeps_root"]
 
 #: the folders of OUT that are not one training run
 SHARED_FOLDERS = ("models", "cache", "estimates", "sweeps")
@@ -56,6 +57,11 @@ def estimate_folder(out: Path, name: str, rho_true: float) -> Path:
 def light_curve_folder(out: Path, name: str, light_curve: Path) -> Path:
     """``OUT/estimates/<name>/light_curve_<stem>``: ``estimate --light-curve`` of a file with config ``name``."""
     return Path(out) / "estimates" / name / f"light_curve_{Path(light_curve).stem}"
+
+
+def invert_folder(out: Path, name: str, light_curve: Path) -> Path:
+    """``OUT/estimates/<name>/invert_<stem>``: ``invert --light-curve`` of a file with config ``name``."""
+    return Path(out) / "estimates" / name / f"invert_{Path(light_curve).stem}"
 
 
 def sweeps_root(out: Path) -> Path:

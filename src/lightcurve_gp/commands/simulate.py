@@ -41,7 +41,6 @@ from lightcurve_gp.commands.common import (
     apply_threads,
     check_output_root,
     check_overrides,
-    exit_process,
     provenance,
     run_command,
 )
@@ -203,6 +202,3 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     return run_command(lambda: _run(args), debug=args.debug)
 
-
-if __name__ == "__main__":
-    exit_process(main())

@@ -5,7 +5,9 @@
     result.results["gpukf"].rmse_deg                                      # (20, 3), deg
 
 Estimators: :data:`lightcurve_gp.evaluation.registry.ESTIMATORS`; scores:
-:func:`lightcurve_gp.evaluation.scoring.score` over ``evaluation.rmse_window_s``. Tables are built from the result
+:func:`lightcurve_gp.evaluation.scoring.score` over ``evaluation.rmse_window_s``, "modulo symmetry" against the
+scenario's exact ambiguity group derived by :func:`scenario_ambiguity_group` (kept in
+:attr:`ScenarioResult.group`). Tables are built from the result
 by :mod:`lightcurve_gp.evaluation.reporting` (the estimate command and the sweeps) and
 :mod:`lightcurve_gp.evaluation.suite_summary` (the generalisation suite).
 """
@@ -24,11 +26,12 @@ from lightcurve_gp.evaluation.bounds import ScenarioBounds
 from lightcurve_gp.evaluation.registry import DEFAULT_ESTIMATORS, ESTIMATORS, RunContext
 from lightcurve_gp.evaluation.scoring import EstimatorResult, score
 from lightcurve_gp.observation.base import ObservationModel
+from lightcurve_gp.photometry.ambiguity import AmbiguityGroup, ambiguity_group
 from lightcurve_gp.photometry.render import Scene
-from lightcurve_gp.photometry.symmetry import symmetry_quaternions
+from lightcurve_gp.photometry.symmetry import symmetry_rotations
 from lightcurve_gp.simulation.scenario import Scenario
 
-__all__ = ["ScenarioResult", "check_estimators", "run_estimators"]
+__all__ = ["ScenarioResult", "check_estimators", "run_estimators", "scenario_ambiguity_group"]
 
 
 @dataclass
@@ -38,6 +41,8 @@ class ScenarioResult:
     scenario: Scenario
     window: tuple[float, float]
     results: dict[str, EstimatorResult] = field(default_factory=dict)
+    #: the images the scores "modulo symmetry" were taken against (:func:`scenario_ambiguity_group`)
+    group: AmbiguityGroup | None = None
 
     @property
     def steps(self) -> int:
@@ -46,6 +51,19 @@ class ScenarioResult:
     def nees_band(self) -> tuple[float, float]:
         """95 % band of the seed-mean of time-averaged NEES (treats each seed's average as one χ²(3) draw)."""
         return chi2_band(3, len(self.scenario.seeds))
+
+
+def scenario_ambiguity_group(cfg: Config, scenario: Scenario, scene: Scene | None = None) -> AmbiguityGroup:
+    """The exact ambiguity group of a simulated scenario (:func:`~lightcurve_gp.photometry.ambiguity.ambiguity_group`):
+    the facet model's body symmetries (:func:`~lightcurve_gp.photometry.symmetry.symmetry_rotations`) × the inertial
+    180° turns of the first sample's Sun–observer pair, each kept when it reproduces probe light curves over the
+    scenario's sample times and geometry (``scene``, default ``Scene.from_config(cfg)``: fixed, or per sample along
+    the pass) to 1e-9 mag. The rate is known unless ``filter.estimate_omega`` (then a body turn turns it too). Derived
+    in float64 on the CPU whatever the run's dtype and device (a float32 render cannot show 1e-9 mag)."""
+    scene = (scene or Scene.from_config(cfg)).to(device="cpu", dtype=torch.float64)
+    return ambiguity_group(scene, times_s=scenario.times.detach().to(device="cpu", dtype=torch.float64),
+                           inertia=cfg.shape.inertia_kg_m2, rate_known=not cfg.filter.estimate_omega,
+                           dt_s=cfg.scenario.dt_s, body_candidates=symmetry_rotations(scene.facets))
 
 
 def check_estimators(cfg: Config, estimators: Sequence[str], model: ObservationModel | None, *,
@@ -96,14 +114,14 @@ def run_estimators(cfg: Config, scenario: Scenario, *, estimators: Sequence[str]
     scene = (scene or Scene.from_config(cfg)).to(device=torch.device(cfg.device), dtype=cfg.torch_dtype)
     context = RunContext(cfg, scenario, scene, model, map_every_s, map_screen)
     window = tuple(cfg.evaluation.rmse_window_s)
-    q_sym = symmetry_quaternions(scene.facets)
+    group = scenario_ambiguity_group(cfg, scenario, scene)
     grp = (float(cfg.filter.grp_a), float(cfg.filter.grp_f))
-    out = ScenarioResult(scenario, window)
+    out = ScenarioResult(scenario, window, group=group)
     crb = ScenarioBounds(cfg, scene, scenario) if bounds else None
     for name in estimators:
         start = time.perf_counter()
         estimate = ESTIMATORS[name].run(context)
-        out.results[name] = score(scenario, estimate, window=window, q_sym=q_sym, grp=grp,
+        out.results[name] = score(scenario, estimate, window=window, group=group, grp=grp,
                                   seconds=time.perf_counter() - start)
         if crb is not None:
             out.results[name].crb_deg = crb.for_estimator(name)

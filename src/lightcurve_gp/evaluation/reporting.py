@@ -36,8 +36,9 @@ __all__ = ["Quantiles", "quantiles", "format_quantiles", "finite_or_none", "Seed
            "CASE_FORMAT", "seed_rows", "bound_summary", "scenario_summary", "markdown_table", "csv_text",
            "write_report_table", "SUMMARY_HEADER", "summary_row"]
 
-#: version of the stored case-record layout; a record of another version is rerun
-CASE_FORMAT = 1
+#: version of the stored case-record layout; a record of another version is rerun (2: the scores modulo symmetry
+#: are taken against the scenario's derived ambiguity group, named in the summary's ``ambiguity_images``)
+CASE_FORMAT = 2
 
 
 class Quantiles(NamedTuple):
@@ -77,10 +78,10 @@ class SeedRow:
     is the RMSE of the body-rate error's norm over the scoring window, ``omega_error_final_deg_s`` that norm at
     the last sample (deg/s), ``nees_full_mean`` the mean NEES of the whole estimated state ``[δp, ω]`` (the
     attitude NEES for filters that take ω as known). The ``…_mod_symmetry…`` fields score the estimate against the
-    nearest of the truths the shape's symmetries make indistinguishable by the light curve, ``symmetry`` that
-    truth's index (0: the truth itself); ``None`` in records made before they existed. ``crb_…_deg`` is the
-    Cramér–Rao bound of the same problem in the RMSE's units (:mod:`lightcurve_gp.evaluation.bounds`), ``None``
-    where none was computed."""
+    truth's nearest image under the scenario's exact ambiguity group (the summary's ``ambiguity_images``),
+    ``symmetry`` that image's index (0: the truth itself); ``None`` in records made before they existed.
+    ``crb_…_deg`` is the Cramér–Rao bound of the same problem in the RMSE's units
+    (:mod:`lightcurve_gp.evaluation.bounds`), ``None`` where none was computed."""
 
     seed: int
     estimator: str
@@ -211,13 +212,15 @@ def _estimator_summary(r: EstimatorResult, steps: int, seeds: int) -> dict[str, 
 def scenario_summary(result: ScenarioResult) -> dict[str, Any]:
     """Plain-python summary: per estimator the median and IQR of the RMSE per axis over the seeds
     (:func:`quantiles`, NaN ignored), the bound beside it (:func:`bound_summary`), light-curve RMSE, NEES, the
-    scores modulo symmetry and timing."""
+    scores modulo symmetry (``ambiguity_images``: the images they were taken against, ``AmbiguityGroup.as_dict``) and
+    timing."""
     S = len(result.scenario.seeds)
     return {"rho_true": result.scenario.rho_true, "seeds": S, "window_s": list(result.window),
             "nees_band_95": list(result.nees_band()),
             "estimators": {name: _estimator_summary(r, result.steps, S) for name, r in result.results.items()},
             "omega_estimated": any(r.history is not None and r.history.omega is not None
-                                   for r in result.results.values())}
+                                   for r in result.results.values()),
+            "ambiguity_images": None if result.group is None else result.group.as_dict()}
 
 
 @dataclass

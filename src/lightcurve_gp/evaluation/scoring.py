@@ -11,8 +11,13 @@ at its checkpoints) with their covariances. Scored over the samples inside ``eva
 * the body-rate error (the filter's ω when estimated, else the rate it assumed);
 * for a filter, the RMSE of its predicted light curve against the noisy and the noise-free curve, and the NEES of
   its whole estimated state ``[δp, ω]``;
-* the same attitude scores against the nearest of the truths ``q_R ⊗ q_true`` the shape's symmetries make
-  indistinguishable by the light curve (:func:`nearest_symmetric_rmse`), turning at ``A(q_R) ω_true``.
+* the same attitude scores against the nearest image of the truth under the scenario's exact ambiguity group
+  (:class:`~lightcurve_gp.photometry.ambiguity.AmbiguityGroup`, derived per scenario by
+  :func:`lightcurve_gp.evaluation.harness.scenario_ambiguity_group`): the truth ``q_R ⊗ q_true(t) ⊗ q_C`` turning at
+  ``R ω_true(t)`` (:func:`nearest_symmetric_rmse`). A right product ``q_C`` (an inertial turn) commutes with the
+  propagation and keeps the body rate; a body turn ``q_R`` turns the rate with it, so it is an image only where the
+  rate is estimated (with ω known the group holds the inertial turns alone). "Modulo symmetry" below means modulo
+  that group.
 """
 
 from __future__ import annotations
@@ -31,8 +36,8 @@ from lightcurve_gp.attitude.metrics import (
     nees,
     rmse_over_window,
 )
-from lightcurve_gp.attitude.rotations import attitude_matrix, quat_mul
 from lightcurve_gp.filters.state import FilterHistory
+from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
 from lightcurve_gp.simulation.scenario import Scenario
 
 __all__ = ["Estimate", "EstimatorResult", "nees_band", "nearest_symmetric_rmse", "score"]
@@ -82,8 +87,8 @@ class EstimatorResult:
         omega_error_final_deg_s: the body-rate error norm at the last sample ``(S,)`` (deg/s).
         nees_full_mean: a filter's mean NEES of ``[δp, ω]`` (ω estimated) or ``δp`` ``(S,)``; NaN otherwise.
         nees_full_dof: the dimension of that NEES (6 or 3).
-        rmse_mod_symmetry_deg: the RMSE against the nearest symmetric truth ``(S, 3)`` (deg).
-        symmetry_index: that truth's index into the shape's symmetries ``(S,)`` (0: the truth itself).
+        rmse_mod_symmetry_deg: the RMSE against the truth's nearest image under the ambiguity group ``(S, 3)`` (deg).
+        symmetry_index: that image's index into the group ``(S,)`` (0: the truth itself).
         omega_error_final_mod_symmetry_deg_s: the final body-rate error norm against that truth's rate ``(S,)``.
         nees_full_mean_mod_symmetry: ``nees_full_mean`` against that truth ``(S,)``; ``None`` for non-filters.
         offset_final: the final offset estimate ``(S,)`` (mag), or ``None``.
@@ -138,21 +143,21 @@ def nees_band(independent_samples: int = 1, confidence: float = 0.95) -> tuple[f
     return chi2_band(3, independent_samples, confidence)
 
 
-def nearest_symmetric_rmse(q_true: Tensor, q_est: Tensor, q_sym: Tensor, times: Tensor,
+def nearest_symmetric_rmse(q_true: Tensor, q_est: Tensor, group: AmbiguityGroup, times: Tensor,
                            window: Sequence[float]) -> tuple[Tensor, Tensor]:
-    """The Euler-angle RMSE of each estimate against the nearest of the truths ``q_R ⊗ q_true`` that give the same
-    light curve (``q_sym (K, 4)``, the shape's symmetries,
-    :func:`lightcurve_gp.photometry.symmetry.symmetry_quaternions`; the identity first).
+    """The Euler-angle RMSE of each estimate against the nearest of the truth's images ``q_R ⊗ q_true ⊗ q_C`` under
+    the scenario's exact ambiguity ``group`` (the identity first; module docstring).
 
     Args:
         q_true: true attitudes ``(T, 4)`` or ``(S, T, 4)``; q_est: estimates ``(S, T, 4)``.
+        group: the scenario's images (:func:`lightcurve_gp.evaluation.harness.scenario_ambiguity_group`).
         times: ``(T,)`` s; window: inclusive ``(start, end)`` s of the RMSE.
 
     Returns:
-        The RMSE (yaw, pitch, roll) against the nearest symmetric truth ``(S, 3)`` (deg) — the one with the smallest
-        sum of squared per-axis RMSEs, the identity on ties — and its index into ``q_sym`` ``(S,)``.
+        The RMSE (yaw, pitch, roll) against the nearest image ``(S, 3)`` (deg) — the one with the smallest sum of
+        squared per-axis RMSEs, the identity on ties — and its index into ``group`` ``(S,)``.
     """
-    truths = quat_mul(q_sym[:, None, None, :], q_true.expand_as(q_est).unsqueeze(0))  # (K, S, T, 4)
+    truths = group.attitudes(q_true.expand_as(q_est))  # (K, S, T, 4)
     rmse = rmse_over_window(attitude_errors_deg(truths, q_est.unsqueeze(0)).transpose(-1, -2), times, window)
     best = rmse.pow(2).sum(-1).argmin(0)  # (S,): argmin returns the first of equal values
     return rmse[best, torch.arange(q_est.shape[0], device=q_est.device)], best
@@ -177,9 +182,9 @@ def _full_nees(q_true: Tensor, omega_err_deg_s: Tensor, q_est: Tensor, history: 
     return nees(full_err[:, inside], history.P_full[:, inside, :6, :6]).mean(-1), 6
 
 
-def score(sc: Scenario, est: Estimate, *, window: Sequence[float], q_sym: Tensor, grp: tuple[float, float],
-          seconds: float) -> EstimatorResult:
-    """Score ``est`` on ``sc`` over ``window`` (s) with the shape's symmetries ``q_sym (K, 4)`` (identity first) and
+def score(sc: Scenario, est: Estimate, *, window: Sequence[float], group: AmbiguityGroup,
+          grp: tuple[float, float], seconds: float) -> EstimatorResult:
+    """Score ``est`` on ``sc`` over ``window`` (s) with the scenario's exact ambiguity ``group`` (identity first) and
     the GRP parameters ``grp = (a, f)`` of the NEES (module docstring)."""
     samples = torch.arange(sc.times.shape[0], device=sc.times.device) if est.samples is None else est.samples
     times, q_true, q_est = sc.times[samples], sc.q_true[:, samples], est.q_est
@@ -205,23 +210,25 @@ def score(sc: Scenario, est: Estimate, *, window: Sequence[float], q_sym: Tensor
         nees_mean=nees_mean, white_first=white[0], white_last=white[1], lc_rmse_noisy=lc_noisy,
         lc_rmse_clean=lc_clean, omega_rmse_deg_s=rmse_over_window(omega_norm, times, window),
         omega_error_final_deg_s=omega_norm[:, -1], nees_full_mean=nees_full, nees_full_dof=dof,
-        **_symmetric_scores(sc, est, samples, omega_est, q_sym.to(q_est), window, inside, grp),
+        **_symmetric_scores(sc, est, samples, omega_est, group, window, inside, grp),
         offset_final=est.offset_final, seconds=seconds, samples=samples,
         uses_observations=est.uses_observations, history=h)
 
 
-def _symmetric_scores(sc: Scenario, est: Estimate, samples: Tensor, omega_est: Tensor, q_sym: Tensor,
+def _symmetric_scores(sc: Scenario, est: Estimate, samples: Tensor, omega_est: Tensor, group: AmbiguityGroup,
                       window: Sequence[float], inside: Tensor, grp: tuple[float, float]) -> dict[str, Tensor | None]:
-    """The :class:`EstimatorResult` fields against the nearest symmetric truth ``q_R ⊗ q_true`` turning at
-    ``A(q_R) ω_true`` (``omega_est (S, K, 3)``, rad/s)."""
-    q_true = sc.q_true[:, samples]
-    rmse, best = nearest_symmetric_rmse(q_true, est.q_est, q_sym, sc.times[samples], window)
-    omega_sym = sc.omega_true[:, samples] @ attitude_matrix(q_sym[best]).mT  # (S, K, 3)
+    """The :class:`EstimatorResult` fields against the truth's nearest image ``q_R ⊗ q_true ⊗ q_C`` turning at
+    ``R ω_true`` (``omega_est (S, K, 3)``, rad/s)."""
+    q_est = est.q_est
+    group = group.to(device=q_est.device, dtype=q_est.dtype)
+    q_true, seeds = sc.q_true[:, samples], torch.arange(q_est.shape[0], device=q_est.device)
+    rmse, best = nearest_symmetric_rmse(q_true, q_est, group, sc.times[samples], window)
+    omega_sym = group.rates(sc.omega_true[:, samples])[best, seeds]  # (S, K, 3)
     omega_err = torch.rad2deg(omega_sym - omega_est)
     full = None
     if est.history is not None:
-        q_true_sym = quat_mul(q_sym[best].unsqueeze(1), q_true)
-        full = _full_nees(q_true_sym, omega_err, est.q_est, est.history, inside, grp)[0]
+        q_true_sym = group.attitudes(q_true)[best, seeds]
+        full = _full_nees(q_true_sym, omega_err, q_est, est.history, inside, grp)[0]
     return {"rmse_mod_symmetry_deg": rmse, "symmetry_index": best,
             "omega_error_final_mod_symmetry_deg_s": torch.linalg.vector_norm(omega_err[:, -1], dim=-1),
             "nees_full_mean_mod_symmetry": full}

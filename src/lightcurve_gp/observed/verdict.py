@@ -16,9 +16,12 @@ posterior is:
 The last estimate of a member is the bank's own record (``BankResult.bank_history``): the end of the light curve,
 or with pruning the end of the first stretch every member ran (the pruned members hold no weight).
 
-The ambiguity images are today the shape's body rotations of :mod:`lightcurve_gp.photometry.symmetry` (the box-wing
-has four: the identity and the 180° turns about the body x, y and z axes); :func:`ambiguity_images` is the one place
-that chooses them.
+The ambiguity images are the file's exact ambiguity group (:func:`ambiguity_images`, derived by
+:func:`lightcurve_gp.photometry.ambiguity.ambiguity_group` over the file's samples and geometry, never listed): the
+images ``q_R ⊗ q ⊗ q_C`` of the shape's body symmetries ``q_R`` and the inertial 180° turns ``q_C`` of the
+Sun–observer pair that reproduce the light curve to 1e-9 mag. With the spin known (``filter.estimate_omega: false``)
+a body turn would turn the rate too and is no image; along a pass the moving Sun and observer break the inertial
+turns. :func:`ambiguity_images` is the one place that chooses them, and the summary names them.
 """
 
 from __future__ import annotations
@@ -29,20 +32,18 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from lightcurve_gp.attitude.rotations import quat_mul
 from lightcurve_gp.filters.bank import BankResult
-from lightcurve_gp.photometry.shapes import facets_from_config
-from lightcurve_gp.photometry.symmetry import symmetry_quaternions
+from lightcurve_gp.passes.geometry import PassGeometry
+from lightcurve_gp.photometry.ambiguity import AmbiguityGroup, ambiguity_group
+from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.photometry.symmetry import symmetry_rotations
 
-__all__ = ["FAMILY_RADIUS_DEG", "UNIQUE_WEIGHT", "IMAGES_SOURCE", "BankVerdict", "ambiguity_images",
-           "bank_verdict"]
+__all__ = ["FAMILY_RADIUS_DEG", "UNIQUE_WEIGHT", "BankVerdict", "ambiguity_images", "bank_verdict"]
 
 #: members whose last estimates lie within this angle of the best's (or of one of its images) are one family (deg)
 FAMILY_RADIUS_DEG = 10.0
 #: the answer is unique when the top family holds at least this share of the posterior weight
 UNIQUE_WEIGHT = 0.9
-#: what :func:`ambiguity_images` returns, in words
-IMAGES_SOURCE = "the shape's symmetry rotations (lightcurve_gp.photometry.symmetry)"
 
 
 @dataclass
@@ -53,14 +54,14 @@ class BankVerdict:
         effective_members: ``1 / Σ w_i²``.
         top_family_weight: the weight of the best member's family (``0 … 1``).
         top_family_members: how many members the family has.
-        images: the ambiguity images used ``(K, 4)`` (scalar last, the identity first).
+        group: the ambiguity images used (the identity first; :func:`ambiguity_images`).
         verdict: ``"unique"`` or ``"ambiguous"``.
     """
 
     effective_members: float
     top_family_weight: float
     top_family_members: int
-    images: Tensor
+    group: AmbiguityGroup
     verdict: str
 
     def as_dict(self) -> dict:
@@ -68,17 +69,17 @@ class BankVerdict:
         return {"verdict": self.verdict, "effective_members": self.effective_members,
                 "top_family_weight": self.top_family_weight, "top_family_members": self.top_family_members,
                 "family_radius_deg": FAMILY_RADIUS_DEG, "unique_weight": UNIQUE_WEIGHT,
-                "ambiguity_images": {"source": IMAGES_SOURCE, "quaternions": self.images.tolist()}}
+                "ambiguity_images": self.group.as_dict()}
 
     def sentences(self, size: int) -> list[str]:
         """The verdict in words for a bank of ``size`` members: a line of numbers and, when ambiguous, a warning."""
         n = self.top_family_members
         family = (f"the top family ({n} member{'s' if n != 1 else ''} within {FAMILY_RADIUS_DEG:g} deg of the best "
-                  f"estimate or of its {self.images.shape[0] - 1} symmetric attitudes) holds "
+                  f"estimate or of its {len(self.group) - 1} exact images) holds "
                   f"{100 * self.top_family_weight:.1f} % of the posterior weight")
         lines = [f"posterior: effective number of members {self.effective_members:.1f} of {size}; {family}"]
         if self.verdict == "unique":
-            lines.append("verdict: unique (one attitude, up to the shape's symmetries, explains the light curve)")
+            lines.append("verdict: unique (one attitude, up to the exact ambiguities, explains the light curve)")
         else:
             lines.append(f"warning: the answer is not unique: {100 * (1 - self.top_family_weight):.1f} % of the "
                          f"posterior weight lies on other attitudes, so the reported attitude may be far from the "
@@ -87,10 +88,19 @@ class BankVerdict:
         return lines
 
 
-def ambiguity_images(cfg) -> Tensor:
-    """The attitudes' images ``q_R (K, 4)`` (float64, CPU, identity first) that give the same light curve as
-    ``q`` under ``cfg``: ``q_R ⊗ q`` for the shape's symmetry rotations (module docstring)."""
-    return symmetry_quaternions(facets_from_config(cfg, dtype=torch.float64, device="cpu"))
+def ambiguity_images(cfg, *, samples: int, geometry: PassGeometry | None = None) -> AmbiguityGroup:
+    """The exact ambiguity group of a file of ``samples`` samples under ``cfg`` (module docstring): float64, CPU,
+    the identity first; ``geometry`` the file's per-sample geometry (``None``: the config's fixed Sun and observer).
+
+    The probe trajectories are sampled once per ``scenario.dt_s`` step, one step per file sample: whether an image
+    reproduces a sample's magnitude depends on that sample's geometry, not on its time stamp."""
+    scene = Scene.from_config(cfg, dtype=torch.float64, device="cpu")
+    if geometry is not None:
+        scene = scene.with_geometry(geometry.sun.double().cpu(), geometry.observer.double().cpu(),
+                                    torch.as_tensor(geometry.range_m, dtype=torch.float64))
+    return ambiguity_group(scene, times_s=torch.arange(samples, dtype=torch.float64) * cfg.scenario.dt_s,
+                           inertia=cfg.shape.inertia_kg_m2, rate_known=not cfg.filter.estimate_omega,
+                           dt_s=cfg.scenario.dt_s, body_candidates=symmetry_rotations(scene.facets))
 
 
 def _angle_deg(a: Tensor, b: Tensor) -> Tensor:
@@ -99,18 +109,19 @@ def _angle_deg(a: Tensor, b: Tensor) -> Tensor:
     return torch.rad2deg(2.0 * torch.acos(dot))
 
 
-def bank_verdict(bank: BankResult, images: Tensor, *, radius_deg: float = FAMILY_RADIUS_DEG,
+def bank_verdict(bank: BankResult, group: AmbiguityGroup, *, radius_deg: float = FAMILY_RADIUS_DEG,
                  unique_weight: float = UNIQUE_WEIGHT) -> BankVerdict:
-    """The verdict of ``bank`` with the ambiguity ``images (K, 4)`` (module docstring)."""
+    """The verdict of ``bank`` with the file's ambiguity ``group`` (module docstring)."""
     w = bank.weights.detach().double().cpu()
     last = bank.bank_history.q_est[:, -1].detach().double().cpu()  # (N, 4)
     last = last / last.norm(dim=-1, keepdim=True)
     best = last[int(bank.order[0])]
-    targets = quat_mul(images.to(best), best.expand_as(images))  # (K, 4)
+    group = group.to(device="cpu", dtype=torch.float64)
+    targets = group.attitudes(best)  # (K, 4)
     distance = _angle_deg(last.unsqueeze(1), targets.unsqueeze(0)).amin(1)  # (N,)
     family = distance <= radius_deg
     weight = float(w[family].sum())
     effective = float(1.0 / w.pow(2).sum()) if float(w.sum()) > 0 else math.nan
     return BankVerdict(effective_members=effective, top_family_weight=weight,
-                       top_family_members=int(family.sum()), images=images.detach().double().cpu(),
+                       top_family_members=int(family.sum()), group=group,
                        verdict="unique" if weight >= unique_weight else "ambiguous")

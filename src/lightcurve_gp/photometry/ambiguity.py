@@ -40,10 +40,14 @@ from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.photometry.symmetry import cube_rotations
 
-__all__ = ["INERTIAL_TURNS", "AmbiguityGroup", "inertial_turns", "ambiguity_group"]
+__all__ = ["INERTIAL_TURNS", "GROUP_SOURCE", "AmbiguityGroup", "inertial_turns", "ambiguity_group"]
 
 #: names of the inertial candidates, in the order of :func:`inertial_turns`
 INERTIAL_TURNS = ("identity", "plane normal", "bisector", "in-plane perpendicular")
+#: where the images of :class:`AmbiguityGroup` come from, in words (for reports)
+GROUP_SOURCE = ("derived by lightcurve_gp.photometry.ambiguity.ambiguity_group: body rotations x inertial 180 deg "
+                "turns of the Sun-observer pair, each kept when it reproduces probe light curves of the scenario to "
+                "1e-9 mag")
 
 
 def inertial_turns(sun: Tensor, observer: Tensor) -> Tensor:
@@ -81,6 +85,12 @@ class AmbiguityGroup:
     def __len__(self) -> int:
         return self.body.shape[0]
 
+    def to(self, device=None, dtype=None) -> AmbiguityGroup:
+        """The same images on another device and/or dtype."""
+        return AmbiguityGroup(body=self.body.to(device=device, dtype=dtype),
+                              inertial=self.inertial.to(device=device, dtype=dtype), labels=self.labels,
+                              rate_known=self.rate_known)
+
     def attitudes(self, q: Tensor) -> Tensor:
         """The images ``q_R ⊗ q ⊗ q_C`` ``(K, ..., 4)`` of attitudes ``q (..., 4)`` (at any time of a trajectory)."""
         shape = (len(self),) + (1,) * (q.ndim - 1) + (4,)
@@ -94,6 +104,12 @@ class AmbiguityGroup:
     def describe(self) -> list[str]:
         """The labels, for reports ("modulo which images")."""
         return list(self.labels)
+
+    def as_dict(self) -> dict:
+        """The images for a summary: where they come from, whether the rate is known, their names and quaternions
+        (``body``: ``q_R``, ``inertial``: ``q_C``; the image of ``q`` is ``q_R ⊗ q ⊗ q_C``)."""
+        return {"source": GROUP_SOURCE, "rate_known": self.rate_known, "labels": list(self.labels),
+                "body": self.body.tolist(), "inertial": self.inertial.tolist()}
 
 
 def _body_label(rotation: Tensor) -> str:
