@@ -142,13 +142,20 @@ def run_blocks(cfg, model, scene, seeds: range, error_deg, estimators, args, lab
 
 # ------------------------------------------------------------------------------------------------ tables
 
-TABLE_HEADER = ("seeds", "< 10 deg all axes", "yaw", "pitch", "roll", "NEES in band", "mean NEES", "median NEES")
+TABLE_HEADER = ("seeds", "< 10 deg all axes", "yaw", "pitch", "roll", "RMSE / CRB", "NEES in band", "mean NEES",
+                "median NEES")
+
+
+def _ratio(e: dict[str, Any]) -> str:
+    """The median RMSE over the median bound per axis, "–" for rows stored before the bound was computed."""
+    values = [e.get(f"rmse_over_crb_{a}", float("nan")) for a in ("yaw", "pitch", "roll")]
+    return "–" if not all(np.isfinite(values)) else " / ".join(f"{v:.1f}" for v in values)
 
 
 def summary_table(summary: Sequence[dict[str, Any]], first: str) -> str:
     """The summary entries as one Markdown table led by the columns ``first`` (``"group"``) and ``"estimator"``."""
     cells = [[e[first], e["estimator"], e["seeds"], f"{100 * e['share_below_10deg']:.0f} %",
-              *(f"{e[k]:.2f}" for k in ("rmse_yaw_median", "rmse_pitch_median", "rmse_roll_median")),
+              *(f"{e[k]:.2f}" for k in ("rmse_yaw_median", "rmse_pitch_median", "rmse_roll_median")), _ratio(e),
               f"{100 * e['share_nees_in_band']:.0f} %", f"{e['nees_mean']:.3g}", f"{e['nees_median']:.3g}"]
              for e in summary]
     return markdown_table((first, "estimator", *TABLE_HEADER), cells).rstrip("\n")
