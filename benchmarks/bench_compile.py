@@ -11,7 +11,7 @@ at each ``B`` of ``--batches``, one torch thread:
 * break-even: the run length (steps) from which compiling pays, compile / (eager − compiled step), cold and warm;
   and the paper's 600-step run of ``B`` filters eager and compiled (warm compile included);
 * peers at B = 1 in the cold process: a numpy GPUKF on the same GP and filterpy's UKF on the same renderer
-  (``_peers``), per step; and the largest difference between the eager and the compiled estimates.
+  (``peers``), per step; and the largest difference between the eager and the compiled estimates.
 
 Each case runs in child processes of this script (``--child``), so no compiled graph or in-memory cache carries
 over from one case to the next.
@@ -33,7 +33,7 @@ import sys
 import tempfile
 import time
 
-import _common as C
+import common as C
 
 PAPER_STEPS = 600  # steps of the paper's run (600 s at 1 s)
 LABELS = {"renderer": "UKF, renderer (Parametric)", "exact": "GPUKF, ExactGP mean"}
@@ -70,7 +70,7 @@ def build_case(spec: dict):
     import dataclasses
 
     import torch
-    from _peers import UsqueSetup, filterpy_runner, numpy_runner
+    from peers import UsqueSetup, filterpy_runner, numpy_runner
 
     from lightcurve_gp.filters.usque import UsqueParams, initial_covariance, run_usque
     from lightcurve_gp.observation.parametric import Parametric

@@ -28,7 +28,7 @@ import copy
 import dataclasses
 import statistics
 
-import _common as C
+import common as C
 
 PAPER = {"GPUKF": 0.85, "UKF": 0.005}  # seconds per observation step, paper section 4
 TARGETS = {  # (model, B) -> seconds per filter-step, for every row of that model (with and without its variance)

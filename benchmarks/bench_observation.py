@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import argparse
 
-import _common as C
+import common as C
 
 TARGETS = {  # (model label, points, with variance) -> seconds, on a 2-core CPU in float64
     ("ExactGP", 13, False): 1e-3,

@@ -20,7 +20,7 @@ import os
 import statistics
 import time
 
-import _common as C
+import common as C
 
 TARGET_M512 = 0.3e-3  # seconds, 13 points, mean + variance, one thread (issue target)
 ROBUST = C.ROOT / "configs" / "boxwing_robust.yaml"

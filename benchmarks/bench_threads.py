@@ -13,7 +13,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import CONFIG, Table, fmt_seconds, machine_info, time_call, write_report  # noqa: E402
+from common import CONFIG, Table, fmt_seconds, machine_info, time_call, write_report  # noqa: E402
 
 
 def _spin(stop) -> None:

@@ -5,9 +5,9 @@ Paper scenario (``configs/boxwing.yaml``), one filter (B = 1), float64, ``--thre
 * GPUKF with the exact GP (N = 19 260, mean only, as in the paper): the library's USQUE, eager and with
   ``filter.compile: true`` (the step as compiled graphs, :mod:`lightcurve_gp.filters.compiled`); the same filter with
   GPyTorch's default prediction path ``likelihood(model(x)).mean`` as its observation model (its one-off mean
-  solve timed apart); a straightforward numpy GPUKF written for this benchmark (``_peers.numpy_gpukf``).
+  solve timed apart); a straightforward numpy GPUKF written for this benchmark (``peers.numpy_gpukf``).
 * Conventional UKF with the renderer: the library's USQUE with the parametric model, eager and compiled; filterpy's
-  ``UnscentedKalmanFilter`` driving the same renderer (``_peers.filterpy_usque``).
+  ``UnscentedKalmanFilter`` driving the same renderer (``peers.filterpy_usque``).
 * Many filters at once: the library's SparseGP (M = 512, mean only) at B = ``--batch`` per filter-step, eager and
   compiled, against the numpy GPUKF's single filter.
 
@@ -30,7 +30,7 @@ import dataclasses
 import statistics
 import time
 
-import _common as C
+import common as C
 import numpy as np
 
 PAPER_GPUKF_S = (0.83, 0.88)  # seconds per GPUKF step, paper Sec. 4 (quoted)
@@ -183,7 +183,7 @@ def build_tables(cases, gpytorch_solve_s, batch_row, sc, info_start) -> list:
 
 def build_cases(args, exact, data, scene, rho: float, sc, P0, params) -> tuple[list[Case], float | None]:
     """The cases of the one-filter table (module docstring) and GPyTorch's first-call solve time (s, or ``None``)."""
-    from _peers import GPyTorchMean, UsqueSetup, filterpy_runner, numpy_runner
+    from peers import GPyTorchMean, UsqueSetup, filterpy_runner, numpy_runner
 
     from lightcurve_gp.observation.parametric import Parametric
 

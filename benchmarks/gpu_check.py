@@ -2,7 +2,7 @@
 
 Sections, in order of importance (a global ``--time-budget-s`` skips what is left, as "skipped: budget"):
 
-1. **CUDA tests** — the tests that skip without CUDA, in a pytest process of their own (``benchmarks/_cuda_tests.py``),
+1. **CUDA tests** — the tests that skip without CUDA, in a pytest process of their own (``benchmarks/cuda_tests.py``),
    with each test's peak CUDA memory as evidence that it ran on the GPU.
 2. **filter** — filter steps per second of ``B`` = 10³, 10⁴, 10⁵ USQUE filters (``run_usque``, 7 sigma points each,
    the paper's scenario) with the sparse GP (M = 512, with and without its variance) and the exact GP (mean only,
@@ -36,10 +36,10 @@ import traceback
 import warnings
 from pathlib import Path
 
-import _common as C
+import common as C
 import torch
-from _gpu_context import Context, Skip, first_line, median_time
-from _gpu_report import (
+from gpu_context import Context, Skip, first_line, median_time
+from gpu_report import (
     Budget,
     Report,
     Row,
@@ -47,7 +47,7 @@ from _gpu_report import (
     machine_header,
     workload_lines,
 )
-from _gpu_setup import check_args, memory_cap, parse_args
+from gpu_setup import check_args, memory_cap, parse_args
 
 AIM_FILTER_STEPS_PER_S = 1e6
 
@@ -207,8 +207,8 @@ def rel_diff(a, b) -> float:
 # ----------------------------------------------------------------------------------------------- sections
 
 def section_cuda_tests(ctx: Context) -> None:
-    """The CUDA tests in a pytest process of their own (``_cuda_tests.py``): one row per test, then a summary."""
-    import _cuda_tests as cuda_tests
+    """The CUDA tests in a pytest process of their own (``cuda_tests.py``): one row per test, then a summary."""
+    import cuda_tests  # the CUDA section only
 
     timeout = max(10.0, min(ctx.args.tests_timeout_s, ctx.budget.left()))
     ctx.log(f"CUDA tests: pytest in a subprocess (log {ctx.out / 'cuda_tests.log'}, timeout {timeout:.0f} s)")

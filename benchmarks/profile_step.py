@@ -28,7 +28,7 @@ import dataclasses
 import statistics
 import time
 
-import _common as C
+import common as C
 
 
 def parse_args() -> argparse.Namespace:

@@ -23,8 +23,8 @@ def _benchmark_module(name: str):
     return importlib.import_module(name)
 
 
-cuda_tests = _benchmark_module("_cuda_tests")
-report_mod = _benchmark_module("_gpu_report")
+cuda_tests = _benchmark_module("cuda_tests")
+report_mod = _benchmark_module("gpu_report")
 NOT_MEASURED, Report, Row = report_mod.NOT_MEASURED, report_mod.Report, report_mod.Row
 
 SECTIONS = ["CUDA tests", "filter", "conditioning", "render", "sparse fit"]

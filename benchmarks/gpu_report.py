@@ -19,7 +19,7 @@ import time
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
-from _common import fmt_seconds, load_average
+from common import fmt_seconds, load_average
 
 __all__ = ["NOT_MEASURED", "Budget", "Report", "Row", "best_rate", "footer_lines", "imported_packages",
            "machine_header", "workload_lines"]

@@ -8,7 +8,7 @@ other test and records, per CUDA test, its outcome, its duration and the peak CU
 ran (``torch.cuda.max_memory_allocated`` after a reset): a passed test with a peak of 0 bytes never put a tensor on
 the GPU. Collection errors in unrelated modules (a missing optional package) do not stop the run.
 
-    python benchmarks/_cuda_tests.py RESULT.json      # from the repository root; writes RESULT.json
+    python benchmarks/cuda_tests.py RESULT.json      # from the repository root; writes RESULT.json
 
 :func:`run` starts that process from ``benchmarks/gpu_check.py``; :func:`describe` and :func:`summary` word its
 result for the table.
@@ -139,12 +139,12 @@ def summary(result: dict) -> str:
 
 def main(argv: list[str]) -> int:
     if len(argv) != 2:
-        print("usage: python benchmarks/_cuda_tests.py RESULT.json", file=sys.stderr)
+        print("usage: python benchmarks/cuda_tests.py RESULT.json", file=sys.stderr)
         return 2
     probe = CudaTestProbe()
     code = pytest.main(["-q", "-p", "no:cacheprovider", "--continue-on-collection-errors", "tests"],
                        plugins=[probe])
-    from _gpu_report import imported_packages
+    from gpu_report import imported_packages
 
     device = probe.torch.cuda.get_device_name() if probe.cuda else None
     Path(argv[1]).write_text(json.dumps({"exit_code": int(code), "cuda_available": probe.cuda, "device": device,

@@ -15,9 +15,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import _common as C
+import common as C
 import torch
-from _gpu_report import NOT_MEASURED, Budget, Report, Row
+from gpu_report import NOT_MEASURED, Budget, Report, Row
 
 __all__ = ["Context", "Part", "Skip", "cpu_gemm_gflops", "first_line", "median_time"]
 
