@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import importlib
+import os
+import signal
 import subprocess
 import sys
+import types
 
 import pytest
 
-from lightcurve_gp.__main__ import COMMANDS, main, usage
+from lightcurve_gp.__main__ import COMMANDS, import_deferring_interrupts, main, usage
 
 
 def test_usage_lists_every_command(capsys):
@@ -42,3 +46,24 @@ def test_python_dash_m_package_dispatches():
                           text=True, timeout=120)
     assert done.returncode == 0
     assert "python -m lightcurve_gp.simulate" in done.stdout
+
+
+def test_an_interrupt_during_a_command_s_import_is_answered_once_the_import_is_done(monkeypatch):
+    """A SIGINT inside the import (in torch's C++ initialisation it would abort the process) waits for its end."""
+    finished = []
+
+    def slow_import(name):
+        os.kill(os.getpid(), signal.SIGINT)
+        for _ in range(10_000):  # the handler runs between these bytecodes
+            pass
+        finished.append(name)
+        return types.SimpleNamespace(name=name)
+
+    before = signal.getsignal(signal.SIGINT)
+    monkeypatch.setattr(importlib, "import_module", slow_import)
+    with pytest.raises(KeyboardInterrupt):
+        import_deferring_interrupts("lightcurve_gp.commands.train")
+    assert finished == ["lightcurve_gp.commands.train"]
+    assert signal.getsignal(signal.SIGINT) is before
+    monkeypatch.setattr(importlib, "import_module", lambda name: types.SimpleNamespace(name=name))
+    assert import_deferring_interrupts("x").name == "x"

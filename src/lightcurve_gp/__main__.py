@@ -9,9 +9,11 @@ Ctrl-C while it loads is the one line and exit code 130 of every interrupt, not 
 from __future__ import annotations
 
 import importlib
+import signal
 import sys
+import threading
 
-__all__ = ["COMMANDS", "main", "run", "usage"]
+__all__ = ["COMMANDS", "main", "run", "usage", "import_deferring_interrupts"]
 
 #: command name -> (the module whose ``main(argv) -> exit code`` runs it, one line of help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -42,7 +44,29 @@ def main(argv: list[str] | None = None) -> int:
     if name not in COMMANDS:
         print(f"error: {name!r} is not a command; choose from {', '.join(COMMANDS)}", file=sys.stderr)
         return 2
-    return importlib.import_module(COMMANDS[name][0]).main(rest)
+    return import_deferring_interrupts(COMMANDS[name][0]).main(rest)
+
+
+def import_deferring_interrupts(name: str):
+    """Import module ``name`` with Ctrl-C deferred to the end of the import; then raise :class:`KeyboardInterrupt`
+    if one came.
+
+    A SIGINT that lands inside torch's C++ initialisation, raised there as a Python exception, aborts the process
+    (``terminate called after throwing an instance of 'pybind11::error_already_set'``, no exit code 130); noted by a
+    handler and answered after the import, it is the one line of every interrupt. Off the main thread (where no
+    handler can be set) the import is plain.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return importlib.import_module(name)
+    hits: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: hits.append(signum))
+    try:
+        module = importlib.import_module(name)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if hits:
+        raise KeyboardInterrupt
+    return module
 
 
 def run(argv: list[str] | None = None) -> None:
@@ -53,7 +77,7 @@ def run(argv: list[str] | None = None) -> None:
     except KeyboardInterrupt:  # only while a command's module loads: a running command handles its own
         print("interrupted; nothing written", file=sys.stderr)
         sys.exit(130)
-    importlib.import_module("lightcurve_gp.commands.common").exit_process(code)
+    importlib.import_module("lightcurve_gp.commands.common").exit_process(code)  # loaded already by the command
 
 
 if __name__ == "__main__":
