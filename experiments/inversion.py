@@ -124,7 +124,7 @@ def bank_scores(args, seed: int, sigma: float, truth, group) -> dict:
                                          f"scenario.omega0_deg_s={np.degrees(w0.numpy()).tolist()}",
                                          f"scenario.noise_var={sigma ** 2}"])
     sc = simulate_scenario(cfg, seeds=[seed], rho_true=rho)
-    bank = run_bank(cfg, trained_model(cfg, args.runs), observations=sc.observations[0], increments=sc.increments,
+    bank = run_bank(cfg, trained_model(cfg, args.runs), observations=sc.observations[0], increments=sc.increments[0],
                     q0=bank_attitudes(args.bank_size), keep=5, R=sigma ** 2)
     est0 = bank.kept.q_est[:, 0]
     angle, _, _ = image_distance(group, est0, w0.expand(5, 3), q0, w0)
