@@ -43,6 +43,7 @@ from experiments.common import ROOT, command_line, floats, seed_range, write_out
 from lightcurve_gp.config.load import ConfigError, config_hash, load_config
 from lightcurve_gp.evaluation.harness import run_estimators
 from lightcurve_gp.evaluation.reporting import csv_text, markdown_table, scenario_summary, seed_rows
+from lightcurve_gp.evaluation.whole_arc import FLOOR_KEEP, NOISE_FLOOR_MAG
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario, simulate_truths
 from lightcurve_gp.simulation.truths import draw_truths
@@ -112,9 +113,11 @@ def cell(cfg, case: str, seeds: range, estimators, *, model, scene, root: Path
     out, seconds = {}, 0.0
     for name in estimators:
         sections = ["geometry", "shape", "surface", "scenario", "filter", "evaluation"]
-        case_id = config_hash(cfg, *sections, extra={"study": "realistic_noise", "format": FORMAT, "case": case,
-                                                     "seeds": list(seeds), "estimator": name,
-                                                     "model": model_key(cfg) if name == "gpukf" else None})
+        extra = {"study": "realistic_noise", "format": FORMAT, "case": case, "seeds": list(seeds), "estimator": name,
+                 "model": model_key(cfg) if name == "gpukf" else None}
+        if name in ("map", "matched_map") and cfg.filter.measurement_noise < NOISE_FLOOR_MAG ** 2:
+            extra["search"] = f"noise floor {NOISE_FLOOR_MAG:g} mag, keep {FLOOR_KEEP}"  # the continuation runs
+        case_id = config_hash(cfg, *sections, extra=extra)
         compute = functools.partial(lambda n: run_case(cfg, make(), n, model=model, scene=scene), name)
         record, _ = resume_case(root, case_id, compute, values={"case": case, "noise_var": cfg.scenario.noise_var},
                                 seeds=seeds, estimators=[name])

@@ -14,13 +14,14 @@ from lightcurve_gp.config.load import load_config
 from lightcurve_gp.evaluation.bounds import ScenarioBounds, estimator_bound
 from lightcurve_gp.evaluation.harness import run_estimators
 from lightcurve_gp.evaluation.whole_arc import arc_estimate, whole_arc_map
-from lightcurve_gp.inference.arc import mixture_covariance, prior_axis_starts
+from lightcurve_gp.inference.arc import mixture_covariance, prior_axis_starts, prior_corner_starts
 from lightcurve_gp.inference.attitude import MapPrior, map_attitude, map_known_rate
 from lightcurve_gp.inference.surface import map_with_surface
 from lightcurve_gp.observation.parametric import Parametric
 from lightcurve_gp.observation.surface_state import reference_surface
 from lightcurve_gp.photometry.render import Scene
-from lightcurve_gp.simulation.scenario import simulate_scenario
+from lightcurve_gp.simulation.scenario import simulate_scenario, simulate_truths
+from lightcurve_gp.simulation.truths import draw_truths
 
 REALISTIC = Path(__file__).resolve().parents[1] / "configs" / "boxwing_realistic.yaml"
 SHORT = ["scenario.duration_s=200", "evaluation.rmse_window_s=[100, 200]"]
@@ -41,8 +42,8 @@ def paper():
 def test_map_estimator_equals_the_surface_map_reference(paper):
     """``map`` (surface unknown; through the harness, started from the surface filter and the prior starts) lands on
     the minimum the checkpoint MAP reference of :mod:`lightcurve_gp.inference.surface` finds from the prior mean
-    (run to convergence): within a tenth of its own standard deviation (the Levenberg–Marquardt stop leaves the
-    flat surface directions ~1e-5 nats short), the surface state to 0.01."""
+    (run to convergence): the attitude and the surface state each within a tenth of their own standard deviation (the
+    Levenberg–Marquardt stop leaves the flat surface directions up to ~1e-3 nats short)."""
     cfg, scene, sc = paper
     T = sc.steps
     ref = map_with_surface(scene, q_est0=sc.q_est0, sigma0=sc.sigma0, observations=sc.observations,
@@ -51,12 +52,14 @@ def test_map_estimator_equals_the_surface_map_reference(paper):
                            iterations=100, tolerance=1e-10)
     q0_ref = quat_mul(rotvec_to_quat(ref.x[:, -1, :3]), sc.q_est0)
     solution = whole_arc_map(cfg, scene, sc, start=None, surface_known=False)
-    assert (solution.theta - ref.x[:, -1, 3:]).abs().max() < 0.01
+    theta_std = solution.covariance.diagonal(dim1=-2, dim2=-1)[:, 3:].sqrt()
+    assert ((solution.theta - ref.x[:, -1, 3:]).abs() / theta_std).max() < 0.1
     result = run_estimators(cfg, sc, estimators=["map"], scene=scene, bounds=False).results["map"]
     for q0 in (solution.q0, result.q_est[:, 0]):
         apart = quat_to_rotvec(quat_mul(q0, quat_conj(q0_ref)))
         assert float(nees(apart, solution.attitude_covariance).max()) < 0.1 ** 2
-    torch.testing.assert_close(result.q_est[:, -1], ref.q_est[:, -1], atol=1e-3, rtol=0.0)
+    end = quat_to_rotvec(quat_mul(result.q_est[:, -1], quat_conj(ref.q_est[:, -1])))
+    assert float(nees(end, arc_estimate(sc, solution).P[:, -1]).max()) < 0.1 ** 2
 
 
 def test_matched_map_equals_the_known_rate_map_reference(paper):
@@ -116,6 +119,43 @@ def test_prior_axis_starts_turn_the_prior_mean_about_each_axis():
     expected = math.sqrt(3.0) * 0.2 * torch.tensor([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1],
                                                     [0, 0, -1]], dtype=torch.float64)
     torch.testing.assert_close(turn, expected)
+
+
+def test_prior_corner_starts_turn_the_prior_mean_to_the_cube_corners():
+    q = rotvec_to_quat(torch.tensor([[0.1, -0.2, 0.3]], dtype=torch.float64))
+    starts = prior_corner_starts(q, torch.tensor([0.2], dtype=torch.float64))
+    assert starts.shape == (8, 1, 4)
+    turn = quat_to_rotvec(quat_mul(starts[:, 0], quat_conj(q)))  # (8, 3)
+    torch.testing.assert_close(turn.abs(), torch.full((8, 3), 0.2, dtype=torch.float64))
+    assert len({tuple(t.sign().tolist()) for t in turn}) == 8
+
+
+def test_noise_floor_continuation_finds_the_basin_the_prior_starts_miss():
+    """A tuning seed of the random truths (1053: a slow spin, initial error 9°, broad lobes) at σ = 0.01 mag, surface
+    unknown, no filter start: from the prior's 7 starts alone the MAP ends 175° away at a cost far above the truth's;
+    solved first with the noise floor (0.1 mag) and then with R, it lands within 1° of the truth at a cost no
+    higher than the truth's posterior cost."""
+    cfg = load_config(REALISTIC, ["scenario.noise_var=1e-4", "filter.measurement_noise=1e-4"])
+    scene = Scene.from_config(cfg)
+    sc = simulate_truths(cfg, draw_truths([1053]), scene)
+    plain = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, noise_floor_mag=None)
+    continued = whole_arc_map(cfg, scene, sc, start=None, surface_known=False)
+    assert float(angle_deg(plain.q0, sc.q_true[:, 0])) > 10.0
+    assert float(angle_deg(continued.q0, sc.q_true[:, 0])) < 1.0
+    assert float(continued.cost) < 0.5 * float(plain.cost)
+    assert float(continued.cost) <= 290.0  # the truth's cost is 281 nats; its 600 samples alone expect 300 ± 17
+
+
+def test_noise_floor_continuation_is_off_at_and_above_the_floor(paper):
+    """With R at the floor (0.1 mag) the MAP is the plain one, bit for bit; below it, the result differs only by the
+    continuation's path (the same minimum on the paper's trajectory)."""
+    cfg, scene, sc = paper
+    at_floor = [whole_arc_map(cfg, scene, sc, start=None, surface_known=True, R=0.1 ** 2, noise_floor_mag=floor)
+                for floor in (0.1, None)]
+    assert torch.equal(at_floor[0].q0, at_floor[1].q0)
+    below = [whole_arc_map(cfg, scene, sc, start=None, surface_known=True, noise_floor_mag=floor)
+             for floor in (0.1, None)]
+    assert angle_deg(below[0].q0, below[1].q0).max() < 1e-3
 
 
 def test_each_estimator_has_the_bound_of_its_unknowns():

@@ -3,9 +3,10 @@
 The choice follows what was measured at 0.01–0.71 mag (docs/studies/realistic-photometry.md):
 
 * **ω known, the shape known to the renderer** (every simulated scenario; a mesh or the box-wing): ``map`` — the
-  surface-state filter, then the whole-arc MAP of the initial attitude and the surface state from 8 starts with its
-  Laplace covariance. On the tuning seeds it reached the bound (RMSE/CRB 0.6–1.1 on the paper case, up to 2.3 on
-  random truths at 0.01 mag) at every noise level, with the surface unknown. The GP filter pays only at
+  surface-state filter, then the whole-arc MAP of the initial attitude and the surface state from 8 starts (below
+  0.1 mag continued in the noise) with its Laplace covariance. On the tuning seeds it reached the bound (RMSE/CRB
+  0.6–1.1 on the paper case, up to 2.3 on random truths at 0.01 mag) at every noise level, with the surface
+  unknown. The GP filter pays only at
   σ ≳ 0.3 mag and on its own training surface (there it can do better: the paper case at 0.71 mag, 97 % of tuning
   seeds below 10° against the MAP's 87 %), which real data do not promise (random surfaces at 0.71 mag: 57 %
   against 73 %), so the MAP stays the choice.

@@ -5,9 +5,16 @@ Starts (``K`` per seed, one batch): the filter's final attitude moved back to ``
 final surface state), the prior mean ``q_est,0`` and the prior mean turned by ``±√3 σ0`` about each body axis; with
 ``screen > 0`` also the ``keep`` best by posterior cost of ``screen`` quasi-random draws from the prior (a scrambled
 Sobol' sequence mapped to ``N(0, σ0² I)``, the surface at its prior mean), which costs one rendering of the arc per
-draw. The measurement noise is the filters' ``R`` (``filter.measurement_noise``, or a per-sample ``R``); ω is known
-(the scenario's assumed rate). The estimate at sample ``k`` is ``q̂_k = Δ_k ⊗ q̂_0`` with covariance
-``A(Δ_k) Σ A(Δ_k)ᵀ`` (``Σ`` the reported attitude covariance at ``t_0``), so the NEES is scored at every sample.
+draw. Below the noise floor (``R < NOISE_FLOOR_MAG²``, 0.1 mag) the search is a continuation in the noise: every
+start, and the prior mean turned to the eight corners ``(±σ0, ±σ0, ±σ0)``, is first solved with ``max(R, floor²)``
+(a landscape whose narrow basins the prior still outweighs) and the :data:`FLOOR_KEEP` best solutions per seed start
+the solve with ``R``. On the tuning seeds of the random truths it found the truth's basin where the 8 plain starts
+did not (0.01 mag: 93 → 97 % and 95 → 97 % below 10° on seeds 1000–1029 and 1030–1089; 0.03 mag: 90 → 93 % and
+93 → 97 %) at 1.3–1.4 s per seed against 0.65–0.7 s; at and above the floor nothing changes.
+
+The measurement noise is the filters' ``R`` (``filter.measurement_noise``, or a per-sample ``R``); ω is known (the
+scenario's assumed rate). The estimate at sample ``k`` is ``q̂_k = Δ_k ⊗ q̂_0`` with covariance ``A(Δ_k) Σ A(Δ_k)ᵀ``
+(``Σ`` the reported attitude covariance at ``t_0``), so the NEES is scored at every sample.
 """
 
 from __future__ import annotations
@@ -22,17 +29,28 @@ from lightcurve_gp.config.load import Config
 from lightcurve_gp.evaluation.scoring import Estimate
 from lightcurve_gp.filters.setup import first_observation
 from lightcurve_gp.filters.state import FilterHistory
-from lightcurve_gp.inference.arc import ArcProblem, ArcSolution, prior_axis_starts, solve_arc
+from lightcurve_gp.inference.arc import (
+    ArcProblem,
+    ArcSolution,
+    prior_axis_starts,
+    prior_corner_starts,
+    refine_starts,
+    solve_arc,
+)
 from lightcurve_gp.inference.solver import GaussianPrior, least_squares_cost
 from lightcurve_gp.inference.surface import cumulative_increments
 from lightcurve_gp.observation.surface_state import reference_surface, surface_state_prior
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import Scenario
 
-__all__ = ["SCREEN_SEED", "whole_arc_map", "arc_estimate"]
+__all__ = ["SCREEN_SEED", "NOISE_FLOOR_MAG", "FLOOR_KEEP", "whole_arc_map", "arc_estimate"]
 
 #: seed of the scrambled Sobol' draws of the screening
 SCREEN_SEED = 27
+#: the continuation's noise floor (mag): below it the starts are first solved with this noise (module docstring)
+NOISE_FLOOR_MAG = 0.1
+#: the continuation's solutions per seed that start the solve with the true noise
+FLOOR_KEEP = 4
 
 
 def _weights(observations: Tensor, R: float | Tensor) -> Tensor:
@@ -61,8 +79,21 @@ def _screened(problem: ArcProblem, prior: GaussianPrior, theta: Tensor | None, s
     return quat_mul(rotvec_to_quat(e_best), problem.q_ref.unsqueeze(0))
 
 
+def _floored(problem: ArcProblem, observations: Tensor, R: float | Tensor, floor_mag: float | None
+              ) -> ArcProblem | None:
+    """``problem`` with every noise variance raised to at least ``floor_mag²``; ``None`` when no sample is below it
+    (or no floor)."""
+    R = torch.as_tensor(R, dtype=observations.dtype, device=observations.device)
+    if floor_mag is None or not bool((R < floor_mag ** 2).any()):
+        return None
+    return ArcProblem(problem.scene, q_ref=problem.q_ref, seed=problem.seed, cumulative=problem.cum,
+                      observations=observations, weight=_weights(observations, R.clamp(min=floor_mag ** 2)),
+                      surface=problem.surface)
+
+
 def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHistory | None, surface_known: bool,
-                  R: float | Tensor | None = None, screen: int = 0, keep: int = 4) -> ArcSolution:
+                  R: float | Tensor | None = None, screen: int = 0, keep: int = 4,
+                  noise_floor_mag: float | None = NOISE_FLOOR_MAG, floor_keep: int = FLOOR_KEEP) -> ArcSolution:
     """The whole-arc MAP of every seed of ``sc`` (module docstring).
 
     Args:
@@ -74,12 +105,15 @@ def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHisto
             is estimated with the surface-state filter's prior.
         R: the noise variance (mag²), a number or per sample ``(S, T+1)``; default ``filter.measurement_noise``.
         screen, keep: prior draws screened by cost and how many of them become starts (0: none).
+        noise_floor_mag: the continuation's noise floor (mag): where some ``R`` is below its square, every start
+            (and the prior's cube corners) is first solved with ``max(R, floor²)`` and the ``floor_keep`` best
+            solutions per seed start the solve with ``R``; ``None``: no continuation.
     """
     cum = cumulative_increments(sc.increments_assumed.to(sc.q_est0))
     S = sc.q_est0.shape[0]
-    weight = _weights(sc.observations, cfg.filter.measurement_noise if R is None else R)
+    R = cfg.filter.measurement_noise if R is None else R
     problem = ArcProblem(scene, q_ref=sc.q_est0, seed=torch.arange(S), cumulative=cum, observations=sc.observations,
-                         weight=weight, surface=sc.surface if surface_known else None)
+                         weight=_weights(sc.observations, R), surface=sc.surface if surface_known else None)
     sigma0 = sc.sigma0.to(sc.q_est0)
     mean, precision = torch.zeros(S, 3, dtype=cum.dtype), sigma0.pow(-2).unsqueeze(-1).expand(S, 3)
     theta0 = None
@@ -88,8 +122,10 @@ def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHisto
         theta0, std = surface_state_prior(scene=first, q_est0=sc.q_est0, y0=first_observation(sc.observations),
                                           reference=reference_surface(cfg), offset_std=cfg.filter.offset_prior_std)
         mean, precision = torch.cat([mean, theta0], -1), torch.cat([precision, std.pow(-2).expand(S, 4)], -1)
-    starts = [prior_axis_starts(sc.q_est0, sigma0)]
-    thetas = [None if theta0 is None else theta0.expand(7, S, 4)]
+    floored = _floored(problem, sc.observations, R, noise_floor_mag)
+    starts = [prior_axis_starts(sc.q_est0, sigma0)] + ([] if floored is None else [prior_corner_starts(sc.q_est0,
+                                                                                                      sigma0)])
+    thetas = [None if theta0 is None else theta0.expand(starts[0].shape[0] + 8 * len(starts[1:]), S, 4)]
     if start is not None:
         starts.insert(0, quat_mul(quat_conj(cum[:, -1]), start.q_est[:, -1]).unsqueeze(0))
         thetas.insert(0, None if theta0 is None else start.theta[:, -1].unsqueeze(0))
@@ -97,8 +133,11 @@ def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHisto
         prior = GaussianPrior.independent(mean, precision)
         starts.append(_screened(problem, prior, theta0, sigma0, count=screen, keep=keep))
         thetas.append(None if theta0 is None else theta0.expand(keep, S, 4))
-    return solve_arc(problem, starts=torch.cat(starts), theta_starts=None if theta0 is None else torch.cat(thetas),
-                     prior_mean=mean, prior_precision=precision)
+    starts, thetas = torch.cat(starts), None if theta0 is None else torch.cat(thetas)
+    if floored is not None:
+        starts, thetas = refine_starts(floored, starts=starts, theta_starts=thetas, prior_mean=mean,
+                                       prior_precision=precision, keep=floor_keep)
+    return solve_arc(problem, starts=starts, theta_starts=thetas, prior_mean=mean, prior_precision=precision)
 
 
 def arc_estimate(sc: Scenario, solution: ArcSolution) -> Estimate:

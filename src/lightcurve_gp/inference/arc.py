@@ -24,6 +24,7 @@ that an ambiguous object is not a confident wrong one.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -37,7 +38,8 @@ from lightcurve_gp.observation.surface_state import surface_from_state
 from lightcurve_gp.photometry.brdf import Surface
 from lightcurve_gp.photometry.render import Scene
 
-__all__ = ["ArcProblem", "ArcSolution", "ARC_OPTIONS", "solve_arc", "prior_axis_starts", "mixture_covariance"]
+__all__ = ["ArcProblem", "ArcSolution", "ARC_OPTIONS", "solve_arc", "refine_starts", "prior_axis_starts",
+           "prior_corner_starts", "mixture_covariance"]
 
 #: the solver's settings: Levenberg–Marquardt, forward differences (1e-6 in rad and surface units), a problem stops
 #: once every component of its step is below 1e-6 or its damping reaches 1e6; an unpredictable sample costs 1e3²/2
@@ -125,6 +127,38 @@ def prior_axis_starts(q_prior: Tensor, sigma0: Tensor, *, spread: float = math.s
             e[:, axis] = sign * spread * sigma0.to(q_prior)
             starts.append(quat_mul(rotvec_to_quat(e), q_prior))
     return torch.stack(starts)
+
+
+def prior_corner_starts(q_prior: Tensor, sigma0: Tensor) -> Tensor:
+    """The prior mean turned by ``(±σ0, ±σ0, ±σ0)`` (the eight corners of the cube, ``√3 σ0`` away): ``(8, S, 4)``
+    from ``q_prior (S, 4)``, ``sigma0 (S,)`` (rad)."""
+    corners = torch.tensor(list(itertools.product((1.0, -1.0), repeat=3)), dtype=q_prior.dtype,
+                           device=q_prior.device)  # (8, 3)
+    e = corners.unsqueeze(1) * sigma0.to(q_prior).view(1, -1, 1)
+    return quat_mul(rotvec_to_quat(e), q_prior.unsqueeze(0))
+
+
+def refine_starts(problem: ArcProblem, *, starts: Tensor, theta_starts: Tensor | None, prior_mean: Tensor,
+                  prior_precision: Tensor, keep: int, options: LeastSquaresOptions = ARC_OPTIONS
+                  ) -> tuple[Tensor, Tensor | None]:
+    """Solve the ``S`` objects of ``problem`` (its ``q_ref (S, 4)`` the prior mean) from every start ``(K, S, 4)``
+    (and surface state ``(K, S, 4)``) and return the ``keep`` best solutions per object by cost, ``(keep, S, 4)``
+    and ``(keep, S, 4)`` or ``None``: the starts of a later, sharper problem (a continuation)."""
+    K, S = starts.shape[:2]
+    seed = torch.arange(S, device=starts.device).repeat(K)
+    e0 = quat_to_rotvec(quat_mul(starts.reshape(K * S, 4), quat_conj(problem.q_ref[seed])))
+    x0 = e0 if theta_starts is None else torch.cat([e0, theta_starts.reshape(K * S, -1)], -1)
+    tiled = problem.recentred(problem.q_ref[seed], seed)
+    gaussian = GaussianPrior.independent(prior_mean[seed], prior_precision[seed])
+    result = batch_least_squares(tiled, x0, prior=gaussian, variance=1.0, options=options)
+    q = tiled.attitude(result.x, torch.arange(K * S, device=starts.device)).view(K, S, 4)
+    cost = torch.where(torch.isfinite(result.cost), result.cost, math.inf).view(K, S)
+    best = cost.topk(min(keep, K), dim=0, largest=False).indices  # (keep, S)
+    q_best = q.gather(0, best.unsqueeze(-1).expand(-1, -1, 4))
+    if theta_starts is None:
+        return q_best, None
+    theta = result.x[:, 3:].view(K, S, -1)
+    return q_best, theta.gather(0, best.unsqueeze(-1).expand(-1, -1, theta.shape[-1]))
 
 
 def solve_arc(problem: ArcProblem, *, starts: Tensor, theta_starts: Tensor | None, prior_mean: Tensor,
