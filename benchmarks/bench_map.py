@@ -1,4 +1,5 @@
-"""Time of the whole-arc batch MAP (``map``: surface unknown, from the surface filter's result and 7 prior starts) on
+"""Time of the whole-arc batch MAP (``map``: surface unknown, from the surface filter's result and 7 prior starts, 8
+more below 0.1 mag) on
 ``--seeds`` random truths of 600 samples at 1 Hz, σ = 0.05 mag, beside its peer baseline in the same run: the
 surface-state filter alone (which ``map`` runs first). Median of ``--repeats`` per torch thread count; wall and
 process CPU time, per run of all seeds and per seed, with the load average and the core count (on a shared machine

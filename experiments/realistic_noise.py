@@ -23,7 +23,7 @@ so a killed run resumes. At σ = 0.71 the rows ``today: …`` run ``surface_ukf_
 data, the issue's "no worse than today" reference. Writes ``--out`` (experiments/results/realistic_noise/):
 summary.md, summary.csv.
 
-    nice python -m experiments.realistic_noise --models /work/scratch/models --threads 1
+    nice python -m experiments.realistic_noise --models runs/models --threads 1
 """
 
 from __future__ import annotations

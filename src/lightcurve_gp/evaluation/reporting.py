@@ -37,8 +37,9 @@ __all__ = ["Quantiles", "quantiles", "format_quantiles", "finite_or_none", "Seed
            "write_report_table", "SUMMARY_HEADER", "summary_row"]
 
 #: version of the stored case-record layout; a record of another version is rerun (2: the scores modulo symmetry
-#: are taken against the scenario's derived ambiguity group, named in the summary's ``ambiguity_images``)
-CASE_FORMAT = 2
+#: are taken against the scenario's derived ambiguity group, named in the summary's ``ambiguity_images``; 3: the
+#: whole-arc MAPs search with the noise continuation below 0.1 mag, which the case's config does not show)
+CASE_FORMAT = 3
 
 
 class Quantiles(NamedTuple):
