@@ -24,8 +24,8 @@ from torch import Tensor
 
 from lightcurve_gp.attitude.rotations import quat_mul, quat_normalize
 
-__all__ = ["euler_rates", "quaternion_rates", "rk4_step", "rk4_stepper", "propagate", "quaternion_increments",
-           "propagate_only"]
+__all__ = ["euler_rates", "quaternion_rates", "rk4_rate_stages", "rk4_step", "rk4_stepper", "propagate",
+           "quaternion_increments", "propagate_only"]
 
 
 # --------------------------------------------------------------------------------------------- validation
@@ -116,8 +116,9 @@ def quaternion_rates(q: Tensor, omega: Tensor) -> Tensor:
 
 # --------------------------------------------------------------------------------------------- RK4
 
-def _omega_stages(omega: Tensor, rates, dt: float):
-    """The four RK4 stage rates ``ω_1..ω_4`` and the stepped ω."""
+def rk4_rate_stages(omega: Tensor, rates, dt: float):
+    """The four RK4 stage rates ``ω_1..ω_4`` and the stepped ω of ``ω̇ = rates(ω)``, in whatever layout ``rates``
+    takes (``(..., 3)`` here; components first ``(3, ...)`` works the same)."""
     k1 = rates(omega)
     w2 = omega + (0.5 * dt) * k1
     k2 = rates(w2)
@@ -153,7 +154,7 @@ def rk4_stepper(inertia, dt: float, *, like: Tensor):
     rates = _rates_fn(_as_inertia(inertia, like))
 
     def step(q: Tensor, omega: Tensor) -> tuple[Tensor, Tensor]:
-        (w1, w2, w3, w4), omega_next = _omega_stages(omega, rates, dt)
+        (w1, w2, w3, w4), omega_next = rk4_rate_stages(omega, rates, dt)
         kq1 = 0.5 * quat_mul(_pure(w1), q)
         kq2 = 0.5 * quat_mul(_pure(w2), q + (0.5 * dt) * kq1)
         kq3 = 0.5 * quat_mul(_pure(w3), q + (0.5 * dt) * kq2)
@@ -201,7 +202,7 @@ def _omega_and_increments(omega0: Tensor, inertia, dt: float, n_steps: int) -> t
     omegas, stages = [omega0], []
     w = omega0
     for _ in range(n_steps):
-        st, w = _omega_stages(w, rates, dt)
+        st, w = rk4_rate_stages(w, rates, dt)
         stages.append(torch.stack(st, dim=-2))  # (..., 4 stages, 3)
         omegas.append(w)
     omega_hist = torch.stack(omegas, dim=-2)

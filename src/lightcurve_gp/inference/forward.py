@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from lightcurve_gp.attitude.dynamics import rk4_rate_stages
 from lightcurve_gp.attitude.rotations import attitude_matrix, quat_conj, quat_mul
 from lightcurve_gp.photometry.brdf import DIFFUSE_SCALE, exp_floor
 from lightcurve_gp.photometry.render import SUN_MAGNITUDE, Scene
@@ -201,14 +202,7 @@ def _rk4_step(w: Tensor, c: Tensor, dt: float) -> tuple[Tensor, Tensor]:
     kinematic increment ``δ (4, ...)`` with ``RK4(q) = δ ⊗ q`` — the arithmetic of
     :func:`lightcurve_gp.attitude.dynamics.quaternion_increments`, written out components first."""
     rate = lambda v: c * torch.stack([v[1] * v[2], v[2] * v[0], v[0] * v[1]])  # noqa: E731
-    k1 = rate(w)
-    w2 = w + (0.5 * dt) * k1
-    k2 = rate(w2)
-    w3 = w + (0.5 * dt) * k2
-    k3 = rate(w3)
-    w4 = w + dt * k3
-    k4 = rate(w4)
-    w_next = w + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    (_, w2, w3, w4), w_next = rk4_rate_stages(w, rate, dt)
     one = torch.zeros_like(w[:1]).expand(4, *w.shape[1:]).clone()
     one[3] = 1.0
     pure1 = torch.cat([w, torch.zeros_like(w[:1])])
