@@ -38,7 +38,7 @@ def model_for(cfg, runs: Path):
 
 
 def main() -> None:
-    from lightcurve_gp import load_config
+    from lightcurve_gp.config.load import load_config
     from lightcurve_gp.filters.bank import bank_attitudes
     from lightcurve_gp.filters.setup import run_filter
     from lightcurve_gp.simulation.scenario import simulate_scenario

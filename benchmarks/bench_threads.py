@@ -23,7 +23,7 @@ def _spin(stop) -> None:
 
 
 def _filter_steps(steps: int):
-    from lightcurve_gp import load_config
+    from lightcurve_gp.config.load import load_config
     from lightcurve_gp.filters.usque import UsqueParams, initial_covariance, run_usque
     from lightcurve_gp.observation import ExactGP
     from lightcurve_gp.photometry.render import Scene
