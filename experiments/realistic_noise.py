@@ -42,7 +42,7 @@ import torch
 from experiments.common import ROOT, command_line, floats, seed_range, write_outputs
 from lightcurve_gp.config.load import ConfigError, config_hash, load_config
 from lightcurve_gp.evaluation.harness import run_estimators
-from lightcurve_gp.evaluation.reporting import csv_text, markdown_table, scenario_summary, seed_rows
+from lightcurve_gp.evaluation.reporting import csv_text, format_triple, markdown_table, scenario_summary, seed_rows
 from lightcurve_gp.evaluation.whole_arc import FLOOR_KEEP, NOISE_FLOOR_MAG
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario, simulate_truths
@@ -125,12 +125,6 @@ def cell(cfg, case: str, seeds: range, estimators, *, model, scene, root: Path
     return out, seconds
 
 
-def _triple(values, digits: int = 2) -> str:
-    if values is None or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
-        return "–"
-    return " / ".join(f"{v:.{digits}f}" for v in values)
-
-
 def table_rows(sigma: float, case: str, entries: dict[str, dict[str, Any]], ref: float | None = None
                ) -> list[list[Any]]:
     """One row of :data:`HEADER` per estimator of one (σ, case); ``ref``: ``matched_map``'s share (default: from
@@ -141,8 +135,9 @@ def table_rows(sigma: float, case: str, entries: dict[str, dict[str, Any]], ref:
         share = e["fraction_all_axes_below_10deg"]
         ratio = share / ref if ref else math.nan
         inband = e.get("share_nees_in_band", math.nan)
-        rows.append([f"{sigma:g}", case, name, _triple(e["rmse_deg_median"]), _triple(e.get("crb_deg_median")),
-                     _triple(e.get("rmse_over_crb"), 1), f"{100 * share:.0f} %",
+        rows.append([f"{sigma:g}", case, name, format_triple(e["rmse_deg_median"]),
+                     format_triple(e.get("crb_deg_median")), format_triple(e.get("rmse_over_crb"), 1),
+                     f"{100 * share:.0f} %",
                      "–" if math.isnan(ratio) else f"{ratio:.2f}", f"{e['nees_mean']:.2f}",
                      f"{e.get('nees_median', math.nan):.2f}",
                      "–" if math.isnan(inband) else f"{100 * inband:.0f} %", f"{e['seconds']:.1f}"])

@@ -50,7 +50,7 @@ from lightcurve_gp.evaluation.harness import ScenarioResult, check_estimators, r
 from lightcurve_gp.evaluation.plots import euler_errors, light_curves, rmse_boxplot
 from lightcurve_gp.evaluation.recommend import Recommendation, recommend_estimator
 from lightcurve_gp.evaluation.registry import DEFAULT_ESTIMATORS, ESTIMATORS
-from lightcurve_gp.evaluation.reporting import scenario_summary
+from lightcurve_gp.evaluation.reporting import format_triple, scenario_summary
 from lightcurve_gp.files import RunFolder, write_json_atomic
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario
@@ -87,7 +87,8 @@ def format_table(summary: dict) -> str:
                  f"{'in band':>8}")
     for name, e in summary["estimators"].items():
         share = e["share_nees_in_band"]
-        lines.append(f"{name:<{width}} {_triple(e['crb_deg_median'], 2):>24} {_triple(e['rmse_over_crb'], 1):>17} "
+        crb, ratio = format_triple(e["crb_deg_median"], 2), format_triple(e["rmse_over_crb"], 1)
+        lines.append(f"{name:<{width}} {crb:>24} {ratio:>17} "
                      f"{e['nees_mean']:10.2f} {e['nees_median']:7.2f} "
                      f"{'-' if math.isnan(share) else f'{100 * share:.0f}%':>8}")
     if summary.get("omega_estimated"):
@@ -101,10 +102,6 @@ def format_table(summary: dict) -> str:
     lines.append(f"  NEES 95 % band for a consistent filter over these seeds: {lo:.2f}-{hi:.2f}; paper: "
                  f"{PAPER_STEP_SECONDS['gpukf']} s per GPUKF step, {PAPER_STEP_SECONDS['ukf']} s per UKF step")
     return "\n".join(lines)
-
-
-def _triple(values: list[float], digits: int) -> str:
-    return "-" if not all(math.isfinite(v) for v in values) else " / ".join(f"{v:.{digits}f}" for v in values)
 
 
 COLUMN_NOTES = (

@@ -34,7 +34,7 @@ from lightcurve_gp.files import write_text_atomic
 
 __all__ = ["Quantiles", "quantiles", "format_quantiles", "finite_or_none", "SeedRow", "RESULT_COLUMNS", "CaseRecord",
            "CASE_FORMAT", "seed_rows", "bound_summary", "scenario_summary", "markdown_table", "csv_text",
-           "write_report_table", "SUMMARY_HEADER", "summary_row"]
+           "write_report_table", "format_triple", "SUMMARY_HEADER", "summary_row"]
 
 #: version of the stored case-record layout; a record of another version is rerun (2: the scores modulo symmetry
 #: are taken against the scenario's derived ambiguity group, named in the summary's ``ambiguity_images``; 3: the
@@ -316,8 +316,8 @@ SUMMARY_HEADER = ("estimator", "yaw", "pitch", "roll", "CRB yaw / pitch / roll",
                   "mean NEES", "median NEES", "NEES in band", "s (all seeds)")
 
 
-def _triple(values, digits: int = 2) -> str:
-    """``"a / b / c"``, ``"–"`` when missing or not finite."""
+def format_triple(values, digits: int = 2) -> str:
+    """Three numbers as ``"a / b / c"`` (yaw / pitch / roll), ``"–"`` when missing or not finite."""
     if values is None or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
         return "–"
     return " / ".join(f"{v:.{digits}f}" for v in values)
@@ -327,7 +327,7 @@ def summary_row(name: str, entry: dict[str, Any]) -> list[str]:
     """Cells of :data:`SUMMARY_HEADER` for one estimator's entry of :func:`scenario_summary` (an entry written
     before the bound was reported shows "–" there)."""
     share = entry.get("share_nees_in_band", math.nan)
-    return [name, *(f"{m:.2f}" for m in entry["rmse_deg_median"]), _triple(entry.get("crb_deg_median")),
-            _triple(entry.get("rmse_over_crb"), 1), f"{100 * entry['fraction_all_axes_below_10deg']:.0f} %",
+    return [name, *(f"{m:.2f}" for m in entry["rmse_deg_median"]), format_triple(entry.get("crb_deg_median")),
+            format_triple(entry.get("rmse_over_crb"), 1), f"{100 * entry['fraction_all_axes_below_10deg']:.0f} %",
             f"{entry['nees_mean']:.2f}", f"{entry.get('nees_median', math.nan):.2f}",
             "–" if math.isnan(share) else f"{100 * share:.0f} %", f"{entry['seconds']:.1f}"]
