@@ -26,9 +26,8 @@ from lightcurve_gp.evaluation.bounds import ScenarioBounds
 from lightcurve_gp.evaluation.registry import DEFAULT_ESTIMATORS, ESTIMATORS, RunContext
 from lightcurve_gp.evaluation.scoring import EstimatorResult, score
 from lightcurve_gp.observation.base import ObservationModel
-from lightcurve_gp.photometry.ambiguity import AmbiguityGroup, ambiguity_group
+from lightcurve_gp.photometry.ambiguity import AmbiguityGroup, config_ambiguity_group
 from lightcurve_gp.photometry.render import Scene
-from lightcurve_gp.photometry.symmetry import symmetry_rotations
 from lightcurve_gp.simulation.scenario import Scenario
 
 __all__ = ["ScenarioResult", "check_estimators", "run_estimators", "scenario_ambiguity_group"]
@@ -60,10 +59,7 @@ def scenario_ambiguity_group(cfg: Config, scenario: Scenario, scene: Scene | Non
     scenario's sample times and geometry (``scene``, default ``Scene.from_config(cfg)``: fixed, or per sample along
     the pass) to 1e-9 mag. The rate is known unless ``filter.estimate_omega`` (then a body turn turns it too). Derived
     in float64 on the CPU whatever the run's dtype and device (a float32 render cannot show 1e-9 mag)."""
-    scene = (scene or Scene.from_config(cfg)).to(device="cpu", dtype=torch.float64)
-    return ambiguity_group(scene, times_s=scenario.times.detach().to(device="cpu", dtype=torch.float64),
-                           inertia=cfg.shape.inertia_kg_m2, rate_known=not cfg.filter.estimate_omega,
-                           dt_s=cfg.scenario.dt_s, body_candidates=symmetry_rotations(scene.facets))
+    return config_ambiguity_group(cfg, scene=scene or Scene.from_config(cfg), times_s=scenario.times)
 
 
 def check_estimators(cfg: Config, estimators: Sequence[str], model: ObservationModel | None, *,

@@ -34,9 +34,8 @@ from torch import Tensor
 
 from lightcurve_gp.filters.bank import BankResult
 from lightcurve_gp.passes.geometry import PassGeometry
-from lightcurve_gp.photometry.ambiguity import AmbiguityGroup, ambiguity_group
+from lightcurve_gp.photometry.ambiguity import AmbiguityGroup, config_ambiguity_group
 from lightcurve_gp.photometry.render import Scene
-from lightcurve_gp.photometry.symmetry import symmetry_rotations
 
 __all__ = ["FAMILY_RADIUS_DEG", "UNIQUE_WEIGHT", "BankVerdict", "ambiguity_images", "bank_verdict"]
 
@@ -98,9 +97,8 @@ def ambiguity_images(cfg, *, samples: int, geometry: PassGeometry | None = None)
     if geometry is not None:
         scene = scene.with_geometry(geometry.sun.double().cpu(), geometry.observer.double().cpu(),
                                     torch.as_tensor(geometry.range_m, dtype=torch.float64))
-    return ambiguity_group(scene, times_s=torch.arange(samples, dtype=torch.float64) * cfg.scenario.dt_s,
-                           inertia=cfg.shape.inertia_kg_m2, rate_known=not cfg.filter.estimate_omega,
-                           dt_s=cfg.scenario.dt_s, body_candidates=symmetry_rotations(scene.facets))
+    times = torch.arange(samples, dtype=torch.float64) * cfg.scenario.dt_s
+    return config_ambiguity_group(cfg, scene=scene, times_s=times)
 
 
 def _angle_deg(a: Tensor, b: Tensor) -> Tensor:

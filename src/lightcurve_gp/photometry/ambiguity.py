@@ -38,9 +38,10 @@ from lightcurve_gp.attitude.dynamics import propagate
 from lightcurve_gp.attitude.rotations import attitude_matrix, matrix_to_quat, quat_mul
 from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.photometry.render import Scene
-from lightcurve_gp.photometry.symmetry import cube_rotations
+from lightcurve_gp.photometry.symmetry import cube_rotations, symmetry_rotations
 
-__all__ = ["INERTIAL_TURNS", "GROUP_SOURCE", "AmbiguityGroup", "inertial_turns", "ambiguity_group"]
+__all__ = ["INERTIAL_TURNS", "GROUP_SOURCE", "AmbiguityGroup", "inertial_turns", "ambiguity_group",
+           "config_ambiguity_group"]
 
 #: names of the inertial candidates, in the order of :func:`inertial_turns`
 INERTIAL_TURNS = ("identity", "plane normal", "bisector", "in-plane perpendicular")
@@ -186,3 +187,13 @@ def ambiguity_group(scene: Scene, *, times_s: Tensor, inertia, rate_known: bool,
     return AmbiguityGroup(body=torch.stack(keep_body), inertial=torch.stack(keep_inertial), labels=tuple(labels),
                           rate_known=bool(rate_known))
 
+
+def config_ambiguity_group(cfg, *, scene: Scene, times_s: Tensor) -> AmbiguityGroup:
+    """:func:`ambiguity_group` of a config's object seen through ``scene`` (fixed, or per sample along a pass) at the
+    sample times ``times_s (T,)`` (s): the facet model's body symmetries as candidates, ``shape.inertia_kg_m2``,
+    ``scenario.dt_s``, the rate known unless ``filter.estimate_omega``; derived in float64 on the CPU whatever the
+    run's dtype and device (a float32 render cannot show 1e-9 mag)."""
+    scene = scene.to(device="cpu", dtype=torch.float64)
+    return ambiguity_group(scene, times_s=times_s.detach().to(device="cpu", dtype=torch.float64),
+                           inertia=cfg.shape.inertia_kg_m2, rate_known=not cfg.filter.estimate_omega,
+                           dt_s=cfg.scenario.dt_s, body_candidates=symmetry_rotations(scene.facets))
