@@ -8,8 +8,9 @@ import pytest
 import torch
 from scipy.integrate import solve_ivp
 
+from lightcurve_gp.attitude.rotations import attitude_matrix, quat_mul
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.photometry.brdf import ashikhmin_shirley
+from lightcurve_gp.photometry.brdf import Surface, ashikhmin_shirley
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.photometry.shapes import Facets, facets_from_config
 
@@ -149,6 +150,29 @@ def test_grouped_equals_per_facet_and_chunking(scene):
     assert float((grouped - plain).abs().max()) < 1e-10
     tiny_chunks = Scene(scene.facets, scene.sun, scene.observer, scene.r_obs, chunk_elements=7)
     assert torch.allclose(tiny_chunks.flux(q), scene.flux(q), rtol=1e-13, atol=0)
+
+
+def test_magnitude_of_body_vectors_equals_magnitude_of_attitudes(cfg, scene):
+    """The body-vector path (:meth:`Scene.body_vectors`, :meth:`Scene.magnitude_of_body`) renders what the quaternion
+    path renders — per-object surfaces, a per-sample pass geometry and the composed ``A(Δ) A(q_0)`` included — and its
+    vectors are the attitude matrix applied to the inertial Sun, observer and half-angle directions."""
+    q = random_quats(40, seed=5).reshape(4, 10, 4)
+    surface = Surface(*(torch.tensor(v, dtype=F64) for v in ([0.2, 0.5, 0.9, 0.3], [0.1, 0.5, 0.9, 0.7],
+                                                              [10.0, 800.0, 1e4, 50.0], [30.0, 800.0, 1e3, 5e3])))
+    body = scene.body_vectors(q)
+    assert body.shape == (4, 10, 3, 3)
+    assert torch.allclose(body[..., 0, :], (attitude_matrix(q) @ scene.sun).squeeze(-1), atol=1e-15)
+    assert torch.allclose(scene.magnitude_of_body(body, surface=surface), scene.magnitude(q, surface=surface),
+                          rtol=0, atol=1e-12)
+    turn = random_quats(10, seed=6)  # A(Δ_k) A(q_0): the vectors of Δ_k ⊗ q_0 without forming the product
+    composed = scene.frame().mT @ attitude_matrix(q[:, :1]).mT @ attitude_matrix(turn).mT
+    assert torch.allclose(scene.magnitude_of_body(composed), scene.magnitude(quat_mul(turn, q[:, :1])), rtol=0,
+                          atol=1e-12)
+    T = 10
+    sun = torch.randn(T, 3, generator=torch.Generator().manual_seed(7), dtype=F64)
+    per_sample = scene.with_geometry(sun, scene.observer.expand(T, 3), torch.full((T,), 3.6e7, dtype=F64))
+    assert torch.allclose(per_sample.magnitude_of_body(per_sample.body_vectors(q), surface=surface),
+                          per_sample.magnitude(q, surface=surface), rtol=0, atol=1e-12, equal_nan=True)
 
 
 def test_gradcheck_wrt_quaternion(scene):

@@ -14,11 +14,12 @@ from lightcurve_gp.config.load import load_config
 from lightcurve_gp.evaluation.bounds import ScenarioBounds, estimator_bound
 from lightcurve_gp.evaluation.harness import run_estimators
 from lightcurve_gp.evaluation.whole_arc import arc_estimate, whole_arc_map
-from lightcurve_gp.inference.arc import mixture_covariance, prior_axis_starts, prior_corner_starts
+from lightcurve_gp.inference.arc import ArcProblem, mixture_covariance, prior_axis_starts, prior_corner_starts
 from lightcurve_gp.inference.attitude import MapPrior, map_attitude, map_known_rate
 from lightcurve_gp.inference.surface import map_with_surface
 from lightcurve_gp.observation.parametric import Parametric
-from lightcurve_gp.observation.surface_state import reference_surface
+from lightcurve_gp.observation.surface_state import reference_surface, surface_from_state
+from lightcurve_gp.photometry.brdf import Surface
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario, simulate_truths
 from lightcurve_gp.simulation.truths import draw_truths
@@ -109,6 +110,34 @@ def test_mixture_covariance_is_the_mixture_second_moment():
                               torch.tensor([[0.1, 0.0, 0.0], [-0.1, 0.0, 0.0]], dtype=torch.float64),
                               torch.tensor([0.5, 0.5], dtype=torch.float64))
     torch.testing.assert_close(pair, torch.diag(torch.tensor([0.05, 0.04, 0.04], dtype=torch.float64)))
+
+
+def test_arc_problem_renders_the_composed_attitudes():
+    """The arc problem's magnitudes (body vectors composed as ``A(Δ_k) A(q_0)``, rendered a few problems at a time)
+    equal the renderer's magnitudes of the attitudes ``Δ_k ⊗ q(e) ⊗ q_ref`` — fixed and per-sample geometry, the
+    surface known or a state, rows in any order and with repeats."""
+    cfg = load_config(REALISTIC)
+    g = torch.Generator().manual_seed(3)
+    S, T = 3, 40
+    cum, q_ref = (torch.nn.functional.normalize(torch.randn(*shape, 4, generator=g, dtype=torch.float64), dim=-1)
+                  for shape in ((S, T), (S,)))
+    x = torch.cat([0.3 * torch.randn(5, 3, generator=g, dtype=torch.float64),
+                   torch.tensor([[-0.7, 0.2, 5.0, 3.0]], dtype=torch.float64).expand(5, 4)], -1)
+    rows = torch.tensor([2, 0, 1, 0, 2])
+    fixed = Scene.from_config(cfg)
+    sun = torch.randn(T, 3, generator=g, dtype=torch.float64)
+    passing = fixed.with_geometry(sun, fixed.observer.expand(T, 3), torch.full((T,), 3.6e7, dtype=torch.float64))
+    known = Surface(*(torch.tensor(v, dtype=torch.float64) for v in ([0.2, 0.5, 0.9], [0.1, 0.5, 0.9],
+                                                                     [10.0, 800.0, 1e4], [30.0, 800.0, 1e3])))
+    for scene in (fixed, passing):
+        for surface in (None, known):
+            problem = ArcProblem(scene, q_ref=q_ref, seed=torch.arange(S), cumulative=cum,
+                                 observations=torch.zeros(S, T, dtype=torch.float64),
+                                 weight=torch.ones(S, T, dtype=torch.float64), surface=surface)
+            q = quat_mul(cum[rows], problem.attitude(x, rows).unsqueeze(1))
+            each = surface_from_state(x[:, 3:]) if surface is None else Surface(*(t[rows] for t in known))
+            expected = scene.magnitude(q, surface=each)
+            assert torch.allclose(problem.magnitudes(x, rows), expected, rtol=0, atol=1e-12, equal_nan=True)
 
 
 def test_prior_axis_starts_turn_the_prior_mean_about_each_axis():

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from lightcurve_gp.attitude.rotations import quat_conj, quat_mul, quat_to_rotvec, rotvec_to_quat
+from lightcurve_gp.attitude.rotations import attitude_matrix, quat_conj, quat_mul, quat_to_rotvec, rotvec_to_quat
 from lightcurve_gp.inference.jacobian import jacobian
 from lightcurve_gp.inference.solver import GaussianPrior, LeastSquaresOptions, batch_least_squares
 from lightcurve_gp.observation.surface_state import surface_from_state
@@ -61,26 +61,37 @@ class ArcProblem:
     """
 
     def __init__(self, scene: Scene, *, q_ref: Tensor, seed: Tensor, cumulative: Tensor, observations: Tensor,
-                 weight: Tensor, surface: Surface | None) -> None:
+                 weight: Tensor, surface: Surface | None, turns: Tensor | None = None) -> None:
         self.scene, self.q_ref, self.seed, self.cum, self.surface = scene, q_ref, seed, cumulative, surface
         self.y = torch.where(weight > 0, observations, 0.0)
         self.weight = weight
+        # A(Δ_k)ᵀ (S, T+1, 3, 3): with A(q_k) = A(Δ_k) A(q_0) the body vectors of every sample are one product away
+        self.turns = attitude_matrix(cumulative).mT.contiguous() if turns is None else turns
 
     def recentred(self, q_ref: Tensor, seed: Tensor) -> ArcProblem:
         """The same objects seen from other chart centres ``q_ref (M', 4)`` of objects ``seed (M',)``."""
         return ArcProblem(self.scene, q_ref=q_ref, seed=seed, cumulative=self.cum, observations=self.y,
-                          weight=self.weight, surface=self.surface)
+                          weight=self.weight, surface=self.surface, turns=self.turns)
 
     def attitude(self, x: Tensor, rows: Tensor) -> Tensor:
         """Initial attitudes ``q_0 = q(e) ⊗ q_ref`` ``(A, 4)`` of states ``x (A, n)`` of problems ``rows``."""
         return quat_mul(rotvec_to_quat(x[:, :3]), self.q_ref[rows])
 
     def magnitudes(self, x: Tensor, rows: Tensor) -> Tensor:
-        """Predicted magnitudes ``(A, T+1)`` (mag) of states ``x (A, n)`` of problems ``rows``."""
+        """Predicted magnitudes ``(A, T+1)`` (mag) of states ``x (A, n)`` of problems ``rows``: the body vectors
+        ``(A(Δ_k) A(q_0) [ŝ, v̂, ĥ])ᵀ`` of every sample (:meth:`Scene.body_vectors`), rendered a few problems at a
+        time so that the vectors of a piece stay in the cache."""
         s = self.seed[rows]
-        q = quat_mul(self.cum[s], self.attitude(x, rows).unsqueeze(1))
+        initial = self.scene.frame().mT @ attitude_matrix(self.attitude(x, rows)).mT.unsqueeze(-3)  # (A, 1|T+1, 3, 3)
         surface = surface_from_state(x[:, 3:7]) if self.surface is None else Surface(*(t[s] for t in self.surface))
-        return self.scene.magnitude(q, surface=surface)
+        size = max(1, self.scene.chunk_attitudes // self.turns.shape[1])
+        parts = []
+        for piece in torch.arange(rows.shape[0], device=rows.device).split(size):
+            turns = self.turns[s[piece]]
+            body = torch.einsum("aij,atjk->atik", initial[piece, 0], turns) if initial.shape[1] == 1 else \
+                initial[piece] @ turns
+            parts.append(self.scene.magnitude_of_body(body, surface=Surface(*(t[piece] for t in surface))))
+        return torch.cat(parts)
 
     def __call__(self, x: Tensor, rows: Tensor) -> Tensor:
         """Whitened residuals ``(A, T+1)``; 0 where a sample is left out."""

@@ -119,6 +119,11 @@ class Scene:
         self.r_obs = r_obs
 
     @property
+    def chunk_attitudes(self) -> int:
+        """Attitudes rendered per chunk: about ``chunk_elements`` (attitude, facet term) pairs."""
+        return max(1, self.chunk_elements // max(1, len(self._facets_eval)))
+
+    @property
     def per_sample(self) -> bool:
         """Whether the geometry is given per sample (``sun (T, 3)``)."""
         return self.sun.ndim == 2
@@ -180,36 +185,54 @@ class Scene:
 
     # ------------------------------------------------------------------------------------------ rendering
 
-    def _sums(self, q: Tensor, unit_rho: bool, surface: Surface | None = None) -> tuple[Tensor, Tensor]:
-        """Diffuse and specular flux sums ``(batch,)`` of ``q (batch..., 4)``; diffuse at ρ = 1 if ``unit_rho``.
+    def frame(self) -> Tensor:
+        """The inertial Sun, observer and half-angle directions as columns ``[ŝ, v̂, ĥ]``: ``(3, 3)``, or ``(T, 3, 3)``
+        per sample."""
+        return torch.stack([self.sun, self.observer, self.half], -1)
+
+    def body_vectors(self, q: Tensor) -> Tensor:
+        """The Sun, observer and half-angle directions in the body frame of attitudes ``q (..., 4)``, as rows
+        ``[s_b, v_b, h_b]``: ``(..., 3, 3)`` (``(A(q) [ŝ, v̂, ĥ])ᵀ``; per sample along the last batch dimension of a
+        per-sample scene). :meth:`flux_parts` of ``q`` equals :meth:`flux_parts_of_body` of these."""
+        if q.shape[-1] != 4:
+            raise ValueError(f"q must have shape (..., 4), got {tuple(q.shape)}")
+        return (attitude_matrix(q) @ self.frame()).transpose(-1, -2)
+
+    def _sums(self, q: Tensor | None, unit_rho: bool, surface: Surface | None = None, *,
+              body: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """Diffuse and specular flux sums ``(batch,)`` of ``q (batch..., 4)`` or of body vectors ``body (batch..., 3,
+        3)`` (:meth:`body_vectors`); diffuse at ρ = 1 if ``unit_rho``.
 
         With ``surface`` (fields ``(B,)``, ``B = batch[0]``) every facet of batch element ``b`` takes that
         element's (F0, n_u, n_v) and the diffuse sum is scaled by its ρ (unless ``unit_rho``).
         """
         fac = self._facets_eval
-        if q.shape[-1] != 4:
+        given = q if body is None else body
+        if body is None and q.shape[-1] != 4:
             raise ValueError(f"q must have shape (..., 4), got {tuple(q.shape)}")
-        if q.dtype != fac.normals.dtype or q.device != fac.normals.device:
-            raise ValueError(f"q is {q.dtype} on {q.device} but the scene is {fac.normals.dtype} on "
-                             f"{fac.normals.device}; use scene.to(...)")
-        batch = q.shape[:-1]
-        flat = q.reshape(-1, 4)
-        rows = None if surface is None else _surface_rows(surface, batch, q)  # (N, 1) each, or None
-        frame = torch.stack([self.sun, self.observer, self.half], -1)  # (3, 3) | (T, 3, 3): columns ŝ, v̂, ĥ
+        if body is not None and body.shape[-2:] != (3, 3):
+            raise ValueError(f"body vectors must have shape (..., 3, 3), got {tuple(body.shape)}")
+        if given.dtype != fac.normals.dtype or given.device != fac.normals.device:
+            raise ValueError(f"{'q' if body is None else 'body'} is {given.dtype} on {given.device} but the scene is "
+                             f"{fac.normals.dtype} on {fac.normals.device}; use scene.to(...)")
+        batch = given.shape[:-1] if body is None else given.shape[:-2]
+        flat = q.reshape(-1, 4) if body is None else body.reshape(-1, 3, 3)
+        rows = None if surface is None else _surface_rows(surface, batch, given)  # (N, 1) each, or None
+        frame = self.frame()  # (3, 3) | (T, 3, 3): columns ŝ, v̂, ĥ
         normals_t, u_t, w_t = fac.normals.T, fac.u.T, fac.v.T  # (3, G)
         area_d = fac.areas if unit_rho or rows is not None else fac.areas * fac.rho
         if self.per_sample:  # v·h does not depend on the attitude
             frame, vh = self._per_attitude(frame, (self.observer * self.half).sum(-1), batch)
         else:
             vh = torch.dot(self.observer, self.half)
-        chunk = max(1, self.chunk_elements // max(1, len(fac)))
+        chunk = self.chunk_attitudes
         diffuse, specular = [], []
         for start in range(0, flat.shape[0], chunk):
             part = slice(start, start + chunk)
             f0, n_u, n_v = (fac.f0, fac.n_u, fac.n_v) if rows is None else (r[part] for r in rows[1:])
             frame_c, vh_c = (frame[part], vh[part]) if self.per_sample else (frame, vh)
-            body = (attitude_matrix(flat[part]) @ frame_c).transpose(-1, -2)  # (N, 3 [s,v,h], 3)
-            s_b, v_b, h_b = body.unbind(-2)
+            b = flat[part] if body is not None else (attitude_matrix(flat[part]) @ frame_c).transpose(-1, -2)
+            s_b, v_b, h_b = b.unbind(-2)  # (N, 3) each
             hn = h_b @ normals_t
             d, c = ashikhmin_shirley_projected(s_b @ normals_t, v_b @ normals_t, hn, vh_c, h_b @ u_t, h_b @ w_t,
                                                1.0, f0, n_u, n_v)  # diffuse at ρ = 1, (N, G)
@@ -274,7 +297,17 @@ class Scene:
         """
         if zero_flux not in ("nan", "raise"):
             raise ValueError(f"zero_flux: {zero_flux!r} is not 'nan' or 'raise'")
-        f = self.flux(q, rho, surface=surface)
+        return self._magnitude_of_flux(self.flux(q, rho, surface=surface), zero_flux, return_visible)
+
+    def magnitude_of_body(self, body: Tensor, *, surface: Surface | None = None) -> Tensor:
+        """Apparent magnitude ``(...)`` (mag; NaN where nothing is lit and visible) from the body-frame directions
+        ``body (..., 3, 3)`` of :meth:`body_vectors` — for a caller that composes them more cheaply than from
+        quaternions (e.g. ``A(Δ_k q_0) = A(Δ_k) A(q_0)`` along a known motion). ``surface`` as in
+        :meth:`flux_parts`; equal to :meth:`magnitude` of the attitudes the vectors came from."""
+        diffuse, specular = self._sums(None, unit_rho=False, surface=surface, body=body)
+        return self._magnitude_of_flux(diffuse + specular, "nan", False)
+
+    def _magnitude_of_flux(self, f: Tensor, zero_flux: str, return_visible: bool):
         visible = f > 0
         # inside a compiled step (lightcurve_gp.filters.compiled) no read-back: the masked form below
         all_visible = False if torch.compiler.is_compiling() and zero_flux == "nan" else bool(visible.all())
