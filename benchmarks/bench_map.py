@@ -1,5 +1,5 @@
-"""Time of the whole-arc batch MAP (``map``: surface unknown, from the surface filter's result and 7 prior starts, 8
-more below 0.1 mag) on
+"""Time of the whole-arc batch MAP (``map``: surface unknown, from the surface filter's result, 7 prior starts and 8
+surface starts, 8 more below 0.1 mag) on
 ``--seeds`` random truths of 600 samples at 1 Hz, σ = 0.05 mag, beside its peer baseline in the same run: the
 surface-state filter alone (which ``map`` runs first). Median of ``--repeats`` per torch thread count; wall and
 process CPU time, per run of all seeds and per seed, with the load average and the core count (on a shared machine
@@ -60,8 +60,8 @@ def main() -> int:
     scene = Scene.from_config(cfg)
     sc = simulate_truths(cfg, draw_truths(list(range(2000, 2000 + args.seeds))), scene)
     runs = {"surface filter (peer baseline)": lambda: filter_only(cfg, scene, sc),
-            "map (filter + whole-arc MAP, surface unknown, 8 starts)": lambda: whole_arc(cfg, scene, sc, False),
-            "matched_map's MAP (filter + MAP, surface known, 8 starts)": lambda: whole_arc(cfg, scene, sc, True)}
+            "map (filter + whole-arc MAP, surface unknown, 24 starts)": lambda: whole_arc(cfg, scene, sc, False),
+            "matched_map's MAP (filter + MAP, surface known, 16 starts)": lambda: whole_arc(cfg, scene, sc, True)}
     print(f"{args.seeds} random truths (seeds 2000-{1999 + args.seeds}), {sc.steps} samples each, sigma = "
           f"{cfg.scenario.noise_var ** 0.5:g} mag, float64, {os.cpu_count()} cores")
     print(f"| estimator | threads | wall s, all seeds (median of {args.repeats}) | CPU s | wall s per seed | "

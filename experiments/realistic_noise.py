@@ -43,7 +43,7 @@ from experiments.common import ROOT, command_line, floats, seed_range, write_out
 from lightcurve_gp.config.load import ConfigError, config_hash, load_config
 from lightcurve_gp.evaluation.harness import run_estimators
 from lightcurve_gp.evaluation.reporting import csv_text, format_triple, markdown_table, scenario_summary, seed_rows
-from lightcurve_gp.evaluation.whole_arc import FLOOR_KEEP, NOISE_FLOOR_MAG
+from lightcurve_gp.evaluation.whole_arc import FLOOR_ITERATIONS, FLOOR_KEEP, LOBE_STARTS, NOISE_FLOOR_MAG
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario, simulate_truths
 from lightcurve_gp.simulation.truths import draw_truths
@@ -52,7 +52,7 @@ from lightcurve_gp.training.store import model_key, open_model, store_folder
 
 ESTIMATORS = ("map", "matched_map", "surface_ukf_select", "matched_ukf", "gpukf")
 SIGMAS = "0.01,0.03,0.1,0.3,0.71"
-FORMAT = 1
+FORMAT = 2
 HEADER = ("σ (mag)", "case", "estimator", "RMSE yaw / pitch / roll (°)", "CRB yaw / pitch / roll (°)", "RMSE / CRB",
           "< 10° all axes", "share / matched_map", "NEES mean", "NEES median", "NEES in band", "s (all seeds)")
 QUICK = ["scenario.duration_s=120", "evaluation.rmse_window_s=[60, 120]"]
@@ -115,8 +115,10 @@ def cell(cfg, case: str, seeds: range, estimators, *, model, scene, root: Path
         sections = ["geometry", "shape", "surface", "scenario", "filter", "evaluation"]
         extra = {"study": "realistic_noise", "format": FORMAT, "case": case, "seeds": list(seeds), "estimator": name,
                  "model": model_key(cfg) if name == "gpukf" else None}
-        if name in ("map", "matched_map") and cfg.filter.measurement_noise < NOISE_FLOOR_MAG ** 2:
-            extra["search"] = f"noise floor {NOISE_FLOOR_MAG:g} mag, keep {FLOOR_KEEP}"  # the continuation runs
+        if name in ("map", "matched_map"):  # the search: the continuation below the floor, the surface starts
+            floor = cfg.filter.measurement_noise < NOISE_FLOOR_MAG ** 2
+            extra["search"] = {"floor": [NOISE_FLOOR_MAG, FLOOR_KEEP, FLOOR_ITERATIONS] if floor else None,
+                               "lobes": list(LOBE_STARTS) if name == "map" else None}
         case_id = config_hash(cfg, *sections, extra=extra)
         compute = functools.partial(lambda n: run_case(cfg, make(), n, model=model, scene=scene), name)
         record, _ = resume_case(root, case_id, compute, values={"case": case, "noise_var": cfg.scenario.noise_var},

@@ -161,18 +161,34 @@ def test_prior_corner_starts_turn_the_prior_mean_to_the_cube_corners():
 
 def test_noise_floor_continuation_finds_the_basin_the_prior_starts_miss():
     """A tuning seed of the random truths (1053: a slow spin, initial error 9°, broad lobes) at σ = 0.01 mag, surface
-    unknown, no filter start: from the prior's 7 starts alone the MAP ends 175° away at a cost far above the truth's;
-    solved first with the noise floor (0.1 mag) and then with R, it lands within 1° of the truth at a cost no
-    higher than the truth's posterior cost."""
+    unknown, no filter start, no surface starts: from the prior's 7 starts alone the MAP ends 175° away at a cost far
+    above the truth's; solved first with the noise floor (0.1 mag) and then with R, it lands within 1° of the truth at
+    a cost no higher than the truth's posterior cost."""
     cfg = load_config(REALISTIC, ["scenario.noise_var=1e-4", "filter.measurement_noise=1e-4"])
     scene = Scene.from_config(cfg)
     sc = simulate_truths(cfg, draw_truths([1053]), scene)
-    plain = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, noise_floor_mag=None)
-    continued = whole_arc_map(cfg, scene, sc, start=None, surface_known=False)
+    plain = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, noise_floor_mag=None, lobe_starts=())
+    continued = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, lobe_starts=())
     assert float(angle_deg(plain.q0, sc.q_true[:, 0])) > 10.0
     assert float(angle_deg(continued.q0, sc.q_true[:, 0])) < 1.0
     assert float(continued.cost) < 0.5 * float(plain.cost)
     assert float(continued.cost) <= 290.0  # the truth's cost is 281 nats; its 600 samples alone expect 300 ± 17
+
+
+def test_surface_starts_find_the_lobes_the_prior_mean_misses():
+    """A tuning seed of the random truths (1050: n_u = 21, n_v = 315, F0 = 0.14) at σ = 0.1 mag, surface unknown, no
+    filter start: from the prior's starts, all with the prior's lobe exponents (n = 316), the MAP ends 28° away at
+    1073 nats; with the surface starts (both exponents 10, 100, 1000, 10⁴) it ends within 5° at a cost near the
+    truth's."""
+    cfg = load_config(REALISTIC, ["scenario.noise_var=0.01", "filter.measurement_noise=0.01"])
+    scene = Scene.from_config(cfg)
+    sc = simulate_truths(cfg, draw_truths([1050]), scene)
+    plain = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, lobe_starts=())
+    lobes = whole_arc_map(cfg, scene, sc, start=None, surface_known=False)
+    assert float(angle_deg(plain.q0, sc.q_true[:, 0])) > 10.0
+    assert float(angle_deg(lobes.q0, sc.q_true[:, 0])) < 5.0
+    assert float(lobes.cost) < 0.5 * float(plain.cost)
+    assert float(lobes.cost) <= 330.0  # 600 samples alone expect 300 ± 17 nats
 
 
 def test_noise_floor_continuation_is_off_at_and_above_the_floor(paper):

@@ -3,14 +3,17 @@ every seed of a scenario at once (:mod:`lightcurve_gp.inference.arc`), its covar
 
 Starts (``K`` per seed, one batch): the filter's final attitude moved back to ``t_0`` by the known motion (and its
 final surface state), the prior mean ``q_est,0`` and the prior mean turned by ``±√3 σ0`` about each body axis; with
-``screen > 0`` also the ``keep`` best by posterior cost of ``screen`` quasi-random draws from the prior (a scrambled
-Sobol' sequence mapped to ``N(0, σ0² I)``, the surface at its prior mean), which costs one rendering of the arc per
-draw. Below the noise floor (``R < NOISE_FLOOR_MAG²``, 0.1 mag) the search is a continuation in the noise: every
-start, and the prior mean turned to the eight corners ``(±σ0, ±σ0, ±σ0)``, is first solved with ``max(R, floor²)``
-(a landscape whose narrow basins the prior still outweighs) and the :data:`FLOOR_KEEP` best solutions per seed start
-the solve with ``R``. On the tuning seeds of the random truths it found the truth's basin where the 8 plain starts
-did not (0.01 mag: 93 → 97 % and 95 → 97 % below 10° on seeds 1000–1029 and 1030–1089; 0.03 mag: 90 → 93 % and
-93 → 97 %) at 1.3–1.4 s per seed against 0.65–0.7 s; at and above the floor nothing changes.
+the surface unknown also the filter's and the prior mean's attitude and surface state with both lobe exponents set
+to each of :data:`LOBE_STARTS` (a light curve whose glints come from a lobe decades from the prior's is out of reach
+of a local search in ``log n``); with ``screen > 0`` also the ``keep`` best by posterior cost of ``screen``
+quasi-random draws from the prior (a scrambled Sobol' sequence mapped to ``N(0, σ0² I)``, the surface at its prior
+mean), which costs one rendering of the arc per draw. Below the noise floor (``R < NOISE_FLOOR_MAG²``, 0.1 mag) the
+search is a continuation in the noise: every start, and the prior mean turned to the eight corners
+``(±σ0, ±σ0, ±σ0)``, is first solved with ``max(R, floor²)`` for at most :data:`FLOOR_ITERATIONS`
+Levenberg–Marquardt iterations (a landscape whose narrow basins the prior still outweighs; this stage only ranks
+basins) and the :data:`FLOOR_KEEP` best solutions per seed start the solve with ``R``; at and above the floor
+nothing changes. Each was chosen on the tuning seeds of the random truths (1000–1089; the study
+``docs/studies/realistic-photometry.md`` has the numbers).
 
 The measurement noise is the filters' ``R`` (``filter.measurement_noise``, or a per-sample ``R``); ω is known (the
 scenario's assumed rate). The estimate at sample ``k`` is ``q̂_k = Δ_k ⊗ q̂_0`` with covariance ``A(Δ_k) Σ A(Δ_k)ᵀ``
@@ -20,6 +23,8 @@ scenario's assumed rate). The estimate at sample ``k`` is ``q̂_k = Δ_k ⊗ q̂
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from dataclasses import replace
 
 import torch
 from torch import Tensor
@@ -30,6 +35,7 @@ from lightcurve_gp.evaluation.scoring import Estimate
 from lightcurve_gp.filters.setup import first_observation
 from lightcurve_gp.filters.state import FilterHistory
 from lightcurve_gp.inference.arc import (
+    ARC_OPTIONS,
     ArcProblem,
     ArcSolution,
     prior_axis_starts,
@@ -43,7 +49,8 @@ from lightcurve_gp.observation.surface_state import reference_surface, surface_s
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import Scenario
 
-__all__ = ["SCREEN_SEED", "NOISE_FLOOR_MAG", "FLOOR_KEEP", "whole_arc_map", "arc_estimate"]
+__all__ = ["SCREEN_SEED", "NOISE_FLOOR_MAG", "FLOOR_KEEP", "FLOOR_ITERATIONS", "LOBE_STARTS",
+           "whole_arc_map", "arc_estimate"]
 
 #: seed of the scrambled Sobol' draws of the screening
 SCREEN_SEED = 27
@@ -51,6 +58,11 @@ SCREEN_SEED = 27
 NOISE_FLOOR_MAG = 0.1
 #: the continuation's solutions per seed that start the solve with the true noise
 FLOOR_KEEP = 4
+#: Levenberg–Marquardt iterations of the continuation's first stage (it only ranks basins for the second)
+FLOOR_ITERATIONS = 10
+#: lobe exponents ``n_u = n_v`` of the surface starts (surface unknown): one per decade of the range the prior
+#: expects (10 … 10⁴)
+LOBE_STARTS = (10.0, 100.0, 1000.0, 10000.0)
 
 
 def _weights(observations: Tensor, R: float | Tensor) -> Tensor:
@@ -79,6 +91,17 @@ def _screened(problem: ArcProblem, prior: GaussianPrior, theta: Tensor | None, s
     return quat_mul(rotvec_to_quat(e_best), problem.q_ref.unsqueeze(0))
 
 
+def _with_lobes(base: Tensor, lobes: Sequence[float] | int) -> Tensor:
+    """``base (B, S, ·)`` repeated once per lobe exponent: ``(L B, S, ·)``; given the exponents, the surface states'
+    ``log n_u``, ``log n_v`` set to each (given a count, the attitudes repeated)."""
+    if isinstance(lobes, int):
+        return base.repeat(lobes, 1, 1)
+    out = base.repeat(len(lobes), 1, 1).clone()
+    out[..., 2:4] = torch.tensor([math.log(n) for n in lobes], dtype=base.dtype, device=base.device
+                                 ).repeat_interleave(base.shape[0]).view(-1, 1, 1)
+    return out
+
+
 def _floored(problem: ArcProblem, observations: Tensor, R: float | Tensor, floor_mag: float | None
               ) -> ArcProblem | None:
     """``problem`` with every noise variance raised to at least ``floor_mag²``; ``None`` when no sample is below it
@@ -93,7 +116,9 @@ def _floored(problem: ArcProblem, observations: Tensor, R: float | Tensor, floor
 
 def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHistory | None, surface_known: bool,
                   R: float | Tensor | None = None, screen: int = 0, keep: int = 4,
-                  noise_floor_mag: float | None = NOISE_FLOOR_MAG, floor_keep: int = FLOOR_KEEP) -> ArcSolution:
+                  noise_floor_mag: float | None = NOISE_FLOOR_MAG, floor_keep: int = FLOOR_KEEP,
+                  floor_iterations: int = FLOOR_ITERATIONS, lobe_starts: Sequence[float] = LOBE_STARTS
+                  ) -> ArcSolution:
     """The whole-arc MAP of every seed of ``sc`` (module docstring).
 
     Args:
@@ -107,7 +132,10 @@ def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHisto
         screen, keep: prior draws screened by cost and how many of them become starts (0: none).
         noise_floor_mag: the continuation's noise floor (mag): where some ``R`` is below its square, every start
             (and the prior's cube corners) is first solved with ``max(R, floor²)`` and the ``floor_keep`` best
-            solutions per seed start the solve with ``R``; ``None``: no continuation.
+            solutions per seed start the solve with ``R``; ``None``: no continuation. ``floor_iterations``: the
+            first stage's Levenberg–Marquardt iterations at most (the second takes ``ARC_OPTIONS``').
+        lobe_starts: with the surface unknown, the filter's and the prior mean's attitude and surface state are also
+            started with both lobe exponents set to each of these (``()``: no surface starts).
     """
     cum = cumulative_increments(sc.increments_assumed.to(sc.q_est0))
     S = sc.q_est0.shape[0]
@@ -129,6 +157,12 @@ def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHisto
     if start is not None:
         starts.insert(0, quat_mul(quat_conj(cum[:, -1]), start.q_est[:, -1]).unsqueeze(0))
         thetas.insert(0, None if theta0 is None else start.theta[:, -1].unsqueeze(0))
+    if theta0 is not None and lobe_starts:  # the filter's answer (first) and the prior mean, one per lobe exponent
+        base_q, base_t = sc.q_est0.unsqueeze(0), theta0.unsqueeze(0)
+        if start is not None:
+            base_q, base_t = torch.cat([starts[0], base_q]), torch.cat([thetas[0], base_t])
+        starts.append(_with_lobes(base_q, len(lobe_starts)))
+        thetas.append(_with_lobes(base_t, lobe_starts))
     if screen:
         prior = GaussianPrior.independent(mean, precision)
         starts.append(_screened(problem, prior, theta0, sigma0, count=screen, keep=keep))
@@ -136,7 +170,8 @@ def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHisto
     starts, thetas = torch.cat(starts), None if theta0 is None else torch.cat(thetas)
     if floored is not None:
         starts, thetas = refine_starts(floored, starts=starts, theta_starts=thetas, prior_mean=mean,
-                                       prior_precision=precision, keep=floor_keep)
+                                       prior_precision=precision, keep=floor_keep,
+                                       options=replace(ARC_OPTIONS, iterations=floor_iterations))
     return solve_arc(problem, starts=starts, theta_starts=thetas, prior_mean=mean, prior_precision=precision)
 
 
