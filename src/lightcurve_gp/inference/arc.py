@@ -15,10 +15,11 @@ object in one batch. The cost landscape of a light curve has several basins (the
 near-symmetries, a wide prior), so one start is not enough: each object is solved from ``K`` starts and its
 **modes** are the distinct solutions (more than ``mode_angle_deg`` apart) within ``max_log_ratio`` nats of the best.
 Each mode's Laplace covariance is taken in its own chart (``q_0 = q(δ) ⊗ q̂_0``, linearised at ``δ = 0``) and the modes
-are weighted by their Laplace evidence ``w_m ∝ exp(−c_m) det(Σ_m)^{1/2}`` (as :mod:`lightcurve_gp.inference.
-families` weights inversion families). The estimate is the best mode (the MAP); its reported attitude covariance is
-the mixture's second moment about it, ``Σ_m w_m (Σ_m + d_m d_mᵀ)`` with ``d_m`` the rotation vector of
-``q_m ⊗ q̂⁻¹`` — the best mode's own covariance when it stands alone, wide when another basin fits almost as well, so
+are weighted by their Laplace evidence ``w_m ∝ exp(−c_m) det(Σ_m)^{1/2}``, ``Σ_m`` the covariance of the whole state
+``[δ, θ]`` (the posterior mass of the mode; as :mod:`lightcurve_gp.inference.families` weights inversion
+families). The estimate is the best mode (the MAP); its reported attitude covariance is the mixture's second moment
+about it, ``Σ_m w_m (Σ_m,δδ + d_m d_mᵀ)`` with ``d_m`` the rotation vector of ``q_m ⊗ q̂⁻¹`` — the best mode's own
+covariance when it stands alone, wide when another basin fits almost as well, so
 that an ambiguous object is not a confident wrong one.
 """
 
@@ -237,11 +238,11 @@ def _modes(q0: Tensor, theta: Tensor | None, cov: Tensor, cost: Tensor, max_log_
         apart = quat_to_rotvec(quat_mul(q0, quat_conj(q0[i, cols]).unsqueeze(0)))
         near = torch.rad2deg(torch.linalg.vector_norm(apart, dim=-1)) < mode_angle_deg  # (K, S)
         head[i, cols] = candidate[i, cols] & ~(head & near).any(0)
-    eye = torch.eye(3, dtype=cov.dtype, device=cov.device)
-    att = torch.where(head[..., None, None], cov[..., :3, :3], eye)
-    logdet = torch.linalg.slogdet(att)
+    eye = torch.eye(cov.shape[-1], dtype=cov.dtype, device=cov.device)
+    logdet = torch.linalg.slogdet(torch.where(head[..., None, None], cov, eye))  # the mode's whole volume
     log_w = torch.where(head & (logdet.sign > 0), -cost + 0.5 * logdet.logabsdet, -math.inf)
     w = torch.softmax(log_w, dim=0)  # (K, S), zero off the modes
+    att = torch.where(head[..., None, None], cov[..., :3, :3], eye[:3, :3])
     mixture = mixture_covariance(att, torch.where(head.unsqueeze(-1), d, 0.0), w)
     return ArcSolution(q0=q_best, theta=None if theta is None else theta[best, cols], covariance=cov[best, cols],
                        attitude_covariance=mixture, cost=cost_best, modes=head.sum(0), best_start=best,
