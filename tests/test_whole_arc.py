@@ -191,6 +191,16 @@ def test_surface_starts_find_the_lobes_the_prior_mean_misses():
     assert float(lobes.cost) <= 330.0  # 600 samples alone expect 300 ± 17 nats
 
 
+def test_worker_threads_change_nothing_but_the_time(paper):
+    """Rendering pieces of the problems in two threads (torch held to one meanwhile) gives the single-thread MAP bit
+    for bit, and the caller's torch thread count is back afterwards."""
+    cfg, scene, sc = paper
+    before = torch.get_num_threads()
+    one, two = (whole_arc_map(cfg, scene, sc, start=None, surface_known=False, workers=w) for w in (1, 2))
+    assert torch.get_num_threads() == before
+    assert torch.equal(one.q0, two.q0) and torch.equal(one.attitude_covariance, two.attitude_covariance)
+
+
 def test_noise_floor_continuation_is_off_at_and_above_the_floor(paper):
     """With R at the floor (0.1 mag) the MAP is the plain one, bit for bit; below it, the result differs only by the
     continuation's path (the same minimum on the paper's trajectory)."""

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from contextlib import nullcontext
 from dataclasses import replace
 
 import torch
@@ -42,6 +43,7 @@ from lightcurve_gp.inference.arc import (
     prior_corner_starts,
     refine_starts,
     solve_arc,
+    torch_threads,
 )
 from lightcurve_gp.inference.solver import GaussianPrior, least_squares_cost
 from lightcurve_gp.inference.surface import cumulative_increments
@@ -111,14 +113,14 @@ def _floored(problem: ArcProblem, observations: Tensor, R: float | Tensor, floor
         return None
     return ArcProblem(problem.scene, q_ref=problem.q_ref, seed=problem.seed, cumulative=problem.cum,
                       observations=observations, weight=_weights(observations, R.clamp(min=floor_mag ** 2)),
-                      surface=problem.surface)
+                      surface=problem.surface, turns=problem.turns, workers=problem.workers)
 
 
 def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHistory | None, surface_known: bool,
                   R: float | Tensor | None = None, screen: int = 0, keep: int = 4,
                   noise_floor_mag: float | None = NOISE_FLOOR_MAG, floor_keep: int = FLOOR_KEEP,
-                  floor_iterations: int = FLOOR_ITERATIONS, lobe_starts: Sequence[float] = LOBE_STARTS
-                  ) -> ArcSolution:
+                  floor_iterations: int = FLOOR_ITERATIONS, lobe_starts: Sequence[float] = LOBE_STARTS,
+                  workers: int | None = None) -> ArcSolution:
     """The whole-arc MAP of every seed of ``sc`` (module docstring).
 
     Args:
@@ -136,12 +138,27 @@ def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHisto
             first stage's Levenberg–Marquardt iterations at most (the second takes ``ARC_OPTIONS``').
         lobe_starts: with the surface unknown, the filter's and the prior mean's attitude and surface state are also
             started with both lobe exponents set to each of these (``()``: no surface starts).
+        workers: threads that render independent pieces of the problems side by side, torch held to one thread
+            meanwhile (:class:`~lightcurve_gp.inference.arc.ArcProblem`); default the caller's torch thread count.
+            The result does not depend on it.
     """
+    workers = torch.get_num_threads() if workers is None else int(workers)
+    with torch_threads(1) if workers > 1 else nullcontext():
+        return _whole_arc_map(cfg, scene, sc, start=start, surface_known=surface_known, R=R, screen=screen, keep=keep,
+                              noise_floor_mag=noise_floor_mag, floor_keep=floor_keep,
+                              floor_iterations=floor_iterations, lobe_starts=lobe_starts, workers=workers)
+
+
+def _whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHistory | None, surface_known: bool,
+                   R: float | Tensor | None, screen: int, keep: int, noise_floor_mag: float | None, floor_keep: int,
+                   floor_iterations: int, lobe_starts: Sequence[float], workers: int) -> ArcSolution:
+    """:func:`whole_arc_map` with its torch threads set."""
     cum = cumulative_increments(sc.increments_assumed.to(sc.q_est0))
     S = sc.q_est0.shape[0]
     R = cfg.filter.measurement_noise if R is None else R
     problem = ArcProblem(scene, q_ref=sc.q_est0, seed=torch.arange(S), cumulative=cum, observations=sc.observations,
-                         weight=_weights(sc.observations, R), surface=sc.surface if surface_known else None)
+                         weight=_weights(sc.observations, R), surface=sc.surface if surface_known else None,
+                         workers=workers)
     sigma0 = sc.sigma0.to(sc.q_est0)
     mean, precision = torch.zeros(S, 3, dtype=cum.dtype), sigma0.pow(-2).unsqueeze(-1).expand(S, 3)
     theta0 = None

@@ -27,6 +27,9 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import torch
@@ -39,8 +42,8 @@ from lightcurve_gp.observation.surface_state import surface_from_state
 from lightcurve_gp.photometry.brdf import Surface
 from lightcurve_gp.photometry.render import Scene
 
-__all__ = ["ArcProblem", "ArcSolution", "ARC_OPTIONS", "solve_arc", "refine_starts", "prior_axis_starts",
-           "prior_corner_starts", "mixture_covariance"]
+__all__ = ["ArcProblem", "ArcSolution", "torch_threads", "ARC_OPTIONS", "solve_arc", "refine_starts",
+           "prior_axis_starts", "prior_corner_starts", "mixture_covariance"]
 
 #: the solver's settings: Levenberg–Marquardt, forward differences (1e-6 in rad and surface units), a problem stops
 #: once every component of its step is below 1e-6 or its damping reaches 1e6; an unpredictable sample costs 1e3²/2
@@ -59,11 +62,16 @@ class ArcProblem:
         cumulative: ``Δ_k`` of each object ``(S, T+1, 4)``; observations: ``(S, T+1)`` (mag, NaN: missing).
         weight: ``1/σ_k`` ``(S, T+1)`` (mag⁻¹), 0 for a sample left out (``k = 0``, missing).
         surface: the known surface of each object (fields ``(S,)``); ``None``: the surface state is in ``x``.
+        turns: ``A(Δ_k)ᵀ`` ``(S, T+1, 3, 3)`` if already known (computed from ``cumulative`` otherwise).
+        workers: Python threads that render the pieces of one call side by side (each piece's operations release
+            the interpreter); the results do not depend on it. Run with one torch thread (:func:`torch_threads`) so
+            the two kinds of parallelism do not compete.
     """
 
     def __init__(self, scene: Scene, *, q_ref: Tensor, seed: Tensor, cumulative: Tensor, observations: Tensor,
-                 weight: Tensor, surface: Surface | None, turns: Tensor | None = None) -> None:
+                 weight: Tensor, surface: Surface | None, turns: Tensor | None = None, workers: int = 1) -> None:
         self.scene, self.q_ref, self.seed, self.cum, self.surface = scene, q_ref, seed, cumulative, surface
+        self.workers = int(workers)
         self.y = torch.where(weight > 0, observations, 0.0)
         self.weight = weight
         # A(Δ_k)ᵀ (S, T+1, 3, 3): with A(q_k) = A(Δ_k) A(q_0) the body vectors of every sample are one product away
@@ -72,7 +80,7 @@ class ArcProblem:
     def recentred(self, q_ref: Tensor, seed: Tensor) -> ArcProblem:
         """The same objects seen from other chart centres ``q_ref (M', 4)`` of objects ``seed (M',)``."""
         return ArcProblem(self.scene, q_ref=q_ref, seed=seed, cumulative=self.cum, observations=self.y,
-                          weight=self.weight, surface=self.surface, turns=self.turns)
+                          weight=self.weight, surface=self.surface, turns=self.turns, workers=self.workers)
 
     def attitude(self, x: Tensor, rows: Tensor) -> Tensor:
         """Initial attitudes ``q_0 = q(e) ⊗ q_ref`` ``(A, 4)`` of states ``x (A, n)`` of problems ``rows``."""
@@ -86,19 +94,36 @@ class ArcProblem:
         initial = self.scene.frame().mT @ attitude_matrix(self.attitude(x, rows)).mT.unsqueeze(-3)  # (A, 1|T+1, 3, 3)
         surface = surface_from_state(x[:, 3:7]) if self.surface is None else Surface(*(t[s] for t in self.surface))
         size = max(1, self.scene.chunk_attitudes // self.turns.shape[1])
-        parts = []
-        for piece in torch.arange(rows.shape[0], device=rows.device).split(size):
+
+        def render(piece: Tensor) -> Tensor:
             turns = self.turns[s[piece]]
             body = torch.einsum("aij,atjk->atik", initial[piece, 0], turns) if initial.shape[1] == 1 else \
                 initial[piece] @ turns
-            parts.append(self.scene.magnitude_of_body(body, surface=Surface(*(t[piece] for t in surface))))
-        return torch.cat(parts)
+            return self.scene.magnitude_of_body(body, surface=Surface(*(t[piece] for t in surface)))
+
+        pieces = torch.arange(rows.shape[0], device=rows.device).split(size)
+        if self.workers > 1 and len(pieces) > 1:
+            with ThreadPoolExecutor(min(self.workers, len(pieces))) as pool:
+                return torch.cat(list(pool.map(render, pieces)))
+        return torch.cat([render(piece) for piece in pieces])
 
     def __call__(self, x: Tensor, rows: Tensor) -> Tensor:
         """Whitened residuals ``(A, T+1)``; 0 where a sample is left out."""
         s = self.seed[rows]
         w = self.weight[s]
         return torch.where(w > 0, (self.y[s] - self.magnitudes(x, rows)) * w, 0.0)
+
+
+@contextmanager
+def torch_threads(count: int) -> Iterator[None]:
+    """Run the block with ``count`` torch intra-op threads and restore the caller's count afterwards (the count is
+    the process's: other threads running torch meanwhile see it too)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(count)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
 @dataclass
