@@ -11,7 +11,7 @@ Cases per noise level σ (``scenario.noise_var = filter.measurement_noise = σ²
   held-out block; the tuning seeds were 1000–1029).
 
 Estimators (:mod:`lightcurve_gp.evaluation.registry`): ``map`` (the recommended estimator: the surface-state filter,
-then the whole-arc MAP of attitude and surface from 8 starts), ``matched_map`` (the same with the truth's surface
+then the whole-arc MAP of attitude and surface from 16 starts), ``matched_map`` (the same with the truth's surface
 known: the oracle the goals compare with), ``surface_ukf_select``, ``matched_ukf`` and the GP filter ``gpukf``
 (``filter.model_error: heldout``) with the robust GP read from the model store ``--models`` (never trained here:
 a missing model is an error). Per (σ, case) and estimator: median RMSE per axis, median CRB per axis (the

@@ -4,8 +4,8 @@ The choice follows what was measured at 0.01–0.71 mag (docs/studies/realistic-
 
 * **ω known, the shape known to the renderer** (every simulated scenario; a mesh or the box-wing): ``map`` — the
   surface-state filter, then the whole-arc MAP of the initial attitude and the surface state from the filter's
-  result and 7 prior starts (below 0.1 mag 8 more, all first solved with the noise raised to 0.1 mag, then refined)
-  with its Laplace covariance. On the tuning seeds it reached the bound (RMSE/CRB
+  result, 7 prior starts and 8 surface starts (below 0.1 mag 8 more, all first solved with the noise raised to
+  0.1 mag, then refined) with its Laplace covariance. On the tuning seeds it reached the bound (RMSE/CRB
   0.6–1.1 on the paper case, up to 2.3 on random truths at 0.01 mag) at every noise level, with the surface
   unknown. The GP filter pays only at
   σ ≳ 0.3 mag and on its own training surface (there it can do better: the paper case at 0.71 mag, 97 % of tuning
@@ -73,4 +73,4 @@ def recommend_estimator(cfg: Config, *, noise_std: float, have_model: bool, shap
     gp = " (the GP is not needed: it pays only at σ ≳ 0.3 mag on its training surface)" if have_model else ""
     return Recommendation("map", f"{sigma}, the renderer knows the shape ({cfg.shape.kind}), surface unknown, ω "
                                  f"known: the surface-state filter, then the whole-arc MAP of attitude and surface "
-                                 f"from 8 starts (16 below 0.1 mag){gp}")
+                                 f"from 16 starts (24 below 0.1 mag){gp}")
