@@ -93,14 +93,12 @@ def _screened(problem: ArcProblem, prior: GaussianPrior, theta: Tensor | None, s
     return quat_mul(rotvec_to_quat(e_best), problem.q_ref.unsqueeze(0))
 
 
-def _with_lobes(base: Tensor, lobes: Sequence[float] | int) -> Tensor:
-    """``base (B, S, ·)`` repeated once per lobe exponent: ``(L B, S, ·)``; given the exponents, the surface states'
-    ``log n_u``, ``log n_v`` set to each (given a count, the attitudes repeated)."""
-    if isinstance(lobes, int):
-        return base.repeat(lobes, 1, 1)
-    out = base.repeat(len(lobes), 1, 1).clone()
-    out[..., 2:4] = torch.tensor([math.log(n) for n in lobes], dtype=base.dtype, device=base.device
-                                 ).repeat_interleave(base.shape[0]).view(-1, 1, 1)
+def _with_lobes(theta: Tensor, lobes: Sequence[float]) -> Tensor:
+    """Surface states ``theta (B, S, 4)`` repeated once per lobe exponent, ``log n_u`` and ``log n_v`` set to it:
+    ``(L B, S, 4)``, exponent-major (the attitudes repeated with ``.repeat(L, 1, 1)`` match them)."""
+    out = theta.repeat(len(lobes), 1, 1)
+    out[..., 2:4] = torch.tensor([math.log(n) for n in lobes], dtype=theta.dtype, device=theta.device
+                                 ).repeat_interleave(theta.shape[0]).view(-1, 1, 1)
     return out
 
 
@@ -111,9 +109,7 @@ def _floored(problem: ArcProblem, observations: Tensor, R: float | Tensor, floor
     R = torch.as_tensor(R, dtype=observations.dtype, device=observations.device)
     if floor_mag is None or not bool((R < floor_mag ** 2).any()):
         return None
-    return ArcProblem(problem.scene, q_ref=problem.q_ref, seed=problem.seed, cumulative=problem.cum,
-                      observations=observations, weight=_weights(observations, R.clamp(min=floor_mag ** 2)),
-                      surface=problem.surface, turns=problem.turns, workers=problem.workers)
+    return problem.reweighted(_weights(observations, R.clamp(min=floor_mag ** 2)))
 
 
 def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHistory | None, surface_known: bool,
@@ -143,16 +139,6 @@ def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHisto
             The result does not depend on it.
     """
     workers = torch.get_num_threads() if workers is None else int(workers)
-    with torch_threads(1) if workers > 1 else nullcontext():
-        return _whole_arc_map(cfg, scene, sc, start=start, surface_known=surface_known, R=R, screen=screen, keep=keep,
-                              noise_floor_mag=noise_floor_mag, floor_keep=floor_keep,
-                              floor_iterations=floor_iterations, lobe_starts=lobe_starts, workers=workers)
-
-
-def _whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHistory | None, surface_known: bool,
-                   R: float | Tensor | None, screen: int, keep: int, noise_floor_mag: float | None, floor_keep: int,
-                   floor_iterations: int, lobe_starts: Sequence[float], workers: int) -> ArcSolution:
-    """:func:`whole_arc_map` with its torch threads set."""
     cum = cumulative_increments(sc.increments_assumed.to(sc.q_est0))
     S = sc.q_est0.shape[0]
     R = cfg.filter.measurement_noise if R is None else R
@@ -178,18 +164,19 @@ def _whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHist
         base_q, base_t = sc.q_est0.unsqueeze(0), theta0.unsqueeze(0)
         if start is not None:
             base_q, base_t = torch.cat([starts[0], base_q]), torch.cat([thetas[0], base_t])
-        starts.append(_with_lobes(base_q, len(lobe_starts)))
+        starts.append(base_q.repeat(len(lobe_starts), 1, 1))
         thetas.append(_with_lobes(base_t, lobe_starts))
-    if screen:
-        prior = GaussianPrior.independent(mean, precision)
-        starts.append(_screened(problem, prior, theta0, sigma0, count=screen, keep=keep))
-        thetas.append(None if theta0 is None else theta0.expand(keep, S, 4))
-    starts, thetas = torch.cat(starts), None if theta0 is None else torch.cat(thetas)
-    if floored is not None:
-        starts, thetas = refine_starts(floored, starts=starts, theta_starts=thetas, prior_mean=mean,
-                                       prior_precision=precision, keep=floor_keep,
-                                       options=replace(ARC_OPTIONS, iterations=floor_iterations))
-    return solve_arc(problem, starts=starts, theta_starts=thetas, prior_mean=mean, prior_precision=precision)
+    with torch_threads(1) if workers > 1 else nullcontext():  # the renderings below: the worker threads' share
+        if screen:
+            prior = GaussianPrior.independent(mean, precision)
+            starts.append(_screened(problem, prior, theta0, sigma0, count=screen, keep=keep))
+            thetas.append(None if theta0 is None else theta0.expand(keep, S, 4))
+        starts, thetas = torch.cat(starts), None if theta0 is None else torch.cat(thetas)
+        if floored is not None:
+            starts, thetas = refine_starts(floored, starts=starts, theta_starts=thetas, prior_mean=mean,
+                                           prior_precision=precision, keep=floor_keep,
+                                           options=replace(ARC_OPTIONS, iterations=floor_iterations))
+        return solve_arc(problem, starts=starts, theta_starts=thetas, prior_mean=mean, prior_precision=precision)
 
 
 def arc_estimate(sc: Scenario, solution: ArcSolution) -> Estimate:

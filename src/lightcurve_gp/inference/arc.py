@@ -25,6 +25,7 @@ that an ambiguous object is not a confident wrong one.
 
 from __future__ import annotations
 
+import copy
 import itertools
 import math
 from collections.abc import Iterator
@@ -62,25 +63,31 @@ class ArcProblem:
         cumulative: ``Δ_k`` of each object ``(S, T+1, 4)``; observations: ``(S, T+1)`` (mag, NaN: missing).
         weight: ``1/σ_k`` ``(S, T+1)`` (mag⁻¹), 0 for a sample left out (``k = 0``, missing).
         surface: the known surface of each object (fields ``(S,)``); ``None``: the surface state is in ``x``.
-        turns: ``A(Δ_k)ᵀ`` ``(S, T+1, 3, 3)`` if already known (computed from ``cumulative`` otherwise).
         workers: Python threads that render the pieces of one call side by side (each piece's operations release
             the interpreter); the results do not depend on it. Run with one torch thread (:func:`torch_threads`) so
             the two kinds of parallelism do not compete.
     """
 
     def __init__(self, scene: Scene, *, q_ref: Tensor, seed: Tensor, cumulative: Tensor, observations: Tensor,
-                 weight: Tensor, surface: Surface | None, turns: Tensor | None = None, workers: int = 1) -> None:
-        self.scene, self.q_ref, self.seed, self.cum, self.surface = scene, q_ref, seed, cumulative, surface
+                 weight: Tensor, surface: Surface | None, workers: int = 1) -> None:
+        self.scene, self.q_ref, self.seed, self.surface = scene, q_ref, seed, surface
         self.workers = int(workers)
         self.y = torch.where(weight > 0, observations, 0.0)
         self.weight = weight
         # A(Δ_k)ᵀ (S, T+1, 3, 3): with A(q_k) = A(Δ_k) A(q_0) the body vectors of every sample are one product away
-        self.turns = attitude_matrix(cumulative).mT.contiguous() if turns is None else turns
+        self.turns = attitude_matrix(cumulative).mT.contiguous()
 
     def recentred(self, q_ref: Tensor, seed: Tensor) -> ArcProblem:
         """The same objects seen from other chart centres ``q_ref (M', 4)`` of objects ``seed (M',)``."""
-        return ArcProblem(self.scene, q_ref=q_ref, seed=seed, cumulative=self.cum, observations=self.y,
-                          weight=self.weight, surface=self.surface, turns=self.turns, workers=self.workers)
+        other = copy.copy(self)
+        other.q_ref, other.seed = q_ref, seed
+        return other
+
+    def reweighted(self, weight: Tensor) -> ArcProblem:
+        """The same problems with other weights ``1/σ_k`` ``(S, T+1)`` (the same samples left out)."""
+        other = copy.copy(self)
+        other.weight = weight
+        return other
 
     def attitude(self, x: Tensor, rows: Tensor) -> Tensor:
         """Initial attitudes ``q_0 = q(e) ⊗ q_ref`` ``(A, 4)`` of states ``x (A, n)`` of problems ``rows``."""

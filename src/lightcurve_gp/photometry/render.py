@@ -193,10 +193,10 @@ class Scene:
     def body_vectors(self, q: Tensor) -> Tensor:
         """The Sun, observer and half-angle directions in the body frame of attitudes ``q (..., 4)``, as rows
         ``[s_b, v_b, h_b]``: ``(..., 3, 3)`` (``(A(q) [ŝ, v̂, ĥ])ᵀ``; per sample along the last batch dimension of a
-        per-sample scene). :meth:`flux_parts` of ``q`` equals :meth:`flux_parts_of_body` of these."""
+        per-sample scene). :meth:`magnitude` of ``q`` equals :meth:`magnitude_of_body` of these."""
         if q.shape[-1] != 4:
             raise ValueError(f"q must have shape (..., 4), got {tuple(q.shape)}")
-        return (attitude_matrix(q) @ self.frame()).transpose(-1, -2)
+        return _body_vectors(q, self.frame())
 
     def _sums(self, q: Tensor | None, unit_rho: bool, surface: Surface | None = None, *,
               body: Tensor | None = None) -> tuple[Tensor, Tensor]:
@@ -221,8 +221,9 @@ class Scene:
         frame = self.frame()  # (3, 3) | (T, 3, 3): columns ŝ, v̂, ĥ
         normals_t, u_t, w_t = fac.normals.T, fac.u.T, fac.v.T  # (3, G)
         area_d = fac.areas if unit_rho or rows is not None else fac.areas * fac.rho
-        if self.per_sample:  # v·h does not depend on the attitude
-            frame, vh = self._per_attitude(frame, (self.observer * self.half).sum(-1), batch)
+        if self.per_sample:  # v·h does not depend on the attitude; body vectors given need no frame
+            frame, vh = self._per_attitude(frame if body is None else None, (self.observer * self.half).sum(-1),
+                                           batch)
         else:
             vh = torch.dot(self.observer, self.half)
         chunk = self.chunk_attitudes
@@ -230,8 +231,8 @@ class Scene:
         for start in range(0, flat.shape[0], chunk):
             part = slice(start, start + chunk)
             f0, n_u, n_v = (fac.f0, fac.n_u, fac.n_v) if rows is None else (r[part] for r in rows[1:])
-            frame_c, vh_c = (frame[part], vh[part]) if self.per_sample else (frame, vh)
-            b = flat[part] if body is not None else (attitude_matrix(flat[part]) @ frame_c).transpose(-1, -2)
+            frame_c, vh_c = (frame if frame is None else frame[part], vh[part]) if self.per_sample else (frame, vh)
+            b = flat[part] if body is not None else _body_vectors(flat[part], frame_c)
             s_b, v_b, h_b = b.unbind(-2)  # (N, 3) each
             hn = h_b @ normals_t
             d, c = ashikhmin_shirley_projected(s_b @ normals_t, v_b @ normals_t, hn, vh_c, h_b @ u_t, h_b @ w_t,
@@ -244,14 +245,15 @@ class Scene:
             return empty.reshape(batch), empty.reshape(batch)
         return torch.cat(diffuse).reshape(batch), torch.cat(specular).reshape(batch)
 
-    def _per_attitude(self, frame: Tensor, vh: Tensor, batch: torch.Size) -> tuple[Tensor, Tensor]:
-        """Per-sample ``frame (T, 3, 3)`` and ``v·h (T,)`` broadcast over ``batch = (..., T)`` and flattened to
-        ``(N, 3, 3)`` and ``(N, 1)``."""
-        T = frame.shape[0]
+    def _per_attitude(self, frame: Tensor | None, vh: Tensor, batch: torch.Size) -> tuple[Tensor | None, Tensor]:
+        """Per-sample ``frame (T, 3, 3)`` (or ``None``: not needed) and ``v·h (T,)`` broadcast over
+        ``batch = (..., T)`` and flattened to ``(N, 3, 3)`` and ``(N, 1)``."""
+        T = vh.shape[0]
         if not len(batch) or batch[-1] != T:
             raise ValueError(f"q of batch shape {tuple(batch)}: a per-sample scene of {T} samples needs them along "
                              f"the last batch dimension")
-        return frame.expand(*batch, 3, 3).reshape(-1, 3, 3), vh.expand(batch).reshape(-1, 1)
+        frame = None if frame is None else frame.expand(*batch, 3, 3).reshape(-1, 3, 3)
+        return frame, vh.expand(batch).reshape(-1, 1)
 
     def _rho(self, rho, like: Tensor) -> Tensor:
         return torch.as_tensor(rho, dtype=like.dtype, device=like.device)
@@ -320,6 +322,12 @@ class Scene:
             m = apparent_magnitude(torch.where(visible, f, torch.ones_like(f)), self.r_obs)
             m = torch.where(visible, m, torch.full_like(m, math.nan))
         return (m, visible) if return_visible else m
+
+
+def _body_vectors(q: Tensor, frame: Tensor) -> Tensor:
+    """``(A(q) [ŝ, v̂, ĥ])ᵀ`` ``(..., 3, 3)``: rows ``s_b, v_b, h_b`` of attitudes ``q (..., 4)`` under the inertial
+    directions ``frame`` (columns, ``(3, 3)`` or broadcasting per attitude)."""
+    return (attitude_matrix(q) @ frame).transpose(-1, -2)
 
 
 def _surface_rows(surface: Surface, batch: torch.Size, like: Tensor) -> list[Tensor]:
