@@ -14,7 +14,11 @@ the one-off exact conditioning of ``train`` on an otherwise idle machine.
 
 Long steps run through :func:`run_interruptible`: the work runs in a daemon worker thread while the main thread
 waits in short slices, so Ctrl-C acts within a fraction of a second even while LAPACK factorises a large matrix,
-and a status line with the elapsed time is shown when progress is on.
+and a status line with the elapsed time is shown when progress is on. While it waits, SIGINT only notes the
+interrupt and the wait itself raises :class:`KeyboardInterrupt`: Python's default handler raises it wherever the
+main thread is at that moment, which may be a finaliser or a garbage-collector callback (where an exception is
+only printed, so the Ctrl-C would be lost) or the middle of ``Thread.join`` (which then reports the still-running
+worker as finished).
 """
 
 from __future__ import annotations
@@ -23,13 +27,15 @@ import argparse
 import os
 import shlex
 import shutil
+import signal
 import sys
 import tempfile
 import threading
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import torch
 from tqdm.auto import tqdm
@@ -148,12 +154,29 @@ def format_bytes(n: float) -> str:
     return f"{n:.1f} PB"
 
 
+@contextmanager
+def _sigint_noted() -> Iterator[list[int]]:
+    """While open, a SIGINT is appended to the yielded list instead of raising :class:`KeyboardInterrupt` wherever
+    the main thread happens to be (see the module docstring). Only on the main thread and only over Python's
+    default handler; anywhere else the list stays empty and interrupts behave as before."""
+    hits: list[int] = []
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
+        yield hits
+        return
+    signal.signal(signal.SIGINT, lambda signum, frame: hits.append(signum))
+    try:
+        yield hits
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
 def run_interruptible(fn: Callable[[], Any], *, status: str = "", progress: bool = False) -> Any:
     """Run ``fn()`` in a daemon worker thread and return its result (or raise its exception).
 
-    The caller waits in 0.1 s slices, so a ``KeyboardInterrupt`` reaches it at once even while the worker is inside
-    a long LAPACK call; the abandoned worker dies with the process. With ``progress``, a status line
-    ``<status>: <elapsed>`` is shown until ``fn`` returns.
+    The caller waits in 0.1 s slices and raises ``KeyboardInterrupt`` itself within a slice of a Ctrl-C (SIGINT),
+    even while the worker is inside a long LAPACK call; the abandoned worker dies with the process. With
+    ``progress``, a status line ``<status>: <elapsed>`` is shown until ``fn`` returns.
     """
     box: dict[str, Any] = {}
 
@@ -165,13 +188,16 @@ def run_interruptible(fn: Callable[[], Any], *, status: str = "", progress: bool
 
     worker = threading.Thread(target=work, daemon=True, name=status or "lightcurve-gp worker")
     bar = tqdm(desc=status, bar_format="{desc}: {elapsed}", disable=not progress, leave=False)
-    worker.start()
-    try:
-        while worker.is_alive():
-            worker.join(0.1)
-            bar.refresh()
-    finally:
-        bar.close()
+    with _sigint_noted() as interrupts:
+        worker.start()
+        try:
+            while worker.is_alive() and not interrupts:
+                worker.join(0.1)
+                bar.refresh()
+        finally:
+            bar.close()
+        if interrupts:
+            raise KeyboardInterrupt
     if "error" in box:
         raise box["error"]
     return box["value"]
