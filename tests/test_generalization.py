@@ -94,14 +94,15 @@ def test_map_recovers_the_attitude_from_a_noise_free_curve_of_a_known_surface():
 
 @pytest.mark.parametrize("surface", [True, False])
 def test_the_numbers_of_the_first_surface_map_are_kept(cfg, scene, truths, surface):
-    # computed by the solver this one replaced (commit 7be9713); the shared core reproduces them bit for bit
+    # computed by the solver this one replaced (commit 7be9713); the shared core reproduced them bit for bit on that
+    # machine; on a CPU with other float64 kernels the 25 Levenberg–Marquardt iterations end ~1e-7 apart
     est = map_with_surface(scene, q_est0=truths.q_est0, sigma0=truths.sigma0,
                            observations=truths.observations, increments=truths.increments, checkpoints=[20, 30],
                            measurement_noise=cfg.filter.measurement_noise, reference=reference_surface(cfg),
                            offset_std=cfg.filter.offset_prior_std, surface=surface)
     x, var = MAP_REFERENCE["surface" if surface else "offset"]
-    torch.testing.assert_close(est.x[:, -1], torch.tensor(x, dtype=DT), rtol=0, atol=1e-12)
-    torch.testing.assert_close(est.P[:, -1].diagonal(dim1=-2, dim2=-1), torch.tensor(var, dtype=DT), rtol=1e-10,
+    torch.testing.assert_close(est.x[:, -1], torch.tensor(x, dtype=DT), rtol=0, atol=1e-6)
+    torch.testing.assert_close(est.P[:, -1].diagonal(dim1=-2, dim2=-1), torch.tensor(var, dtype=DT), rtol=1e-8,
                                atol=0)
 
 
