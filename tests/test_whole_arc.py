@@ -13,8 +13,15 @@ from lightcurve_gp.attitude.rotations import quat_conj, quat_mul, quat_to_rotvec
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.evaluation.bounds import ScenarioBounds, estimator_bound
 from lightcurve_gp.evaluation.harness import run_estimators
-from lightcurve_gp.evaluation.whole_arc import arc_estimate, whole_arc_map
-from lightcurve_gp.inference.arc import ArcProblem, mixture_covariance, prior_axis_starts, prior_corner_starts
+from lightcurve_gp.evaluation.whole_arc import arc_estimate, misfit_threshold, whole_arc_map
+from lightcurve_gp.inference.arc import (
+    ArcProblem,
+    ArcStarts,
+    arc_modes,
+    mixture_covariance,
+    prior_axis_starts,
+    prior_corner_starts,
+)
 from lightcurve_gp.inference.attitude import MapPrior, map_attitude, map_known_rate
 from lightcurve_gp.inference.surface import map_with_surface
 from lightcurve_gp.observation.parametric import Parametric
@@ -167,8 +174,9 @@ def test_noise_floor_continuation_finds_the_basin_the_prior_starts_miss():
     cfg = load_config(REALISTIC, ["scenario.noise_var=1e-4", "filter.measurement_noise=1e-4"])
     scene = Scene.from_config(cfg)
     sc = simulate_truths(cfg, draw_truths([1053]), scene)
-    plain = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, noise_floor_mag=None, lobe_starts=())
-    continued = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, lobe_starts=())
+    plain = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, noise_floor_mag=None, lobe_starts=(),
+                          misfit_z=None)
+    continued = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, lobe_starts=(), misfit_z=None)
     assert float(angle_deg(plain.q0, sc.q_true[:, 0])) > 10.0
     assert float(angle_deg(continued.q0, sc.q_true[:, 0])) < 1.0
     assert float(continued.cost) < 0.5 * float(plain.cost)
@@ -183,12 +191,68 @@ def test_surface_starts_find_the_lobes_the_prior_mean_misses():
     cfg = load_config(REALISTIC, ["scenario.noise_var=0.01", "filter.measurement_noise=0.01"])
     scene = Scene.from_config(cfg)
     sc = simulate_truths(cfg, draw_truths([1050]), scene)
-    plain = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, lobe_starts=())
-    lobes = whole_arc_map(cfg, scene, sc, start=None, surface_known=False)
+    plain = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, lobe_starts=(), misfit_z=None)
+    lobes = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, misfit_z=None)
     assert float(angle_deg(plain.q0, sc.q_true[:, 0])) > 10.0
     assert float(angle_deg(lobes.q0, sc.q_true[:, 0])) < 5.0
     assert float(lobes.cost) < 0.5 * float(plain.cost)
     assert float(lobes.cost) <= 330.0  # 600 samples alone expect 300 ± 17 nats
+
+
+def test_misfit_test_searches_again_with_unequal_lobes():
+    """A tuning seed of the random truths (1038: n_u = 6714, n_v = 22) at σ = 0.01 mag, surface unknown, no filter
+    start: the first search ends tens of thousands of nats above the 600 samples' ``χ²/2`` (300 ± 17); the misfit
+    test sends it to the second search (its best attitude with unequal lobe exponents), which ends within 1° of the
+    truth in the truth's basin (318.3 nats, itself 1 nat above the threshold). The solutions of both searches are
+    the mixture's modes."""
+    cfg = load_config(REALISTIC, ["scenario.noise_var=1e-4", "filter.measurement_noise=1e-4"])
+    scene = Scene.from_config(cfg)
+    sc = simulate_truths(cfg, draw_truths([1038]), scene)
+    first = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, misfit_z=None)
+    again = whole_arc_map(cfg, scene, sc, start=None, surface_known=False)
+    threshold = float(misfit_threshold(torch.isfinite(sc.observations[:, 1:]).double()))
+    assert threshold == pytest.approx(300.0 + math.sqrt(300.0))
+    assert float(first.cost) > 10 * threshold
+    assert float(again.cost) < 319.0
+    assert float(angle_deg(again.q0, sc.q_true[:, 0])) < 1.0
+    assert again.start_cost.shape[0] == first.start_cost.shape[0] + 4  # one start per pair of LOBE_PAIRS
+    assert first.searched_again is None and bool(again.searched_again.all())
+
+
+def test_misfit_threshold_is_the_chi_square_mean_plus_z_standard_deviations():
+    """``ν/2 + z √(ν/2)`` over the samples with weight; on pure noise the share of ``½ χ²_ν`` draws above it is
+    scipy's tail probability (z = 1: 16 % for large ν)."""
+    from scipy.stats import chi2
+
+    weight = torch.ones(2, 601, dtype=torch.float64)
+    weight[:, 0] = 0.0
+    weight[1, 1:101] = 0.0  # 100 samples left out
+    assert torch.allclose(misfit_threshold(weight, 1.0), torch.tensor([300.0 + 300.0 ** 0.5, 250.0 + 250.0 ** 0.5],
+                                                                       dtype=torch.float64))
+    g = torch.Generator().manual_seed(0)
+    half_chi2 = 0.5 * torch.randn(20000, 600, generator=g, dtype=torch.float64).pow(2).sum(-1)
+    share = float((half_chi2 > misfit_threshold(torch.ones(1, 600, dtype=torch.float64), 1.0)).double().mean())
+    assert share == pytest.approx(chi2.sf(600 + 2 * 300 ** 0.5, 600), abs=0.01)
+
+
+def test_extended_starts_leave_the_other_objects_alone():
+    """Padding a second search of some objects into the first's keeps every other object's solution, modes and
+    covariance bit for bit; an object with a better second solution takes it."""
+    g = torch.Generator().manual_seed(3)
+    K, S = 3, 4
+    q = torch.nn.functional.normalize(torch.randn(K, S, 4, generator=g, dtype=torch.float64), dim=-1)
+    a = torch.randn(K, S, 7, 7, generator=g, dtype=torch.float64)
+    cov = a @ a.mT + torch.eye(7, dtype=torch.float64)
+    first = ArcStarts(q0=q, theta=torch.randn(K, S, 4, generator=g, dtype=torch.float64), covariance=cov,
+                      cost=300 + 5 * torch.rand(K, S, generator=g, dtype=torch.float64))
+    rows = torch.tensor([1, 3])
+    second = ArcStarts(q0=q[:2, rows].flip(0), theta=first.theta[:2, rows], covariance=cov[:2, rows],
+                       cost=torch.tensor([[250.0, 400.0], [401.0, 402.0]], dtype=torch.float64))
+    both, alone = arc_modes(first.extended(second, rows)), arc_modes(first)
+    assert both.start_cost.shape == (K + 2, S) and torch.isinf(both.start_cost[K:, [0, 2]]).all()
+    for field in ("q0", "attitude_covariance", "cost", "modes"):
+        assert torch.equal(getattr(both, field)[[0, 2, 3]], getattr(alone, field)[[0, 2, 3]])
+    assert float(both.cost[1]) == 250.0 and int(both.best_start[1]) == K
 
 
 def test_worker_threads_change_nothing_but_the_time(paper):

@@ -71,4 +71,5 @@ def recommend_estimator(cfg: Config, *, noise_std: float, have_model: bool, shap
     gp = " (the GP is not needed: it pays only at σ ≳ 0.3 mag on its training surface)" if have_model else ""
     return Recommendation("map", f"{sigma}, the renderer knows the shape ({cfg.shape.kind}), surface unknown, ω "
                                  f"known: the surface-state filter, then the whole-arc MAP of attitude and surface "
-                                 f"from 16 starts (24 below 0.1 mag){gp}")
+                                 f"from 16 starts (24 below 0.1 mag), 8 more where the fit fails the misfit "
+                                 f"test{gp}")

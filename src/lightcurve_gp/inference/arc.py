@@ -43,8 +43,8 @@ from lightcurve_gp.observation.surface_state import surface_from_state
 from lightcurve_gp.photometry.brdf import Surface
 from lightcurve_gp.photometry.render import Scene
 
-__all__ = ["ArcProblem", "ArcSolution", "torch_threads", "ARC_OPTIONS", "solve_arc", "refine_starts",
-           "prior_axis_starts", "prior_corner_starts", "mixture_covariance"]
+__all__ = ["ArcProblem", "ArcStarts", "ArcSolution", "torch_threads", "ARC_OPTIONS", "solve_starts", "solve_arc",
+           "arc_modes", "refine_starts", "prior_axis_starts", "prior_corner_starts", "mixture_covariance"]
 
 #: the solver's settings: Levenberg–Marquardt, forward differences (1e-6 in rad and surface units), a problem stops
 #: once every component of its step is below 1e-6 or its damping reaches 1e6; an unpredictable sample costs 1e3²/2
@@ -82,6 +82,10 @@ class ArcProblem:
         other = copy.copy(self)
         other.q_ref, other.seed = q_ref, seed
         return other
+
+    def subset(self, rows: Tensor) -> ArcProblem:
+        """The problems ``rows (M',)`` of this one (their chart centres and objects)."""
+        return self.recentred(self.q_ref[rows], self.seed[rows])
 
     def reweighted(self, weight: Tensor) -> ArcProblem:
         """The same problems with other weights ``1/σ_k`` ``(S, T+1)`` (the same samples left out)."""
@@ -134,6 +138,40 @@ def torch_threads(count: int) -> Iterator[None]:
 
 
 @dataclass
+class ArcStarts:
+    """The solutions of ``S`` objects from ``K`` starts each, before their modes are found.
+
+    Attributes:
+        q0: the solutions' initial attitudes ``(K, S, 4)``; theta: their surface states ``(K, S, 4)`` or ``None``.
+        covariance: each solution's Laplace covariance of ``[δ, θ]`` in its own chart ``(K, S, n, n)`` (NaN where
+            singular or where an object has no such start).
+        cost: the costs ``(K, S)`` (``inf`` where an object has no such start).
+    """
+
+    q0: Tensor
+    theta: Tensor | None
+    covariance: Tensor
+    cost: Tensor
+
+    def extended(self, other: ArcStarts, rows: Tensor) -> ArcStarts:
+        """These starts and ``other``'s, solved for the objects ``rows (S',)`` only: ``(K + K', S, ...)``, the
+        objects outside ``rows`` padded with ``inf`` cost and NaN covariance."""
+        return ArcStarts(q0=_stacked(self.q0, other.q0, rows, self.q0[0]),
+                         theta=None if self.theta is None else _stacked(self.theta, other.theta, rows, 0.0),
+                         covariance=_stacked(self.covariance, other.covariance, rows, math.nan),
+                         cost=_stacked(self.cost, other.cost, rows, math.inf))
+
+
+def _stacked(first: Tensor, second: Tensor, rows: Tensor, fill: float | Tensor) -> Tensor:
+    """``first (K, S, ...)`` above ``second (K', S', ...)`` placed at objects ``rows`` and ``fill`` (broadcast to
+    ``(K', S, ...)``) elsewhere."""
+    out = first.new_empty((second.shape[0], *first.shape[1:]))
+    out[:] = fill
+    out[:, rows] = second
+    return torch.cat([first, out])
+
+
+@dataclass
 class ArcSolution:
     """The whole-arc MAP of ``S`` objects from ``K`` starts each.
 
@@ -145,7 +183,10 @@ class ArcSolution:
             estimate (module docstring).
         cost: the best cost ``(S,)``; modes: the number of modes kept ``(S,)``; best_start: the start that found
             it ``(S,)``; weight_best: the best mode's evidence weight ``(S,)``.
-        start_q0, start_cost: every start's solution ``(K, S, 4)`` and cost ``(K, S)``.
+        start_q0, start_cost: every start's solution ``(K, S, 4)`` and cost ``(K, S)`` (``inf`` where an object had
+            no such start).
+        searched_again: the objects a second search was run for ``(S,)`` (bool), ``None`` when there was none to
+            run (:func:`~lightcurve_gp.evaluation.whole_arc.whole_arc_map`'s misfit test).
     """
 
     q0: Tensor
@@ -158,6 +199,7 @@ class ArcSolution:
     weight_best: Tensor
     start_q0: Tensor
     start_cost: Tensor
+    searched_again: Tensor | None = None
 
 
 def prior_axis_starts(q_prior: Tensor, sigma0: Tensor, *, spread: float = math.sqrt(3.0)) -> Tensor:
@@ -192,7 +234,7 @@ def refine_starts(problem: ArcProblem, *, starts: Tensor, theta_starts: Tensor |
     seed = torch.arange(S, device=starts.device).repeat(K)
     e0 = quat_to_rotvec(quat_mul(starts.reshape(K * S, 4), quat_conj(problem.q_ref[seed])))
     x0 = e0 if theta_starts is None else torch.cat([e0, theta_starts.reshape(K * S, -1)], -1)
-    tiled = problem.recentred(problem.q_ref[seed], seed)
+    tiled = problem.subset(seed)
     gaussian = GaussianPrior.independent(prior_mean[seed], prior_precision[seed])
     result = batch_least_squares(tiled, x0, prior=gaussian, variance=1.0, options=options)
     q = tiled.attitude(result.x, torch.arange(K * S, device=starts.device)).view(K, S, 4)
@@ -205,39 +247,45 @@ def refine_starts(problem: ArcProblem, *, starts: Tensor, theta_starts: Tensor |
     return q_best, theta.gather(0, best.unsqueeze(-1).expand(-1, -1, theta.shape[-1]))
 
 
-def solve_arc(problem: ArcProblem, *, starts: Tensor, theta_starts: Tensor | None, prior_mean: Tensor,
-              prior_precision: Tensor, options: LeastSquaresOptions = ARC_OPTIONS, max_log_ratio: float = 10.0,
-              mode_angle_deg: float = 1.0) -> ArcSolution:
-    """The whole-arc MAP of the ``S`` objects of ``problem`` (whose ``q_ref (S, 4)`` is the prior mean, ``seed`` the
-    identity) from the starts ``(K, S, 4)`` (and surface states ``(K, S, 4)`` with the surface unknown), all ``K S``
-    in one batch (module docstring).
+def solve_starts(problem: ArcProblem, *, starts: Tensor, theta_starts: Tensor | None, prior_mean: Tensor,
+                 prior_precision: Tensor, options: LeastSquaresOptions = ARC_OPTIONS) -> ArcStarts:
+    """Solve the ``S`` problems of ``problem`` (each ``q_ref`` the prior mean of its object) from the starts
+    ``(K, S, 4)`` (and surface states ``(K, S, 4)`` with the surface unknown), all ``K S`` in one batch, each
+    solution with its Laplace covariance.
 
     Args:
         prior_mean: ``μ`` of ``x = [e, θ]`` ``(S, n)`` (``e``'s part 0); prior_precision: ``Λ``'s diagonal ``(S, n)``.
-        max_log_ratio: modes more than this many nats above the best are dropped.
-        mode_angle_deg: solutions closer than this are one mode.
     """
     K, S = starts.shape[:2]
     seed = torch.arange(S, device=starts.device).repeat(K)
     q_prior = problem.q_ref
     e0 = quat_to_rotvec(quat_mul(starts.reshape(K * S, 4), quat_conj(q_prior[seed])))
     x0 = e0 if theta_starts is None else torch.cat([e0, theta_starts.reshape(K * S, -1)], -1)
-    tiled = problem.recentred(q_prior[seed], seed)
+    tiled = problem.subset(seed)
     gaussian = GaussianPrior.independent(prior_mean[seed], prior_precision[seed])
     result = batch_least_squares(tiled, x0, prior=gaussian, variance=1.0, options=options)
     q_all = tiled.attitude(result.x, torch.arange(K * S, device=starts.device))
     theta_all = None if theta_starts is None else result.x[:, 3:]
-    cov_all = _local_covariance(problem, q_all, theta_all, seed, prior_precision[seed], options)
-    cost = result.cost.view(K, S)
-    return _modes(q_all.view(K, S, 4), None if theta_all is None else theta_all.view(K, S, -1),
-                  cov_all.view(K, S, *cov_all.shape[-2:]), cost, max_log_ratio, mode_angle_deg)
+    cov_all = _local_covariance(tiled, q_all, theta_all, prior_precision[seed], options)
+    return ArcStarts(q0=q_all.view(K, S, 4), theta=None if theta_all is None else theta_all.view(K, S, -1),
+                     covariance=cov_all.view(K, S, *cov_all.shape[-2:]), cost=result.cost.view(K, S))
 
 
-def _local_covariance(problem: ArcProblem, q0: Tensor, theta: Tensor | None, seed: Tensor, precision: Tensor,
+def solve_arc(problem: ArcProblem, *, starts: Tensor, theta_starts: Tensor | None, prior_mean: Tensor,
+              prior_precision: Tensor, options: LeastSquaresOptions = ARC_OPTIONS, max_log_ratio: float = 10.0,
+              mode_angle_deg: float = 1.0) -> ArcSolution:
+    """The whole-arc MAP of the ``S`` problems of ``problem`` from the starts ``(K, S, 4)`` (:func:`solve_starts`,
+    then :func:`arc_modes`; module docstring)."""
+    solved = solve_starts(problem, starts=starts, theta_starts=theta_starts, prior_mean=prior_mean,
+                          prior_precision=prior_precision, options=options)
+    return arc_modes(solved, max_log_ratio=max_log_ratio, mode_angle_deg=mode_angle_deg)
+
+
+def _local_covariance(problem: ArcProblem, q0: Tensor, theta: Tensor | None, precision: Tensor,
                       options: LeastSquaresOptions) -> Tensor:
-    """Laplace covariances ``(M, n, n)`` of solutions ``q0 (M, 4)`` (and ``θ``) of objects ``seed``, each in its own
-    chart (``δ = 0`` at the solution): ``(JᵀJ + Λ)⁻¹``, NaN where singular."""
-    local = problem.recentred(q0, seed)
+    """Laplace covariances ``(M, n, n)`` of the solutions ``q0 (M, 4)`` (and ``θ``) of the ``M`` problems of
+    ``problem``, each in its own chart (``δ = 0`` at the solution): ``(JᵀJ + Λ)⁻¹``, NaN where singular."""
+    local = problem.recentred(q0, problem.seed)
     x = torch.zeros(q0.shape[0], 3, dtype=q0.dtype, device=q0.device)
     x = x if theta is None else torch.cat([x, theta], -1)
     rows = torch.arange(q0.shape[0], device=q0.device)
@@ -251,9 +299,15 @@ def _local_covariance(problem: ArcProblem, q0: Tensor, theta: Tensor | None, see
     return torch.where((info != 0)[:, None, None], torch.nan, cov)
 
 
-def _modes(q0: Tensor, theta: Tensor | None, cov: Tensor, cost: Tensor, max_log_ratio: float,
-           mode_angle_deg: float) -> ArcSolution:
-    """The best start per object, its modes and the mixture covariance about it (module docstring)."""
+def arc_modes(solved: ArcStarts, *, max_log_ratio: float = 10.0, mode_angle_deg: float = 1.0) -> ArcSolution:
+    """The best start per object, its modes and the mixture covariance about it (module docstring).
+
+    Args:
+        solved: every start's solution.
+        max_log_ratio: modes more than this many nats above the best are dropped.
+        mode_angle_deg: solutions closer than this are one mode.
+    """
+    q0, theta, cov, cost = solved.q0, solved.theta, solved.covariance, solved.cost
     K, S = cost.shape
     finite = torch.isfinite(cost) & torch.isfinite(cov).flatten(-2).all(-1)
     cost = torch.where(finite, cost, math.inf)
