@@ -164,6 +164,29 @@ def test_levenberg_marquardt_lowers_the_cost_at_every_step_and_finds_the_minimum
     assert bool(result.converged.all()) and float(result.cost.max()) < 1e-20
 
 
+def test_levenberg_marquardt_linearises_each_state_once(monkeypatch):
+    """A rejected trial leaves the state where it was, so its normal equations are reused with more damping: no
+    problem is linearised twice at the same state, never more often than it iterates, and the minimum is the same."""
+    import lightcurve_gp.inference.solver as solver
+
+    a = torch.tensor([1.0, -0.5, 2.0], dtype=DT)
+    x0 = torch.tensor([[-1.2, 1.0], [2.0, -1.0], [1.5, 2.5]], dtype=DT)
+    seen: list[tuple[int, tuple[float, ...]]] = []
+
+    def recording(residual, x, rows, **kwargs):
+        seen.extend((int(r), tuple(v.tolist())) for r, v in zip(rows, x))
+        return jacobian(residual, x, rows, **kwargs)
+
+    monkeypatch.setattr(solver, "jacobian", recording)
+    result = batch_least_squares(rosenbrock(a), x0, options=LeastSquaresOptions(tolerance=1e-12, iterations=100,
+                                                                                 covariance="none"))
+    assert len(seen) == len(set(seen))
+    linearised = torch.bincount(torch.tensor([r for r, _ in seen]), minlength=3)
+    assert bool((linearised <= result.iterations).all())
+    assert linearised[0] < result.iterations[0]  # the classic start (−1.2, 1) has rejected trials (20 of 29)
+    torch.testing.assert_close(result.x, torch.stack([a, a**2], -1), rtol=0, atol=1e-9)
+
+
 def test_gauss_newton_with_halvings_never_raises_the_cost():
     a = torch.tensor([1.0, 2.0], dtype=DT)
     residual = rosenbrock(a)

@@ -318,17 +318,28 @@ def batch_least_squares(residual: ResidualFunction, x0: Tensor, *, prior: Gaussi
     lm = options.method == "levenberg_marquardt"
     cost = it.cost(x, every) if lm else None
     damping = torch.full((B,), options.damping, dtype=x0.dtype, device=x0.device)
+    # Levenberg–Marquardt keeps a problem's normal equations while its trials fail (its state has not moved):
+    # only the damping changes, so they are not linearised again
+    gradient = torch.zeros(B, n, dtype=x0.dtype, device=x0.device)
+    stale = torch.ones(B, dtype=torch.bool, device=x0.device)
     for _ in range(options.iterations):
         rows = active.nonzero().squeeze(-1)
         if rows.numel() == 0:
             break
-        r, H, g = it.linearize(x[rows], rows)
-        information[rows], iterations[rows] = H, iterations[rows] + 1
         if lm:
-            x[rows], cost[rows], damping[rows], stop = _levenberg_marquardt(it, x[rows], rows, H, g, cost[rows],
+            fresh = rows[stale[rows]]
+            if fresh.numel():
+                _, information[fresh], gradient[fresh] = it.linearize(x[fresh], fresh)
+            H, g = information[rows], gradient[rows]
+            iterations[rows] += 1
+            before = cost[rows]
+            x[rows], cost[rows], damping[rows], stop = _levenberg_marquardt(it, x[rows], rows, H, g, before,
                                                                            damping[rows])
+            stale[rows] = cost[rows] < before
             done = stop
         else:
+            r, H, g = it.linearize(x[rows], rows)
+            information[rows], iterations[rows] = H, iterations[rows] + 1
             x[rows], stop, done = _gauss_newton(it, x[rows], rows, r, H, g)
         active[rows], converged[rows] = ~stop, done
         if options.stop_together and bool(active.any()):
