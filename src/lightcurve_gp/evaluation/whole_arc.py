@@ -206,10 +206,11 @@ def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHisto
                                    floor_iterations=floor_iterations)
         solved, again = search(problem, floored, starts=starts, thetas=thetas), None
         if theta0 is not None and lobe_pairs and misfit_z is not None:
-            again = _best_cost(solved) > misfit_threshold(problem.weight, misfit_z)
+            best_cost, best = solved.usable_cost().min(0)
+            again = best_cost > misfit_threshold(problem.weight, misfit_z)
             rows = again.nonzero().flatten()
-            if rows.numel():
-                base_q, base_t = _best(solved, rows)
+            if rows.numel():  # from the best solution's attitude and surface state (and the filter's)
+                base_q, base_t = solved.q0[best[rows], rows].unsqueeze(0), solved.theta[best[rows], rows].unsqueeze(0)
                 if start is not None:
                     base_q = torch.cat([base_q, starts[:1, rows]])
                     base_t = torch.cat([base_t, thetas[:1, rows]])
@@ -231,17 +232,6 @@ def _search(problem: ArcProblem, floored: ArcProblem | None, *, starts: Tensor, 
                                        prior_precision=precision, keep=floor_keep,
                                        options=replace(ARC_OPTIONS, iterations=floor_iterations))
     return solve_starts(problem, starts=starts, theta_starts=thetas, prior_mean=mean, prior_precision=precision)
-
-
-def _best_cost(solved: ArcStarts) -> Tensor:
-    """Each object's best cost ``(S,)`` (``inf`` when no start converged)."""
-    return torch.where(torch.isfinite(solved.cost), solved.cost, math.inf).min(0).values
-
-
-def _best(solved: ArcStarts, rows: Tensor) -> tuple[Tensor, Tensor]:
-    """The best solution's attitude ``(1, S', 4)`` and surface state ``(1, S', 4)`` of objects ``rows``."""
-    best = torch.where(torch.isfinite(solved.cost), solved.cost, math.inf).argmin(0)[rows]
-    return solved.q0[best, rows].unsqueeze(0), solved.theta[best, rows].unsqueeze(0)
 
 
 def arc_estimate(sc: Scenario, solution: ArcSolution) -> Estimate:
