@@ -11,10 +11,11 @@ Cases per noise level σ (``scenario.noise_var = filter.measurement_noise = σ²
   held-out block; the tuning seeds were 1000–1029).
 
 Estimators (:mod:`lightcurve_gp.evaluation.registry`): ``map`` (the recommended estimator: the surface-state filter,
-then the whole-arc MAP of attitude and surface from 16 starts, and from 8 more where the fit fails the misfit test),
-``matched_map`` (the same with the truth's surface known: the oracle the goals compare with), ``surface_ukf_select``,
-``matched_ukf`` and the GP filter ``gpukf`` (``filter.model_error: heldout``) with the robust GP read from the model
-store ``--models`` (never trained here: a missing model is an error). Per (σ, case) and estimator: median RMSE per axis,
+then the whole-arc MAP of attitude and surface from 16 starts, from 8 more where the fit fails the misfit test, and from
+2 more along each seed's weakest direction), ``matched_map`` (the same with the truth's surface known: the oracle the
+goals compare with), ``surface_ukf_select``, ``matched_ukf`` and the GP filter ``gpukf``
+(``filter.model_error: heldout``) with the robust GP read from the model store ``--models`` (never trained here: a
+missing model is an error). Per (σ, case) and estimator: median RMSE per axis,
 median CRB per axis (the filtering bound for filters, the smoothing bound for the whole-arc MAP; same seeds, same
 unknowns), RMSE/CRB, share below 10° on all axes and its ratio to ``matched_map``'s, NEES mean, median and share in the
 one-draw band, seconds for all seeds. Each (σ, case, estimator) is one case of the sweep's case store
@@ -50,6 +51,7 @@ from lightcurve_gp.evaluation.whole_arc import (
     LOBE_STARTS,
     MISFIT_Z,
     NOISE_FLOOR_MAG,
+    PROBE_SIGMAS,
 )
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario, simulate_truths
@@ -125,7 +127,7 @@ def cell(cfg, case: str, seeds: range, estimators, *, model, scene, root: Path
         if name in ("map", "matched_map"):  # the search: the continuation below the floor, the surface starts
             floor = cfg.filter.measurement_noise < NOISE_FLOOR_MAG ** 2
             extra["search"] = {"floor": [NOISE_FLOOR_MAG, FLOOR_KEEP, FLOOR_ITERATIONS] if floor else None,
-                               "lobes": list(LOBE_STARTS) if name == "map" else None}
+                               "lobes": list(LOBE_STARTS) if name == "map" else None, "probe": list(PROBE_SIGMAS)}
             if name == "map":  # the misfit test's second search (surface unknown only)
                 extra["search"]["misfit"] = [MISFIT_Z, [list(p) for p in LOBE_PAIRS]]
         case_id = config_hash(cfg, *sections, extra=extra)

@@ -13,7 +13,7 @@ from lightcurve_gp.attitude.rotations import quat_conj, quat_mul, quat_to_rotvec
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.evaluation.bounds import ScenarioBounds, estimator_bound
 from lightcurve_gp.evaluation.harness import run_estimators
-from lightcurve_gp.evaluation.whole_arc import arc_estimate, misfit_threshold, whole_arc_map
+from lightcurve_gp.evaluation.whole_arc import arc_estimate, misfit_threshold, weak_direction_starts, whole_arc_map
 from lightcurve_gp.inference.arc import (
     ArcProblem,
     ArcStarts,
@@ -175,8 +175,9 @@ def test_noise_floor_continuation_finds_the_basin_the_prior_starts_miss():
     scene = Scene.from_config(cfg)
     sc = simulate_truths(cfg, draw_truths([1053]), scene)
     plain = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, noise_floor_mag=None, lobe_starts=(),
-                          misfit_z=None)
-    continued = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, lobe_starts=(), misfit_z=None)
+                          misfit_z=None, probe_sigmas=())
+    continued = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, lobe_starts=(), misfit_z=None,
+                              probe_sigmas=())
     assert float(angle_deg(plain.q0, sc.q_true[:, 0])) > 10.0
     assert float(angle_deg(continued.q0, sc.q_true[:, 0])) < 1.0
     assert float(continued.cost) < 0.5 * float(plain.cost)
@@ -191,8 +192,9 @@ def test_surface_starts_find_the_lobes_the_prior_mean_misses():
     cfg = load_config(REALISTIC, ["scenario.noise_var=0.01", "filter.measurement_noise=0.01"])
     scene = Scene.from_config(cfg)
     sc = simulate_truths(cfg, draw_truths([1050]), scene)
-    plain = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, lobe_starts=(), misfit_z=None)
-    lobes = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, misfit_z=None)
+    plain = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, lobe_starts=(), misfit_z=None,
+                          probe_sigmas=())
+    lobes = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, misfit_z=None, probe_sigmas=())
     assert float(angle_deg(plain.q0, sc.q_true[:, 0])) > 10.0
     assert float(angle_deg(lobes.q0, sc.q_true[:, 0])) < 5.0
     assert float(lobes.cost) < 0.5 * float(plain.cost)
@@ -204,12 +206,12 @@ def test_misfit_test_searches_again_with_unequal_lobes():
     start: the first search ends tens of thousands of nats above the 600 samples' ``χ²/2`` (300 ± 17); the misfit
     test sends it to the second search (its best attitude with unequal lobe exponents), which ends within 1° of the
     truth in the truth's basin (318.3 nats, itself 1 nat above the threshold). The solutions of both searches are
-    the mixture's modes."""
+    the mixture's modes. (The weak-direction probe, off here, finds that basin too.)"""
     cfg = load_config(REALISTIC, ["scenario.noise_var=1e-4", "filter.measurement_noise=1e-4"])
     scene = Scene.from_config(cfg)
     sc = simulate_truths(cfg, draw_truths([1038]), scene)
-    first = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, misfit_z=None)
-    again = whole_arc_map(cfg, scene, sc, start=None, surface_known=False)
+    first = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, misfit_z=None, probe_sigmas=())
+    again = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, probe_sigmas=())
     threshold = float(misfit_threshold(torch.isfinite(sc.observations[:, 1:]).double()))
     assert threshold == pytest.approx(300.0 + math.sqrt(300.0))
     assert float(first.cost) > 10 * threshold
@@ -233,6 +235,56 @@ def test_misfit_threshold_is_the_chi_square_mean_plus_z_standard_deviations():
     half_chi2 = 0.5 * torch.randn(20000, 600, generator=g, dtype=torch.float64).pow(2).sum(-1)
     share = float((half_chi2 > misfit_threshold(torch.ones(1, 600, dtype=torch.float64), 1.0)).double().mean())
     assert share == pytest.approx(chi2.sf(600 + 2 * 300 ** 0.5, 600), abs=0.01)
+
+
+def test_weak_direction_starts_move_k_standard_deviations_along_the_weakest_attitude_direction():
+    """Each probe moves the best solution (not the others) by ``±k √λ u`` in attitude, ``u`` the top eigenvector of
+    its covariance's attitude block, and its surface state by the conditional mean ``Σ_θδ Σ_δδ⁻¹ δ``: the whole
+    move is ``k`` Mahalanobis units of the full covariance (a Gaussian's straight line through its weakest
+    attitude direction)."""
+    g = torch.Generator().manual_seed(5)
+    K, S, n = 3, 2, 7
+    a = torch.randn(K, S, n, n, generator=g, dtype=torch.float64)
+    cov = 1e-3 * (a @ a.mT + 0.1 * torch.eye(n, dtype=torch.float64))  # rad², well inside π
+    q = torch.nn.functional.normalize(torch.randn(K, S, 4, generator=g, dtype=torch.float64), dim=-1)
+    theta = torch.randn(K, S, 4, generator=g, dtype=torch.float64)
+    cost = torch.tensor([[5.0, 1.0], [2.0, 3.0], [4.0, math.inf]], dtype=torch.float64)  # best: starts 1 and 0
+    q_p, t_p = weak_direction_starts(ArcStarts(q0=q, theta=theta, covariance=cov, cost=cost), (1.0, 2.5))
+    assert q_p.shape == (4, S, 4) and t_p.shape == (4, S, 4)
+    for s, b in enumerate((1, 0)):
+        lam, vec = torch.linalg.eigh(cov[b, s, :3, :3])
+        for i, k in enumerate((1.0, 2.5, -1.0, -2.5)):
+            delta = quat_to_rotvec(quat_mul(q_p[i, s], quat_conj(q[b, s])))
+            assert abs(float(delta @ vec[:, -1])) == pytest.approx(abs(k) * float(lam[-1].sqrt()), rel=1e-9)
+            assert float(torch.linalg.vector_norm(delta)) == pytest.approx(abs(k) * float(lam[-1].sqrt()), rel=1e-9)
+            dx = torch.cat([delta, t_p[i, s] - theta[b, s]])
+            torch.testing.assert_close(dx[3:], cov[b, s, 3:, :3] @ torch.linalg.solve(cov[b, s, :3, :3], delta))
+            assert float(dx @ torch.linalg.solve(cov[b, s], dx)) == pytest.approx(k * k, rel=1e-9)
+        assert float(quat_to_rotvec(quat_mul(q_p[0, s], quat_conj(q[b, s]))) @
+                     quat_to_rotvec(quat_mul(q_p[2, s], quat_conj(q[b, s])))) < 0  # the two signs
+
+
+def test_weak_direction_probe_finds_the_basin_the_search_misses():
+    """A tuning seed of the random truths (1064) at σ = 0.01 mag, surface unknown: the search (starts, continuation,
+    surface starts) ends 9° from the truth, 19 nats above the truth's basin (297.9 nats), with a NEES far outside its
+    band; started again from that solution 2.5 standard deviations along its weakest attitude direction, the MAP
+    lands in the truth's basin and its NEES is inside the one-draw band."""
+    cfg = load_config(REALISTIC, ["scenario.noise_var=1e-4", "filter.measurement_noise=1e-4"])
+    scene = Scene.from_config(cfg)
+    sc = simulate_truths(cfg, draw_truths([1064]), scene)
+    plain = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, probe_sigmas=())
+    probed = whole_arc_map(cfg, scene, sc, start=None, surface_known=False)
+    lo, hi = chi2_band(3, 1)
+
+    def nees_at_t0(solution):
+        e = quat_to_rotvec(quat_mul(sc.q_true[:, 0], quat_conj(solution.q0)))[0]
+        return float(e @ torch.linalg.solve(solution.attitude_covariance[0], e))
+
+    assert float(angle_deg(plain.q0, sc.q_true[:, 0])) > 8.0 and float(plain.cost) > 310.0
+    assert nees_at_t0(plain) > 10 * hi
+    assert float(angle_deg(probed.q0, sc.q_true[:, 0])) < 4.0 and float(probed.cost) < 298.0
+    assert lo < nees_at_t0(probed) < hi
+    assert probed.start_cost.shape[0] == plain.start_cost.shape[0] + 2  # one start per sign
 
 
 def test_extended_starts_leave_the_other_objects_alone():

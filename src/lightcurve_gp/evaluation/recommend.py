@@ -3,14 +3,14 @@
 The choice follows what was measured at 0.01–0.71 mag (docs/studies/realistic-photometry.md):
 
 * **ω known, the shape known to the renderer** (every simulated scenario; a mesh or the box-wing): ``map`` — the
-  surface-state filter, then the whole-arc MAP of the initial attitude and the surface state from the filter's
-  result, 7 prior starts and 8 surface starts (below 0.1 mag 8 more, all first solved with the noise raised to
-  0.1 mag, then refined; 8 more with unequal lobe exponents for a seed whose fit fails the misfit test) with its
-  Laplace covariance. On the held-out seeds it is within 0.5–1.0× of the bound at every noise level, with the
-  surface unknown (paper case and random truths; their NEES in docs/studies/realistic-photometry.md). The GP filter
-  pays only at σ ≳ 0.3 mag and on its own training surface (the paper case at 0.71 mag: 87 % of the held-out seeds
-  below 10°, as the MAP), which real data do not promise (random surfaces at 0.71 mag: 37 % against the MAP's 80 %),
-  so the MAP stays the choice.
+  surface-state filter, then the whole-arc MAP of the initial attitude and the surface state from the filter's result,
+  7 prior starts and 8 surface starts (below 0.1 mag 8 more, all first solved with the noise raised to 0.1 mag, then
+  refined; 8 more with unequal lobe exponents for a seed whose fit fails the misfit test; 2 more from the best
+  solution along its weakest attitude direction) with its Laplace covariance. On the held-out seeds it is within
+  0.5–1.0× of the bound at every noise level, with the surface unknown (paper case and random truths; their NEES in
+  docs/studies/realistic-photometry.md). The GP filter pays only at σ ≳ 0.3 mag and on its own training surface (the
+  paper case at 0.71 mag: 87 % of the held-out seeds below 10°, as the MAP), which real data do not promise (random
+  surfaces at 0.71 mag: 37 % against the MAP's 80 %), so the MAP stays the choice.
 * **ω to be estimated** (``filter.estimate_omega``): the whole-arc MAP takes ω as known, so a filter that estimates
   it: ``gpukf`` (R + the GP's held-out excess variance) where a GP is given and σ ≥ :data:`GP_NOISE_MAG`, else
   ``joint_ukf`` (the renderer at the reference surface with an offset).
@@ -74,4 +74,4 @@ def recommend_estimator(cfg: Config, *, noise_std: float, have_model: bool, shap
     return Recommendation("map", f"{sigma}, the renderer knows the shape ({cfg.shape.kind}), surface unknown, ω "
                                  f"known: the surface-state filter, then the whole-arc MAP of attitude and surface "
                                  f"from 16 starts (24 below 0.1 mag), 8 more where the fit fails the misfit "
-                                 f"test{gp}")
+                                 f"test, 2 more along each seed's weakest direction{gp}")

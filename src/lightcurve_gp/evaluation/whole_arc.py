@@ -20,8 +20,15 @@ samples, mean ``ν/2`` and standard deviation ``√(ν/2)``, whatever the noise;
 the lobe exponents set to each unequal pair of :data:`LOBE_PAIRS` (a glint of a lobe narrow along one axis and broad
 along the other is out of reach of starts with ``n_u = n_v``), with the same continuation below the floor; the modes
 are found among the solutions of both searches. Seeds that pass the test cost nothing more (with ``MISFIT_Z = 1``
-about one in six whose fit is right is searched again). Each choice was made on the tuning seeds of the random truths
-(1000–1089; the study ``docs/studies/realistic-photometry.md`` has the numbers).
+about one in six whose fit is right is searched again).
+
+The weak-direction probe (every seed, surface known or not): a second basin of about the same cost often lies along
+the valley of the best solution's weakest attitude direction, a few of its standard deviations away, behind a ridge
+that a local search does not cross; the mixture then holds one mode where the data hold two. Every seed is started
+again from its best solution moved ``±k`` standard deviations along that direction, the surface state along the
+valley with it (:func:`weak_direction_starts`, ``k`` in :data:`PROBE_SIGMAS`), solved with the true noise, and the
+modes are found among all solutions. Each choice was made on the tuning seeds of the random truths (1000–1089; the
+study ``docs/studies/realistic-photometry.md`` has the numbers).
 
 The measurement noise is the filters' ``R`` (``filter.measurement_noise``, or a per-sample ``R``); ω is known (the
 scenario's assumed rate). The estimate at sample ``k`` is ``q̂_k = Δ_k ⊗ q̂_0`` with covariance ``A(Δ_k) Σ A(Δ_k)ᵀ``
@@ -63,7 +70,7 @@ from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import Scenario
 
 __all__ = ["SCREEN_SEED", "NOISE_FLOOR_MAG", "FLOOR_KEEP", "FLOOR_ITERATIONS", "LOBE_STARTS", "MISFIT_Z",
-           "LOBE_PAIRS", "misfit_threshold", "whole_arc_map", "arc_estimate"]
+           "LOBE_PAIRS", "PROBE_SIGMAS", "weak_direction_starts", "misfit_threshold", "whole_arc_map", "arc_estimate"]
 
 #: seed of the scrambled Sobol' draws of the screening
 SCREEN_SEED = 27
@@ -81,6 +88,9 @@ LOBE_STARTS = (10.0, 100.0, 1000.0, 10000.0)
 MISFIT_Z = 1.0
 #: unequal lobe exponents ``(n_u, n_v)`` of the second search's starts
 LOBE_PAIRS = ((1.0e4, 10.0), (10.0, 1.0e4), (3000.0, 100.0), (100.0, 3000.0))
+#: the weak-direction probe: every seed is started again from its best solution moved this many standard deviations
+#: along each sign of its weakest attitude direction (:func:`weak_direction_starts`), solved with the true noise
+PROBE_SIGMAS = (2.5,)
 
 
 def _weights(observations: Tensor, R: float | Tensor) -> Tensor:
@@ -119,6 +129,27 @@ def _with_lobes(theta: Tensor, pairs: Sequence[tuple[float, float]]) -> Tensor:
     return out
 
 
+def weak_direction_starts(solved: ArcStarts, sigmas: Sequence[float]) -> tuple[Tensor, Tensor | None]:
+    """Every object's best solution moved along its weakest attitude direction: ``(2 L, S, 4)`` attitudes and
+    surface states (or ``None``), ``L = len(sigmas)``, the signs outermost.
+
+    With ``Σ`` the best solution's Laplace covariance of ``[δ, θ]`` in its own chart and ``u`` the top eigenvector
+    (variance ``λ``) of its attitude block, the move of ``±k`` standard deviations is the conditional mean shift
+    ``Δx = ±(k / √λ) Σ[:, :3] u``: ``δ = ±k √λ u`` and the surface state along the valley with it."""
+    cost, best = solved.usable_cost().min(0)
+    cols = torch.arange(cost.shape[0], device=cost.device)
+    cov = solved.covariance[best, cols]  # (S, n, n)
+    cov = torch.where(torch.isfinite(cov), cov, 0.0)
+    lam, vec = torch.linalg.eigh(cov[:, :3, :3])
+    u, s = vec[..., -1], lam[..., -1].clamp(min=0.0).sqrt()  # (S, 3), (S,)
+    shift = (cov[:, :, :3] @ u.unsqueeze(-1)).squeeze(-1) / s.clamp(min=1e-12).unsqueeze(-1)  # (S, n) per unit k
+    ks = torch.tensor([sign * k for sign in (1.0, -1.0) for k in sigmas], dtype=cov.dtype, device=cov.device)
+    dx = ks.view(-1, 1, 1) * shift.unsqueeze(0)  # (2L, S, n)
+    q = quat_mul(rotvec_to_quat(dx[..., :3]), solved.q0[best, cols].unsqueeze(0))
+    theta = None if solved.theta is None else solved.theta[best, cols].unsqueeze(0) + dx[..., 3:]
+    return q, theta
+
+
 def misfit_threshold(weight: Tensor, z: float = MISFIT_Z) -> Tensor:
     """The cost ``ν/2 + z √(ν/2)`` ``(S,)`` above which a seed's fit is suspect, ``ν`` its samples with weight
     ``(S, T+1)`` > 0 (the whitened residuals' ``½ χ²_ν`` has mean ``ν/2`` and standard deviation ``√(ν/2)``)."""
@@ -141,6 +172,7 @@ def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHisto
                   noise_floor_mag: float | None = NOISE_FLOOR_MAG, floor_keep: int = FLOOR_KEEP,
                   floor_iterations: int = FLOOR_ITERATIONS, lobe_starts: Sequence[float] = LOBE_STARTS,
                   misfit_z: float | None = MISFIT_Z, lobe_pairs: Sequence[tuple[float, float]] = LOBE_PAIRS,
+                  probe_sigmas: Sequence[float] = PROBE_SIGMAS,
                   workers: int | None = None) -> ArcSolution:
     """The whole-arc MAP of every seed of ``sc`` (module docstring).
 
@@ -164,6 +196,8 @@ def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHisto
             solution's and the filter's attitude and surface state with the lobe exponents set to each pair
             ``(n_u, n_v)`` of ``lobe_pairs`` (``()``: no second search); the modes are found among both searches'
             solutions.
+        probe_sigmas: every seed is started again from its best solution moved this many standard deviations along
+            each sign of its weakest attitude direction (:func:`weak_direction_starts`; ``()``: no probe).
         workers: threads that render independent pieces of the problems side by side, torch held to one thread
             meanwhile (:class:`~lightcurve_gp.inference.arc.ArcProblem`); default the caller's torch thread count.
             The result does not depend on it.
@@ -218,6 +252,9 @@ def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHisto
                                 starts=base_q.repeat(len(lobe_pairs), 1, 1), thetas=_with_lobes(base_t, lobe_pairs),
                                 rows=rows)
                 solved = solved.extended(second, rows)
+        if probe_sigmas:  # every seed, from its best solution along its weakest direction, with the true noise
+            q_p, t_p = weak_direction_starts(solved, probe_sigmas)
+            solved = solved.extended(search(problem, None, starts=q_p, thetas=t_p), torch.arange(S))
         return replace(arc_modes(solved), searched_again=again)
 
 
