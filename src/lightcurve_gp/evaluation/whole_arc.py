@@ -41,7 +41,7 @@ import functools
 import math
 from collections.abc import Sequence
 from contextlib import nullcontext
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor
@@ -69,8 +69,9 @@ from lightcurve_gp.observation.surface_state import reference_surface, surface_s
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import Scenario
 
-__all__ = ["SCREEN_SEED", "NOISE_FLOOR_MAG", "FLOOR_KEEP", "FLOOR_ITERATIONS", "LOBE_STARTS", "MISFIT_Z",
-           "LOBE_PAIRS", "PROBE_SIGMAS", "weak_direction_starts", "misfit_threshold", "whole_arc_map", "arc_estimate"]
+__all__ = ["ArcSetup", "arc_setup", "SCREEN_SEED", "NOISE_FLOOR_MAG", "FLOOR_KEEP", "FLOOR_ITERATIONS",
+           "LOBE_STARTS", "MISFIT_Z", "LOBE_PAIRS", "PROBE_SIGMAS", "weak_direction_starts", "misfit_threshold",
+           "whole_arc_map", "arc_estimate"]
 
 #: seed of the scrambled Sobol' draws of the screening
 SCREEN_SEED = 27
@@ -167,6 +168,45 @@ def _floored(problem: ArcProblem, observations: Tensor, R: float | Tensor, floor
     return problem.reweighted(_weights(observations, R.clamp(min=floor_mag ** 2)))
 
 
+@dataclass(frozen=True)
+class ArcSetup:
+    """The whole-arc problem of a scenario and its prior (:func:`arc_setup`).
+
+    Attributes:
+        problem: the whitened residuals of every seed, each seen from its prior mean ``q_est0``.
+        prior_mean: ``μ`` of ``x = [e, θ]`` ``(S, n)`` (``e``'s part 0; ``n = 3``, or 7 with the surface unknown).
+        prior_precision: ``Λ``'s diagonal ``(S, n)`` (rad⁻², surface units⁻²).
+        theta0: the surface state's prior mean ``(S, 4)``, ``None`` with the surface known.
+    """
+
+    problem: ArcProblem
+    prior_mean: Tensor
+    prior_precision: Tensor
+    theta0: Tensor | None
+
+
+def arc_setup(cfg: Config, scene: Scene, sc: Scenario, *, surface_known: bool, R: float | Tensor | None = None,
+              workers: int = 1) -> ArcSetup:
+    """The whole-arc problem of every seed of ``sc`` and its prior: the attitude ``e ~ N(0, σ0² I)`` about ``q_est0``
+    and, with the surface unknown, the surface-state filter's prior of ``θ``; ``R`` the noise variance (mag², a
+    number or per sample ``(S, T+1)``; default ``filter.measurement_noise``), ω known (the assumed increments)."""
+    cum = cumulative_increments(sc.increments_assumed.to(sc.q_est0))
+    S = sc.q_est0.shape[0]
+    R = cfg.filter.measurement_noise if R is None else R
+    problem = ArcProblem(scene, q_ref=sc.q_est0, seed=torch.arange(S), cumulative=cum, observations=sc.observations,
+                         weight=_weights(sc.observations, R), surface=sc.surface if surface_known else None,
+                         workers=workers)
+    sigma0 = sc.sigma0.to(sc.q_est0)
+    mean, precision = torch.zeros(S, 3, dtype=cum.dtype), sigma0.pow(-2).unsqueeze(-1).expand(S, 3)
+    theta0 = None
+    if not surface_known:
+        first = scene.sample(0) if scene.per_sample else scene
+        theta0, std = surface_state_prior(scene=first, q_est0=sc.q_est0, y0=first_observation(sc.observations),
+                                          reference=reference_surface(cfg), offset_std=cfg.filter.offset_prior_std)
+        mean, precision = torch.cat([mean, theta0], -1), torch.cat([precision, std.pow(-2).expand(S, 4)], -1)
+    return ArcSetup(problem, mean, precision, theta0)
+
+
 def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHistory | None, surface_known: bool,
                   R: float | Tensor | None = None, screen: int = 0, keep: int = 4,
                   noise_floor_mag: float | None = NOISE_FLOOR_MAG, floor_keep: int = FLOOR_KEEP,
@@ -203,20 +243,11 @@ def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHisto
             The result does not depend on it.
     """
     workers = torch.get_num_threads() if workers is None else int(workers)
-    cum = cumulative_increments(sc.increments_assumed.to(sc.q_est0))
-    S = sc.q_est0.shape[0]
     R = cfg.filter.measurement_noise if R is None else R
-    problem = ArcProblem(scene, q_ref=sc.q_est0, seed=torch.arange(S), cumulative=cum, observations=sc.observations,
-                         weight=_weights(sc.observations, R), surface=sc.surface if surface_known else None,
-                         workers=workers)
-    sigma0 = sc.sigma0.to(sc.q_est0)
-    mean, precision = torch.zeros(S, 3, dtype=cum.dtype), sigma0.pow(-2).unsqueeze(-1).expand(S, 3)
-    theta0 = None
-    if not surface_known:
-        first = scene.sample(0) if scene.per_sample else scene
-        theta0, std = surface_state_prior(scene=first, q_est0=sc.q_est0, y0=first_observation(sc.observations),
-                                          reference=reference_surface(cfg), offset_std=cfg.filter.offset_prior_std)
-        mean, precision = torch.cat([mean, theta0], -1), torch.cat([precision, std.pow(-2).expand(S, 4)], -1)
+    setup = arc_setup(cfg, scene, sc, surface_known=surface_known, R=R, workers=workers)
+    problem, mean, precision, theta0 = setup.problem, setup.prior_mean, setup.prior_precision, setup.theta0
+    S, sigma0 = sc.q_est0.shape[0], sc.sigma0.to(sc.q_est0)
+    cum = cumulative_increments(sc.increments_assumed.to(sc.q_est0))
     floored = _floored(problem, sc.observations, R, noise_floor_mag)
     starts = [prior_axis_starts(sc.q_est0, sigma0)] + ([] if floored is None else [prior_corner_starts(sc.q_est0,
                                                                                                       sigma0)])
