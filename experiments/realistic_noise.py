@@ -11,7 +11,8 @@ Cases per noise level σ (``scenario.noise_var = filter.measurement_noise = σ²
   held-out block; the tuning seeds were 1000–1029).
 
 Estimators (:mod:`lightcurve_gp.evaluation.registry`): ``map`` (the recommended estimator: the surface-state filter,
-then the whole-arc MAP of attitude and surface from 16 starts, from 8 more where the fit fails the misfit test, and from
+then the whole-arc MAP of attitude and surface from 16 starts, from 8 more and the 8 best of 2048 screened prior
+attitudes and lobe settings where the fit fails the misfit test, and from
 2 more along each seed's weakest direction), ``matched_map`` (the same with the truth's surface known: the oracle the
 goals compare with), ``surface_ukf_select``, ``matched_ukf`` and the GP filter ``gpukf``
 (``filter.model_error: heldout``) with the robust GP read from the model store ``--models`` (never trained here: a
@@ -45,6 +46,8 @@ from lightcurve_gp.config.load import ConfigError, config_hash, load_config
 from lightcurve_gp.evaluation.harness import run_estimators
 from lightcurve_gp.evaluation.reporting import csv_text, format_triple, markdown_table, scenario_summary, seed_rows
 from lightcurve_gp.evaluation.whole_arc import (
+    AGAIN_DRAWS,
+    AGAIN_KEEP,
     FLOOR_ITERATIONS,
     FLOOR_KEEP,
     LOBE_PAIRS,
@@ -129,7 +132,7 @@ def cell(cfg, case: str, seeds: range, estimators, *, model, scene, root: Path
             extra["search"] = {"floor": [NOISE_FLOOR_MAG, FLOOR_KEEP, FLOOR_ITERATIONS] if floor else None,
                                "lobes": list(LOBE_STARTS) if name == "map" else None, "probe": list(PROBE_SIGMAS)}
             if name == "map":  # the misfit test's second search (surface unknown only)
-                extra["search"]["misfit"] = [MISFIT_Z, [list(p) for p in LOBE_PAIRS]]
+                extra["search"]["misfit"] = [MISFIT_Z, [list(p) for p in LOBE_PAIRS], AGAIN_DRAWS, AGAIN_KEEP]
         case_id = config_hash(cfg, *sections, extra=extra)
         compute = functools.partial(lambda n: run_case(cfg, make(), n, model=model, scene=scene), name)
         record, _ = resume_case(root, case_id, compute, values={"case": case, "noise_var": cfg.scenario.noise_var},

@@ -48,8 +48,9 @@ def test_estimate_without_estimators_runs_the_recommended_one_and_says_why(tmp_p
     out = capsys.readouterr().out.splitlines()
     assert out[0] == ("recommended estimator: map — σ = 0.05 mag, the renderer knows the shape (box_wing), surface "
                       "unknown, ω known: the surface-state filter, then the whole-arc MAP of attitude and surface "
-                      "from 16 starts (24 below 0.1 mag), 8 more where the fit fails the misfit test, 2 more along "
-                      "each seed's weakest direction (--estimators paper: the paper's estimators)")
+                      "from 16 starts (24 below 0.1 mag), 8 more and 8 of 2048 screened prior attitudes and lobes "
+                      "where the fit fails the misfit test, 2 more along each seed's weakest direction "
+                      "(--estimators paper: the paper's estimators)")
     results = json.loads((tmp_path / "estimates" / "short" / "rho0.5" / "results.json").read_text())
     assert list(results["estimators"]) == ["map"]
     assert results["run"]["recommended"] == out[0].removesuffix(" (--estimators paper: the paper's estimators)")

@@ -5,7 +5,8 @@ The choice follows what was measured at 0.01–0.71 mag (docs/studies/realistic-
 * **ω known, the shape known to the renderer** (every simulated scenario; a mesh or the box-wing): ``map`` — the
   surface-state filter, then the whole-arc MAP of the initial attitude and the surface state from the filter's result,
   7 prior starts and 8 surface starts (below 0.1 mag 8 more, all first solved with the noise raised to 0.1 mag, then
-  refined; 8 more with unequal lobe exponents for a seed whose fit fails the misfit test; 2 more from the best
+  refined; for a seed whose fit fails the misfit test 8 more with unequal lobe exponents and the 8 best of 256 prior
+  attitudes × 8 lobe settings; 2 more from the best
   solution along its weakest attitude direction) with its Laplace covariance. On the held-out seeds it is within
   0.5–1.0× of the bound at every noise level, with the surface unknown (paper case and random truths; their NEES in
   docs/studies/realistic-photometry.md). The GP filter pays only at σ ≳ 0.3 mag and on its own training surface (the
@@ -73,5 +74,6 @@ def recommend_estimator(cfg: Config, *, noise_std: float, have_model: bool, shap
     gp = " (the GP is not needed: it pays only at σ ≳ 0.3 mag on its training surface)" if have_model else ""
     return Recommendation("map", f"{sigma}, the renderer knows the shape ({cfg.shape.kind}), surface unknown, ω "
                                  f"known: the surface-state filter, then the whole-arc MAP of attitude and surface "
-                                 f"from 16 starts (24 below 0.1 mag), 8 more where the fit fails the misfit "
-                                 f"test, 2 more along each seed's weakest direction{gp}")
+                                 f"from 16 starts (24 below 0.1 mag), 8 more and 8 of 2048 screened prior "
+                                 f"attitudes and lobes where the fit fails the misfit test, 2 more along each "
+                                 f"seed's weakest direction{gp}")

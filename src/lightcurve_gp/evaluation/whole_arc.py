@@ -18,9 +18,12 @@ The misfit test (surface unknown): the best cost of a seed whose fit is right is
 samples, mean ``ν/2`` and standard deviation ``√(ν/2)``, whatever the noise; a seed above
 ``ν/2 + MISFIT_Z √(ν/2)`` is searched again, from its best solution's and the filter's attitude and surface state with
 the lobe exponents set to each unequal pair of :data:`LOBE_PAIRS` (a glint of a lobe narrow along one axis and broad
-along the other is out of reach of starts with ``n_u = n_v``), with the same continuation below the floor; the modes
-are found among the solutions of both searches. Seeds that pass the test cost nothing more (with ``MISFIT_Z = 1``
-about one in six whose fit is right is searched again).
+along the other is out of reach of starts with ``n_u = n_v``), and from the :data:`AGAIN_KEEP` best of
+:data:`AGAIN_DRAWS` quasi-random prior draws of the attitude, each with every lobe setting of :data:`LOBE_PAIRS` and
+:data:`LOBE_STARTS`, ranked by posterior cost (at the floor below it: the attitude of a narrow-lobed truth far from
+the filter's answer is out of reach of both other kinds of start), each with the same continuation below the floor;
+the modes are found among the solutions of both searches. Seeds that pass the test cost nothing more (with
+``MISFIT_Z = 1`` about one in six whose fit is right is searched again).
 
 The weak-direction probe (every seed, surface known or not): a second basin of about the same cost often lies along
 the valley of the best solution's weakest attitude direction, a few of its standard deviations away, behind a ridge
@@ -70,8 +73,8 @@ from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import Scenario
 
 __all__ = ["ArcSetup", "arc_setup", "SCREEN_SEED", "NOISE_FLOOR_MAG", "FLOOR_KEEP", "FLOOR_ITERATIONS",
-           "LOBE_STARTS", "MISFIT_Z", "LOBE_PAIRS", "PROBE_SIGMAS", "weak_direction_starts", "misfit_threshold",
-           "whole_arc_map", "arc_estimate"]
+           "LOBE_STARTS", "MISFIT_Z", "LOBE_PAIRS", "AGAIN_DRAWS", "AGAIN_KEEP", "PROBE_SIGMAS",
+           "weak_direction_starts", "misfit_threshold", "whole_arc_map", "arc_estimate"]
 
 #: seed of the scrambled Sobol' draws of the screening
 SCREEN_SEED = 27
@@ -89,6 +92,10 @@ LOBE_STARTS = (10.0, 100.0, 1000.0, 10000.0)
 MISFIT_Z = 1.0
 #: unequal lobe exponents ``(n_u, n_v)`` of the second search's starts
 LOBE_PAIRS = ((1.0e4, 10.0), (10.0, 1.0e4), (3000.0, 100.0), (100.0, 3000.0))
+#: the second search's screen: quasi-random prior draws of the attitude (each with every lobe setting of
+#: ``LOBE_PAIRS`` and ``LOBE_STARTS``) and how many of the best per seed it solves from
+AGAIN_DRAWS = 256
+AGAIN_KEEP = 8
 #: the weak-direction probe: every seed is started again from its best solution moved this many standard deviations
 #: along each sign of its weakest attitude direction (:func:`weak_direction_starts`), solved with the true noise
 PROBE_SIGMAS = (2.5,)
@@ -102,22 +109,27 @@ def _weights(observations: Tensor, R: float | Tensor) -> Tensor:
     return w
 
 
-def _screened(problem: ArcProblem, prior: GaussianPrior, theta: Tensor | None, sigma0: Tensor, *, count: int,
-              keep: int) -> Tensor:
-    """The ``keep`` best of ``count`` prior draws per seed by posterior cost ``(keep, S, 4)``."""
+def _screened(problem: ArcProblem, prior: GaussianPrior, thetas: Tensor | None, sigma0: Tensor, *, count: int,
+              keep: int) -> tuple[Tensor, Tensor | None]:
+    """The ``keep`` best per seed by posterior cost of ``count`` prior draws of the attitude, each with every surface
+    state of ``thetas`` ``(L, S, 4)`` (or none, the surface known): attitudes ``(keep, S, 4)`` and surface states
+    ``(keep, S, 4)`` or ``None``. One rendering of the arc per draw and surface state."""
     S = sigma0.shape[0]
+    L = 1 if thetas is None else thetas.shape[0]
     engine = torch.quasirandom.SobolEngine(3, scramble=True, seed=SCREEN_SEED)
     u = engine.draw(count).to(sigma0).clamp(1e-6, 1 - 1e-6)
     z = math.sqrt(2.0) * torch.erfinv(2.0 * u - 1.0)  # (count, 3) standard normals
-    e = (z.unsqueeze(1) * sigma0.view(1, S, 1)).reshape(count * S, 3)
-    x = e if theta is None else torch.cat([e, theta.repeat(count, 1)], -1)
-    rows = torch.arange(S, device=sigma0.device).repeat(count)
+    e = (z.view(count, 1, 1, 3) * sigma0.view(1, 1, S, 1)).expand(count, L, S, 3)
+    x = e if thetas is None else torch.cat([e, thetas.unsqueeze(0).expand(count, L, S, thetas.shape[-1])], -1)
+    x = x.reshape(count * L, S, -1)
+    rows = torch.arange(S, device=sigma0.device).repeat(count * L)
     costs = []
-    for xc, rc in zip(x.split(1024), rows.split(1024)):
+    for xc, rc in zip(x.reshape(count * L * S, -1).split(1024), rows.split(1024)):
         costs.append(least_squares_cost(problem(xc, rc), xc, rc, prior=prior, invalid_residual=1e3))
-    best = torch.cat(costs).view(count, S).topk(keep, dim=0, largest=False).indices  # (keep, S)
-    e_best = e.view(count, S, 3).gather(0, best.unsqueeze(-1).expand(keep, S, 3))
-    return quat_mul(rotvec_to_quat(e_best), problem.q_ref.unsqueeze(0))
+    best = torch.cat(costs).view(count * L, S).topk(keep, dim=0, largest=False).indices  # (keep, S)
+    x_best = x.gather(0, best.unsqueeze(-1).expand(keep, S, x.shape[-1]))
+    q = quat_mul(rotvec_to_quat(x_best[..., :3]), problem.q_ref.unsqueeze(0))
+    return q, None if thetas is None else x_best[..., 3:]
 
 
 def _with_lobes(theta: Tensor, pairs: Sequence[tuple[float, float]]) -> Tensor:
@@ -212,6 +224,7 @@ def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHisto
                   noise_floor_mag: float | None = NOISE_FLOOR_MAG, floor_keep: int = FLOOR_KEEP,
                   floor_iterations: int = FLOOR_ITERATIONS, lobe_starts: Sequence[float] = LOBE_STARTS,
                   misfit_z: float | None = MISFIT_Z, lobe_pairs: Sequence[tuple[float, float]] = LOBE_PAIRS,
+                  again_draws: int = AGAIN_DRAWS, again_keep: int = AGAIN_KEEP,
                   probe_sigmas: Sequence[float] = PROBE_SIGMAS,
                   workers: int | None = None) -> ArcSolution:
     """The whole-arc MAP of every seed of ``sc`` (module docstring).
@@ -236,6 +249,10 @@ def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHisto
             solution's and the filter's attitude and surface state with the lobe exponents set to each pair
             ``(n_u, n_v)`` of ``lobe_pairs`` (``()``: no second search); the modes are found among both searches'
             solutions.
+        again_draws, again_keep: the second search also screens ``again_draws`` quasi-random prior draws of the
+            attitude, each with the lobe exponents set to every pair of ``lobe_pairs`` and every value of
+            ``lobe_starts``, by posterior cost (with the continuation's floor when there is one), and solves from the
+            ``again_keep`` best per seed (0 draws: no screen).
         probe_sigmas: every seed is started again from its best solution moved this many standard deviations along
             each sign of its weakest attitude direction (:func:`weak_direction_starts`; ``()``: no probe).
         workers: threads that render independent pieces of the problems side by side, torch held to one thread
@@ -264,8 +281,10 @@ def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHisto
     with torch_threads(1) if workers > 1 else nullcontext():  # the renderings below: the worker threads' share
         if screen:
             prior = GaussianPrior.independent(mean, precision)
-            starts.append(_screened(problem, prior, theta0, sigma0, count=screen, keep=keep))
-            thetas.append(None if theta0 is None else theta0.expand(keep, S, 4))
+            q_s, t_s = _screened(problem, prior, None if theta0 is None else theta0.unsqueeze(0), sigma0,
+                                 count=screen, keep=keep)
+            starts.append(q_s)
+            thetas.append(t_s)
         starts, thetas = torch.cat(starts), None if theta0 is None else torch.cat(thetas)
         search = functools.partial(_search, prior_mean=mean, prior_precision=precision, floor_keep=floor_keep,
                                    floor_iterations=floor_iterations)
@@ -283,6 +302,14 @@ def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHisto
                                 starts=base_q.repeat(len(lobe_pairs), 1, 1), thetas=_with_lobes(base_t, lobe_pairs),
                                 rows=rows)
                 solved = solved.extended(second, rows)
+                if again_draws:  # prior draws of the attitude with every lobe setting, ranked at the floor
+                    ranked = problem.subset(rows) if floored is None else floored.subset(rows)
+                    lobes = _with_lobes(theta0[rows].unsqueeze(0), [*lobe_pairs, *((n, n) for n in lobe_starts)])
+                    q_s, t_s = _screened(ranked, GaussianPrior.independent(mean[rows], precision[rows]), lobes,
+                                         sigma0[rows], count=again_draws, keep=again_keep)
+                    screened = search(problem.subset(rows), None if floored is None else floored.subset(rows),
+                                      starts=q_s, thetas=t_s, rows=rows)
+                    solved = solved.extended(screened, rows)
         if probe_sigmas:  # every seed, from its best solution along its weakest direction, with the true noise
             q_p, t_p = weak_direction_starts(solved, probe_sigmas)
             solved = solved.extended(search(problem, None, starts=q_p, thetas=t_p), torch.arange(S))
