@@ -45,17 +45,7 @@ from experiments.common import ROOT, command_line, floats, seed_range, write_out
 from lightcurve_gp.config.load import ConfigError, config_hash, load_config
 from lightcurve_gp.evaluation.harness import run_estimators
 from lightcurve_gp.evaluation.reporting import csv_text, format_triple, markdown_table, scenario_summary, seed_rows
-from lightcurve_gp.evaluation.whole_arc import (
-    AGAIN_DRAWS,
-    AGAIN_KEEP,
-    FLOOR_ITERATIONS,
-    FLOOR_KEEP,
-    LOBE_PAIRS,
-    LOBE_STARTS,
-    MISFIT_Z,
-    NOISE_FLOOR_MAG,
-    PROBE_SIGMAS,
-)
+from lightcurve_gp.evaluation.whole_arc import search_settings
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario, simulate_truths
 from lightcurve_gp.simulation.truths import draw_truths
@@ -127,12 +117,9 @@ def cell(cfg, case: str, seeds: range, estimators, *, model, scene, root: Path
         sections = ["geometry", "shape", "surface", "scenario", "filter", "evaluation"]
         extra = {"study": "realistic_noise", "format": FORMAT, "case": case, "seeds": list(seeds), "estimator": name,
                  "model": model_key(cfg) if name == "gpukf" else None}
-        if name in ("map", "matched_map"):  # the search: the continuation below the floor, the surface starts
-            floor = cfg.filter.measurement_noise < NOISE_FLOOR_MAG ** 2
-            extra["search"] = {"floor": [NOISE_FLOOR_MAG, FLOOR_KEEP, FLOOR_ITERATIONS] if floor else None,
-                               "lobes": list(LOBE_STARTS) if name == "map" else None, "probe": list(PROBE_SIGMAS)}
-            if name == "map":  # the misfit test's second search (surface unknown only)
-                extra["search"]["misfit"] = [MISFIT_Z, [list(p) for p in LOBE_PAIRS], AGAIN_DRAWS, AGAIN_KEEP]
+        if name in ("map", "matched_map"):  # the search's settings
+            extra["search"] = search_settings(surface_known=name == "matched_map",
+                                              noise_var=cfg.filter.measurement_noise)
         case_id = config_hash(cfg, *sections, extra=extra)
         compute = functools.partial(lambda n: run_case(cfg, make(), n, model=model, scene=scene), name)
         record, _ = resume_case(root, case_id, compute, values={"case": case, "noise_var": cfg.scenario.noise_var},

@@ -45,6 +45,7 @@ import math
 from collections.abc import Sequence
 from contextlib import nullcontext
 from dataclasses import dataclass, replace
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -74,7 +75,7 @@ from lightcurve_gp.simulation.scenario import Scenario
 
 __all__ = ["ArcSetup", "arc_setup", "SCREEN_SEED", "NOISE_FLOOR_MAG", "FLOOR_KEEP", "FLOOR_ITERATIONS",
            "LOBE_STARTS", "MISFIT_Z", "LOBE_PAIRS", "AGAIN_DRAWS", "AGAIN_KEEP", "PROBE_SIGMAS",
-           "weak_direction_starts", "misfit_threshold", "whole_arc_map", "arc_estimate"]
+           "weak_direction_starts", "search_settings", "misfit_threshold", "whole_arc_map", "arc_estimate"]
 
 #: seed of the scrambled Sobol' draws of the screening
 SCREEN_SEED = 27
@@ -161,6 +162,18 @@ def weak_direction_starts(solved: ArcStarts, sigmas: Sequence[float]) -> tuple[T
     q = quat_mul(rotvec_to_quat(dx[..., :3]), solved.q0[best, cols].unsqueeze(0))
     theta = None if solved.theta is None else solved.theta[best, cols].unsqueeze(0) + dx[..., 3:]
     return q, theta
+
+
+def search_settings(*, surface_known: bool, noise_var: float) -> dict[str, Any]:
+    """The default search of :func:`whole_arc_map` as JSON values, what a stored result depends on (a case key):
+    the continuation (``None`` at and above the floor), the surface starts and the misfit test's second search (surface
+    unknown only) and the probe."""
+    floor = noise_var < NOISE_FLOOR_MAG ** 2
+    out: dict[str, Any] = {"floor": [NOISE_FLOOR_MAG, FLOOR_KEEP, FLOOR_ITERATIONS] if floor else None,
+                           "lobes": None if surface_known else list(LOBE_STARTS), "probe": list(PROBE_SIGMAS)}
+    if not surface_known:
+        out["misfit"] = [MISFIT_Z, [list(p) for p in LOBE_PAIRS], AGAIN_DRAWS, AGAIN_KEEP]
+    return out
 
 
 def misfit_threshold(weight: Tensor, z: float = MISFIT_Z) -> Tensor:
