@@ -28,10 +28,10 @@ import torch
 from experiments.common import ROOT, command_line, floats, seed_range, write_outputs
 from lightcurve_gp.attitude.metrics import chi2_band
 from lightcurve_gp.config.load import ConfigError, config_hash, load_config
+from lightcurve_gp.evaluation.registry import map_solution
 from lightcurve_gp.evaluation.reporting import csv_text, markdown_table
 from lightcurve_gp.evaluation.truth_reference import KINDS, truth_reference
-from lightcurve_gp.evaluation.whole_arc import search_settings, whole_arc_map
-from lightcurve_gp.filters.setup import run_surface_filter
+from lightcurve_gp.evaluation.whole_arc import search_settings
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario, simulate_truths
 from lightcurve_gp.simulation.truths import draw_truths
@@ -61,9 +61,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 def one_case(cfg, scene: Scene, sc) -> dict[str, list]:
     """The recommended MAP and the truth's reference on every seed of ``sc``: per-seed columns (numbers, the kind an
     index into :data:`KINDS`)."""
-    start = run_surface_filter(cfg, scene, q_est0=sc.q_est0, observations=sc.observations,
-                               increments=sc.increments_assumed, sigma0=sc.sigma0, geometry=sc.geometry)
-    solution = whole_arc_map(cfg, scene, sc, start=start, surface_known=False)
+    solution = map_solution(cfg, scene, sc)
     ref = truth_reference(cfg, scene, sc, solution=solution, surface_known=False)
     columns = {"map_nees": ref.estimate_nees, "statistic": ref.statistic, "basin_nees": ref.basin_nees,
                "separation_deg": ref.separation_deg, "estimate_cost": ref.estimate_cost,

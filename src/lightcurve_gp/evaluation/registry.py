@@ -46,6 +46,7 @@ from lightcurve_gp.evaluation.whole_arc import arc_estimate, whole_arc_map
 from lightcurve_gp.filters.selection import select_by_likelihood
 from lightcurve_gp.filters.setup import run_filter, run_surface_filter
 from lightcurve_gp.filters.state import FilterHistory
+from lightcurve_gp.inference.arc import ArcSolution
 from lightcurve_gp.inference.surface import map_with_surface
 from lightcurve_gp.observation.base import ObservationModel
 from lightcurve_gp.observation.parametric import Parametric
@@ -55,7 +56,7 @@ from lightcurve_gp.simulation.scenario import Scenario
 from lightcurve_gp.simulation.truths import truth_is_model_surface
 
 __all__ = ["RunContext", "Estimator", "ESTIMATORS", "DEFAULT_ESTIMATORS", "SELECTED_LAM_RULES",
-           "run_surface_filter_selected", "map_checkpoints", "map_estimate"]
+           "run_surface_filter_selected", "map_checkpoints", "map_estimate", "map_solution"]
 
 #: the λ rules the selecting surface-state filter runs with (``filter.lam_rule``)
 SELECTED_LAM_RULES = ("given", "julier")
@@ -175,12 +176,17 @@ def map_estimate(cfg: Config, scene: Scene, sc: Scenario, *, surface: bool, ever
                     offset_final=None if surface else est.x[:, -1, 3])
 
 
-def _map(ctx: RunContext) -> Estimate:
-    sc = ctx.scenario
-    start = run_surface_filter(ctx.cfg, ctx.scene, q_est0=sc.q_est0, observations=sc.observations,
+def map_solution(cfg: Config, scene: Scene, sc: Scenario, *, screen: int = 0) -> ArcSolution:
+    """What ``map`` runs on every seed of ``sc``: the surface-state filter, then the whole-arc MAP of attitude and
+    surface state started from its result (:func:`~lightcurve_gp.evaluation.whole_arc.whole_arc_map`; ``screen``
+    prior draws screened for starts)."""
+    start = run_surface_filter(cfg, scene, q_est0=sc.q_est0, observations=sc.observations,
                                increments=sc.increments_assumed, sigma0=sc.sigma0, geometry=sc.geometry)
-    return arc_estimate(sc, whole_arc_map(ctx.cfg, ctx.scene, sc, start=start, surface_known=False,
-                                          screen=ctx.map_screen))
+    return whole_arc_map(cfg, scene, sc, start=start, surface_known=False, screen=screen)
+
+
+def _map(ctx: RunContext) -> Estimate:
+    return arc_estimate(ctx.scenario, map_solution(ctx.cfg, ctx.scene, ctx.scenario, screen=ctx.map_screen))
 
 
 def _matched_map(ctx: RunContext) -> Estimate:

@@ -30,8 +30,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from lightcurve_gp.attitude.metrics import nees
-from lightcurve_gp.attitude.rotations import quat_conj, quat_mul, quat_to_rotvec
+from lightcurve_gp.attitude.metrics import attitude_error_vector, nees
 from lightcurve_gp.config.load import Config
 from lightcurve_gp.evaluation.whole_arc import arc_setup
 from lightcurve_gp.inference.arc import ArcSolution, solve_starts
@@ -76,11 +75,6 @@ class TruthReference:
         return int((self.kind == KINDS.index(kind)).sum())
 
 
-def _rotvec_between(q: Tensor, p: Tensor) -> Tensor:
-    """The rotation vector of ``q ⊗ p⁻¹`` ``(..., 3)`` (rad)."""
-    return quat_to_rotvec(quat_mul(q, quat_conj(p)))
-
-
 def truth_reference(cfg: Config, scene: Scene, sc: Scenario, *, solution: ArcSolution, surface_known: bool,
                     R: float | Tensor | None = None, same_deg: float = 1.0, miss_nats: float = 0.5) -> TruthReference:
     """The truth's likelihood ratio and basin on every seed of ``sc`` (module docstring).
@@ -105,7 +99,7 @@ def truth_reference(cfg: Config, scene: Scene, sc: Scenario, *, solution: ArcSol
     basin = solve_starts(problem, starts=q_true.unsqueeze(0),
                          theta_starts=None if theta_true is None else theta_true.unsqueeze(0),
                          prior_mean=mean, prior_precision=precision)
-    e_true = _rotvec_between(q_true, sc.q_est0)  # the truth in the problem's chart
+    e_true = attitude_error_vector(q_true, sc.q_est0)  # the truth in the problem's chart
     rows = torch.arange(S, device=q_true.device)
     prior = GaussianPrior.independent(mean, precision)
     if theta_true is None:
@@ -120,11 +114,11 @@ def truth_reference(cfg: Config, scene: Scene, sc: Scenario, *, solution: ArcSol
     profile = least_squares_cost(problem(x, twice), x, twice, prior=prior, invalid_residual=1e3)
     profile = profile.view(-1, S).min(0).values
     c_min = torch.minimum(solution.cost, basin.cost[0])
-    separation = torch.rad2deg(torch.linalg.vector_norm(_rotvec_between(basin.q0[0], solution.q0), dim=-1))
+    separation = torch.rad2deg(torch.linalg.vector_norm(attitude_error_vector(basin.q0[0], solution.q0), dim=-1))
     miss = basin.cost[0] < solution.cost - miss_nats
     kind = torch.where(separation < same_deg, 0, torch.where(miss, 2, 1))
     return TruthReference(statistic=2.0 * (profile - c_min), profile_cost=profile, basin_cost=basin.cost[0],
                           estimate_cost=solution.cost,
-                          basin_nees=nees(_rotvec_between(q_true, basin.q0[0]), basin.covariance[0, :, :3, :3]),
-                          estimate_nees=nees(_rotvec_between(q_true, solution.q0), solution.attitude_covariance),
+                          basin_nees=nees(attitude_error_vector(q_true, basin.q0[0]), basin.covariance[0, :, :3, :3]),
+                          estimate_nees=nees(attitude_error_vector(q_true, solution.q0), solution.attitude_covariance),
                           separation_deg=separation, kind=kind)

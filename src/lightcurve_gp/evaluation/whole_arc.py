@@ -202,12 +202,14 @@ class ArcSetup:
         prior_mean: ``μ`` of ``x = [e, θ]`` ``(S, n)`` (``e``'s part 0; ``n = 3``, or 7 with the surface unknown).
         prior_precision: ``Λ``'s diagonal ``(S, n)`` (rad⁻², surface units⁻²).
         theta0: the surface state's prior mean ``(S, 4)``, ``None`` with the surface known.
+        cumulative: the assumed motion ``Δ_k`` of every seed ``(S, T+1, 4)``: ``q_k = Δ_k ⊗ q_0``.
     """
 
     problem: ArcProblem
     prior_mean: Tensor
     prior_precision: Tensor
     theta0: Tensor | None
+    cumulative: Tensor
 
 
 def arc_setup(cfg: Config, scene: Scene, sc: Scenario, *, surface_known: bool, R: float | Tensor | None = None,
@@ -229,7 +231,7 @@ def arc_setup(cfg: Config, scene: Scene, sc: Scenario, *, surface_known: bool, R
         theta0, std = surface_state_prior(scene=first, q_est0=sc.q_est0, y0=first_observation(sc.observations),
                                           reference=reference_surface(cfg), offset_std=cfg.filter.offset_prior_std)
         mean, precision = torch.cat([mean, theta0], -1), torch.cat([precision, std.pow(-2).expand(S, 4)], -1)
-    return ArcSetup(problem, mean, precision, theta0)
+    return ArcSetup(problem, mean, precision, theta0, cum)
 
 
 def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHistory | None, surface_known: bool,
@@ -276,8 +278,7 @@ def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHisto
     R = cfg.filter.measurement_noise if R is None else R
     setup = arc_setup(cfg, scene, sc, surface_known=surface_known, R=R, workers=workers)
     problem, mean, precision, theta0 = setup.problem, setup.prior_mean, setup.prior_precision, setup.theta0
-    S, sigma0 = sc.q_est0.shape[0], sc.sigma0.to(sc.q_est0)
-    cum = cumulative_increments(sc.increments_assumed.to(sc.q_est0))
+    S, sigma0, cum = sc.q_est0.shape[0], sc.sigma0.to(sc.q_est0), setup.cumulative
     floored = _floored(problem, sc.observations, R, noise_floor_mag)
     starts = [prior_axis_starts(sc.q_est0, sigma0)] + ([] if floored is None else [prior_corner_starts(sc.q_est0,
                                                                                                       sigma0)])
