@@ -36,7 +36,7 @@ def filter_only(cfg, scene, sc):
 
 def whole_arc(cfg, scene, sc, surface_known: bool, again: list[int]):
     """The whole-arc MAP; appends to ``again`` how many seeds the misfit test searched again."""
-    solution = whole_arc_map(cfg, scene, sc, start=filter_only(cfg, scene, sc), surface_known=surface_known)
+    solution = whole_arc_map(cfg, scene, sc.problem(), start=filter_only(cfg, scene, sc), surface_known=surface_known)
     again.append(0 if solution.searched_again is None else int(solution.searched_again.sum()))
     return solution
 

@@ -61,7 +61,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 def one_case(cfg, scene: Scene, sc) -> dict[str, list]:
     """The recommended MAP and the truth's reference on every seed of ``sc``: per-seed columns (numbers, the kind an
     index into :data:`KINDS`)."""
-    solution = map_solution(cfg, scene, sc)
+    solution = map_solution(cfg, scene, sc.problem())
     ref = truth_reference(cfg, scene, sc, solution=solution, surface_known=False)
     columns = {"map_nees": ref.estimate_nees, "statistic": ref.statistic, "basin_nees": ref.basin_nees,
                "separation_deg": ref.separation_deg, "estimate_cost": ref.estimate_cost,

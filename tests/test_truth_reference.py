@@ -25,7 +25,7 @@ def solved():
     cfg = load_config(REALISTIC, ["scenario.duration_s=200", "evaluation.rmse_window_s=[100, 200]"])
     scene = Scene.from_config(cfg)
     sc = simulate_scenario(cfg, seeds=range(3), scene=scene)
-    return cfg, scene, sc, whole_arc_map(cfg, scene, sc, start=None, surface_known=False)
+    return cfg, scene, sc, whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False)
 
 
 def placed(sc, q0, theta):
@@ -49,7 +49,7 @@ def test_statistic_is_the_laplace_nees_where_the_cost_is_quadratic(solved):
     10 % (with the surface profiled out the cost is not quadratic in the surface state even this close: the ratio
     ranges 0.6-1.2, which is why the statistic, not the covariance, is the reference)."""
     cfg, scene, sc, _ = solved
-    known = whole_arc_map(cfg, scene, sc, start=None, surface_known=True)
+    known = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=True)
     lam, vec = torch.linalg.eigh(known.covariance)
     i = torch.arange(3)
     delta = 0.5 * lam[i, i].sqrt().unsqueeze(-1) * vec[i, :, i]  # (S, 3)
@@ -66,11 +66,11 @@ def test_a_search_miss_is_told_from_the_truths_basin():
     cfg = load_config(REALISTIC, ["scenario.noise_var=1e-4", "filter.measurement_noise=1e-4"])
     scene = Scene.from_config(cfg)
     sc = simulate_truths(cfg, draw_truths([1064]), scene)
-    plain = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, probe_sigmas=())
+    plain = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False, probe_sigmas=())
     missed = truth_reference(cfg, scene, sc, solution=plain, surface_known=False)
     assert KINDS[int(missed.kind[0])] == "miss" and float(missed.estimate_cost - missed.basin_cost) > 10.0
     assert float(missed.statistic) < float(missed.estimate_nees)  # the truth is near the minimum the search missed
-    probed = truth_reference(cfg, scene, sc, solution=whole_arc_map(cfg, scene, sc, start=None, surface_known=False),
+    probed = truth_reference(cfg, scene, sc, solution=whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False),
                              surface_known=False)
     assert KINDS[int(probed.kind[0])] == "same" and float(probed.separation_deg) < 1.0
 

@@ -60,7 +60,7 @@ def test_map_estimator_equals_the_surface_map_reference(paper):
                            reference=reference_surface(cfg), offset_std=cfg.filter.offset_prior_std, surface=True,
                            iterations=100, tolerance=1e-10)
     q0_ref = quat_mul(rotvec_to_quat(ref.x[:, -1, :3]), sc.q_est0)
-    solution = whole_arc_map(cfg, scene, sc, start=None, surface_known=False)
+    solution = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False)
     theta_std = solution.covariance.diagonal(dim1=-2, dim2=-1)[:, 3:].sqrt()
     assert ((solution.theta - ref.x[:, -1, 3:]).abs() / theta_std).max() < 0.1
     result = run_estimators(cfg, sc, estimators=["map"], scene=scene, bounds=False).results["map"]
@@ -68,7 +68,7 @@ def test_map_estimator_equals_the_surface_map_reference(paper):
         apart = quat_to_rotvec(quat_mul(q0, quat_conj(q0_ref)))
         assert float(nees(apart, solution.attitude_covariance).max()) < 0.1 ** 2
     end = quat_to_rotvec(quat_mul(result.q_est[:, -1], quat_conj(ref.q_est[:, -1])))
-    assert float(nees(end, arc_estimate(sc, solution).P[:, -1]).max()) < 0.1 ** 2
+    assert float(nees(end, arc_estimate(sc.problem(), solution).P[:, -1]).max()) < 0.1 ** 2
 
 
 def test_matched_map_equals_the_known_rate_map_reference(paper):
@@ -91,7 +91,7 @@ def test_whole_arc_nees_is_chi_square_on_noise_only_seeds():
     cfg = load_config(REALISTIC, [*SHORT, "scenario.noise_var=1e-4", "filter.measurement_noise=1e-4"])
     scene = Scene.from_config(cfg)
     sc = simulate_scenario(cfg, seeds=range(48), scene=scene)
-    est = arc_estimate(sc, whole_arc_map(cfg, scene, sc, start=None, surface_known=True))
+    est = arc_estimate(sc.problem(), whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=True))
     per_sample = nees(attitude_error_vector(sc.q_true, est.q_est), est.P)  # (S, T+1)
     torch.testing.assert_close(per_sample[:, -1], per_sample[:, 0], rtol=1e-6, atol=1e-9)
     lo, hi = chi2_band(3, 48)
@@ -175,9 +175,9 @@ def test_noise_floor_continuation_finds_the_basin_the_prior_starts_miss():
     cfg = load_config(REALISTIC, ["scenario.noise_var=1e-4", "filter.measurement_noise=1e-4"])
     scene = Scene.from_config(cfg)
     sc = simulate_truths(cfg, draw_truths([1053]), scene)
-    plain = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, noise_floor_mag=None, lobe_starts=(),
+    plain = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False, noise_floor_mag=None, lobe_starts=(),
                           misfit_z=None, probe_sigmas=())
-    continued = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, lobe_starts=(), misfit_z=None,
+    continued = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False, lobe_starts=(), misfit_z=None,
                               probe_sigmas=())
     assert float(angle_deg(plain.q0, sc.q_true[:, 0])) > 10.0
     assert float(angle_deg(continued.q0, sc.q_true[:, 0])) < 1.0
@@ -193,9 +193,9 @@ def test_surface_starts_find_the_lobes_the_prior_mean_misses():
     cfg = load_config(REALISTIC, ["scenario.noise_var=0.01", "filter.measurement_noise=0.01"])
     scene = Scene.from_config(cfg)
     sc = simulate_truths(cfg, draw_truths([1050]), scene)
-    plain = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, lobe_starts=(), misfit_z=None,
+    plain = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False, lobe_starts=(), misfit_z=None,
                           probe_sigmas=())
-    lobes = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, misfit_z=None, probe_sigmas=())
+    lobes = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False, misfit_z=None, probe_sigmas=())
     assert float(angle_deg(plain.q0, sc.q_true[:, 0])) > 10.0
     assert float(angle_deg(lobes.q0, sc.q_true[:, 0])) < 5.0
     assert float(lobes.cost) < 0.5 * float(plain.cost)
@@ -211,8 +211,8 @@ def test_misfit_test_searches_again_with_unequal_lobes():
     cfg = load_config(REALISTIC, ["scenario.noise_var=1e-4", "filter.measurement_noise=1e-4"])
     scene = Scene.from_config(cfg)
     sc = simulate_truths(cfg, draw_truths([1038]), scene)
-    first = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, misfit_z=None, probe_sigmas=())
-    again = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, probe_sigmas=(), again_draws=0)
+    first = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False, misfit_z=None, probe_sigmas=())
+    again = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False, probe_sigmas=(), again_draws=0)
     threshold = float(misfit_threshold(torch.isfinite(sc.observations[:, 1:]).double()))
     assert threshold == pytest.approx(300.0 + math.sqrt(300.0))
     assert float(first.cost) > 10 * threshold
@@ -234,8 +234,8 @@ def test_second_search_screens_prior_attitudes_with_every_lobe_setting():
     sc = simulate_truths(cfg, draw_truths([1276, 1000]), scene)
     start = run_surface_filter(cfg, scene, q_est0=sc.q_est0, observations=sc.observations,
                                increments=sc.increments_assumed, sigma0=sc.sigma0)
-    plain = whole_arc_map(cfg, scene, sc, start=start, surface_known=False, again_draws=0)
-    screened = whole_arc_map(cfg, scene, sc, start=start, surface_known=False)
+    plain = whole_arc_map(cfg, scene, sc.problem(), start=start, surface_known=False, again_draws=0)
+    screened = whole_arc_map(cfg, scene, sc.problem(), start=start, surface_known=False)
     threshold = float(misfit_threshold(torch.isfinite(sc.observations[:1, 1:]).double()))
     assert bool(plain.searched_again[0]) and not bool(plain.searched_again[1])
     assert float(plain.cost[0]) > 100 * threshold and float(angle_deg(plain.q0[:1], sc.q_true[:1, 0])) > 45.0
@@ -294,8 +294,8 @@ def test_weak_direction_probe_finds_the_basin_the_search_misses():
     cfg = load_config(REALISTIC, ["scenario.noise_var=1e-4", "filter.measurement_noise=1e-4"])
     scene = Scene.from_config(cfg)
     sc = simulate_truths(cfg, draw_truths([1064]), scene)
-    plain = whole_arc_map(cfg, scene, sc, start=None, surface_known=False, probe_sigmas=())
-    probed = whole_arc_map(cfg, scene, sc, start=None, surface_known=False)
+    plain = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False, probe_sigmas=())
+    probed = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False)
     lo, hi = chi2_band(3, 1)
 
     def nees_at_t0(solution):
@@ -334,7 +334,7 @@ def test_worker_threads_change_nothing_but_the_time(paper):
     for bit, and the caller's torch thread count is back afterwards."""
     cfg, scene, sc = paper
     before = torch.get_num_threads()
-    one, two = (whole_arc_map(cfg, scene, sc, start=None, surface_known=False, workers=w) for w in (1, 2))
+    one, two = (whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False, workers=w) for w in (1, 2))
     assert torch.get_num_threads() == before
     assert torch.equal(one.q0, two.q0) and torch.equal(one.attitude_covariance, two.attitude_covariance)
 
@@ -343,10 +343,10 @@ def test_noise_floor_continuation_is_off_at_and_above_the_floor(paper):
     """With R at the floor (0.1 mag) the MAP is the plain one, bit for bit; below it, the result differs only by the
     continuation's path (the same minimum on the paper's trajectory)."""
     cfg, scene, sc = paper
-    at_floor = [whole_arc_map(cfg, scene, sc, start=None, surface_known=True, R=0.1 ** 2, noise_floor_mag=floor)
+    at_floor = [whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=True, R=0.1 ** 2, noise_floor_mag=floor)
                 for floor in (0.1, None)]
     assert torch.equal(at_floor[0].q0, at_floor[1].q0)
-    below = [whole_arc_map(cfg, scene, sc, start=None, surface_known=True, noise_floor_mag=floor)
+    below = [whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=True, noise_floor_mag=floor)
              for floor in (0.1, None)]
     assert angle_deg(below[0].q0, below[1].q0).max() < 1e-3
 

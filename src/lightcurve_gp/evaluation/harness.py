@@ -108,7 +108,7 @@ def run_estimators(cfg: Config, scenario: Scenario, *, estimators: Sequence[str]
     """
     check_estimators(cfg, estimators, model, along_pass=scenario.geometry is not None)
     scene = (scene or Scene.from_config(cfg)).to(device=torch.device(cfg.device), dtype=cfg.torch_dtype)
-    context = RunContext(cfg, scenario, scene, model, map_every_s, map_screen)
+    context = RunContext(cfg, scenario.problem(), scene, model, map_every_s, map_screen)
     window = tuple(cfg.evaluation.rmse_window_s)
     group = scenario_ambiguity_group(cfg, scenario, scene)
     grp = (float(cfg.filter.grp_a), float(cfg.filter.grp_f))

@@ -51,8 +51,8 @@ from lightcurve_gp.inference.surface import map_with_surface
 from lightcurve_gp.observation.base import ObservationModel
 from lightcurve_gp.observation.parametric import Parametric
 from lightcurve_gp.observation.surface_state import reference_surface
+from lightcurve_gp.observations.problem import Problem
 from lightcurve_gp.photometry.render import Scene
-from lightcurve_gp.simulation.scenario import Scenario
 from lightcurve_gp.simulation.truths import truth_is_model_surface
 
 __all__ = ["RunContext", "Estimator", "ESTIMATORS", "DEFAULT_ESTIMATORS", "SELECTED_LAM_RULES",
@@ -64,12 +64,12 @@ SELECTED_LAM_RULES = ("given", "julier")
 
 @dataclass(frozen=True)
 class RunContext:
-    """What an estimator runs with: the config, the scenario, its renderer (fixed, or per sample along the pass),
+    """What an estimator runs with: the config, the problem (observations and priors), its renderer (fixed, or per sample along the pass),
     the trained GP (or ``None``), the checkpoint MAPs' spacing (s) and the prior draws the whole-arc MAPs screen
     for starts (:func:`~lightcurve_gp.evaluation.whole_arc.whole_arc_map`)."""
 
     cfg: Config
-    scenario: Scenario
+    problem: Problem
     scene: Scene
     model: ObservationModel | None = None
     map_every_s: float = 50.0
@@ -98,7 +98,7 @@ class Estimator:
 
 def _usque(ctx: RunContext, model: ObservationModel, *, offset: bool | None = None) -> Estimate:
     """The config's USQUE with ``model`` on every seed (module docstring)."""
-    sc, cfg = ctx.scenario, ctx.cfg
+    sc, cfg = ctx.problem, ctx.cfg
     history = run_filter(cfg, model, q_est0=sc.q_est0, observations=sc.observations,
                          increments=sc.increments_assumed, sigma0=sc.sigma0, offset=offset,
                          omega0=sc.omega_est0 if cfg.filter.estimate_omega else None, geometry=sc.geometry,
@@ -115,10 +115,18 @@ def _ukf(ctx: RunContext) -> Estimate:
 
 
 def _matched_ukf(ctx: RunContext) -> Estimate:
-    sc = ctx.scenario
+    sc = _oracle(ctx, "matched_ukf")
     model = Parametric(ctx.scene, sc.rho_true) if sc.rho_true is not None and truth_is_model_surface(ctx.cfg) \
         else Parametric(ctx.scene, surface=sc.surface.to(device=sc.q_est0.device, dtype=sc.q_est0.dtype))
     return _usque(ctx, model, offset=False)
+
+
+def _oracle(ctx: RunContext, name: str) -> Problem:
+    """The problem of an oracle estimator, which needs the truth's surface (a simulation's)."""
+    if ctx.problem.surface is None:
+        raise ValueError(f"{name}: an oracle that renders with the true surface; observations without a known "
+                         f"surface (a file) cannot run it")
+    return ctx.problem
 
 
 def _joint_ukf(ctx: RunContext) -> Estimate:
@@ -141,14 +149,14 @@ def run_surface_filter_selected(cfg: Config, scene: Scene, *, q_est0: Tensor, ob
 
 
 def _surface_ukf(ctx: RunContext) -> Estimate:
-    sc = ctx.scenario
+    sc = ctx.problem
     return Estimate.of_filter(run_surface_filter(ctx.cfg, ctx.scene, q_est0=sc.q_est0, observations=sc.observations,
                                                  increments=sc.increments_assumed, sigma0=sc.sigma0,
                                                  geometry=sc.geometry))
 
 
 def _surface_ukf_select(ctx: RunContext) -> Estimate:
-    sc = ctx.scenario
+    sc = ctx.problem
     history, _ = run_surface_filter_selected(ctx.cfg, ctx.scene, q_est0=sc.q_est0, observations=sc.observations,
                                              increments=sc.increments_assumed, sigma0=sc.sigma0,
                                              geometry=sc.geometry)
@@ -163,7 +171,7 @@ def map_checkpoints(cfg: Config, every_s: float) -> list[int]:
     return [int(round((lo + i * every_s) / cfg.scenario.dt_s)) for i in range(count + 1)]
 
 
-def map_estimate(cfg: Config, scene: Scene, sc: Scenario, *, surface: bool, every_s: float) -> Estimate:
+def map_estimate(cfg: Config, scene: Scene, sc: Problem, *, surface: bool, every_s: float) -> Estimate:
     """The batch MAP reference on every seed of ``sc`` at :func:`map_checkpoints` (the only call of the MAP
     solvers here): attitude and surface unknown (``surface``), or attitude and offset on the reference surface;
     ``R = filter.measurement_noise``, the offset's prior std ``filter.offset_prior_std``."""
@@ -176,7 +184,7 @@ def map_estimate(cfg: Config, scene: Scene, sc: Scenario, *, surface: bool, ever
                     offset_final=None if surface else est.x[:, -1, 3])
 
 
-def map_solution(cfg: Config, scene: Scene, sc: Scenario, *, screen: int = 0) -> ArcSolution:
+def map_solution(cfg: Config, scene: Scene, sc: Problem, *, screen: int = 0) -> ArcSolution:
     """What ``map`` runs on every seed of ``sc``: the surface-state filter, then the whole-arc MAP of attitude and
     surface state started from its result (:func:`~lightcurve_gp.evaluation.whole_arc.whole_arc_map`; ``screen``
     prior draws screened for starts)."""
@@ -186,18 +194,18 @@ def map_solution(cfg: Config, scene: Scene, sc: Scenario, *, screen: int = 0) ->
 
 
 def _map(ctx: RunContext) -> Estimate:
-    return arc_estimate(ctx.scenario, map_solution(ctx.cfg, ctx.scene, ctx.scenario, screen=ctx.map_screen))
+    return arc_estimate(ctx.problem, map_solution(ctx.cfg, ctx.scene, ctx.problem, screen=ctx.map_screen))
 
 
 def _matched_map(ctx: RunContext) -> Estimate:
-    sc = ctx.scenario
+    sc = _oracle(ctx, "matched_map")
     start = _matched_ukf(ctx).history
     return arc_estimate(sc, whole_arc_map(ctx.cfg, ctx.scene, sc, start=start, surface_known=True,
                                           screen=ctx.map_screen))
 
 
 def _no_update(ctx: RunContext) -> Estimate:
-    sc = ctx.scenario
+    sc = ctx.problem
     q_est = propagate_only(sc.q_est0, sc.increments_assumed.transpose(0, 1))  # (S, T+1, 4)
     P = sc.P0.to(q_est).unsqueeze(1).expand(-1, q_est.shape[1], -1, -1)
     return Estimate(q_est, P, uses_observations=False)
@@ -211,10 +219,10 @@ ESTIMATORS: dict[str, Estimator] = {e.name: e for e in (
     Estimator("joint_ukf", _joint_ukf),
     Estimator("surface_ukf", _surface_ukf, estimates_omega=False),
     Estimator("surface_ukf_select", _surface_ukf_select, estimates_omega=False),
-    Estimator("map_surface", lambda ctx: map_estimate(ctx.cfg, ctx.scene, ctx.scenario, surface=True,
+    Estimator("map_surface", lambda ctx: map_estimate(ctx.cfg, ctx.scene, ctx.problem, surface=True,
                                                       every_s=ctx.map_every_s), estimates_omega=False,
               along_pass=False),
-    Estimator("map_offset", lambda ctx: map_estimate(ctx.cfg, ctx.scene, ctx.scenario, surface=False,
+    Estimator("map_offset", lambda ctx: map_estimate(ctx.cfg, ctx.scene, ctx.problem, surface=False,
                                                      every_s=ctx.map_every_s), estimates_omega=False,
               along_pass=False),
     Estimator("map", _map, estimates_omega=False),

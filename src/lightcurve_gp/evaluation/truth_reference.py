@@ -92,7 +92,7 @@ def truth_reference(cfg: Config, scene: Scene, sc: Scenario, *, solution: ArcSol
     if solution.q0.shape != (S, 4):
         raise ValueError(f"solution: q0 {tuple(solution.q0.shape)} is not one attitude per seed of the scenario "
                          f"({S}, 4)")
-    setup = arc_setup(cfg, scene, sc, surface_known=surface_known, R=R)
+    setup = arc_setup(cfg, scene, sc.problem(), surface_known=surface_known, R=R)
     problem, mean, precision = setup.problem, setup.prior_mean, setup.prior_precision
     q_true = sc.q_true[:, 0].to(sc.q_est0)
     theta_true = None if surface_known else surface_state(sc.surface).to(q_true)

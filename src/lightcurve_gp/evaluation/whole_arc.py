@@ -70,8 +70,8 @@ from lightcurve_gp.inference.arc import (
 from lightcurve_gp.inference.solver import GaussianPrior, least_squares_cost
 from lightcurve_gp.inference.surface import cumulative_increments
 from lightcurve_gp.observation.surface_state import reference_surface, surface_state_prior
+from lightcurve_gp.observations.problem import Problem
 from lightcurve_gp.photometry.render import Scene
-from lightcurve_gp.simulation.scenario import Scenario
 
 __all__ = ["ArcSetup", "arc_setup", "SCREEN_SEED", "NOISE_FLOOR_MAG", "FLOOR_KEEP", "FLOOR_ITERATIONS",
            "LOBE_STARTS", "MISFIT_Z", "LOBE_PAIRS", "AGAIN_DRAWS", "AGAIN_KEEP", "PROBE_SIGMAS",
@@ -212,14 +212,14 @@ class ArcSetup:
     cumulative: Tensor
 
 
-def arc_setup(cfg: Config, scene: Scene, sc: Scenario, *, surface_known: bool, R: float | Tensor | None = None,
+def arc_setup(cfg: Config, scene: Scene, sc: Problem, *, surface_known: bool, R: float | Tensor | None = None,
               workers: int = 1) -> ArcSetup:
     """The whole-arc problem of every seed of ``sc`` and its prior: the attitude ``e ~ N(0, σ0² I)`` about ``q_est0``
     and, with the surface unknown, the surface-state filter's prior of ``θ``; ``R`` the noise variance (mag², a
     number or per sample ``(S, T+1)``; default ``filter.measurement_noise``), ω known (the assumed increments)."""
     cum = cumulative_increments(sc.increments_assumed.to(sc.q_est0))
     S = sc.q_est0.shape[0]
-    R = cfg.filter.measurement_noise if R is None else R
+    R = sc.noise_variance(cfg.filter.measurement_noise) if R is None else R
     problem = ArcProblem(scene, q_ref=sc.q_est0, seed=torch.arange(S), cumulative=cum, observations=sc.observations,
                          weight=_weights(sc.observations, R), surface=sc.surface if surface_known else None,
                          workers=workers)
@@ -234,7 +234,7 @@ def arc_setup(cfg: Config, scene: Scene, sc: Scenario, *, surface_known: bool, R
     return ArcSetup(problem, mean, precision, theta0, cum)
 
 
-def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHistory | None, surface_known: bool,
+def whole_arc_map(cfg: Config, scene: Scene, sc: Problem, *, start: FilterHistory | None, surface_known: bool,
                   R: float | Tensor | None = None, screen: int = 0, keep: int = 4,
                   noise_floor_mag: float | None = NOISE_FLOOR_MAG, floor_keep: int = FLOOR_KEEP,
                   floor_iterations: int = FLOOR_ITERATIONS, lobe_starts: Sequence[float] = LOBE_STARTS,
@@ -275,7 +275,7 @@ def whole_arc_map(cfg: Config, scene: Scene, sc: Scenario, *, start: FilterHisto
             The result does not depend on it.
     """
     workers = torch.get_num_threads() if workers is None else int(workers)
-    R = cfg.filter.measurement_noise if R is None else R
+    R = sc.noise_variance(cfg.filter.measurement_noise) if R is None else R
     setup = arc_setup(cfg, scene, sc, surface_known=surface_known, R=R, workers=workers)
     problem, mean, precision, theta0 = setup.problem, setup.prior_mean, setup.prior_precision, setup.theta0
     S, sigma0, cum = sc.q_est0.shape[0], sc.sigma0.to(sc.q_est0), setup.cumulative
@@ -343,7 +343,7 @@ def _search(problem: ArcProblem, floored: ArcProblem | None, *, starts: Tensor, 
     return solve_starts(problem, starts=starts, theta_starts=thetas, prior_mean=mean, prior_precision=precision)
 
 
-def arc_estimate(sc: Scenario, solution: ArcSolution) -> Estimate:
+def arc_estimate(sc: Problem, solution: ArcSolution) -> Estimate:
     """The :class:`~lightcurve_gp.evaluation.scoring.Estimate` of a whole-arc solution at every sample."""
     cum = cumulative_increments(sc.increments_assumed.to(sc.q_est0))
     rot = attitude_matrix(cum)  # A(Δ_k) turns the error at t_0 to sample k

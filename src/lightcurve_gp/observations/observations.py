@@ -46,10 +46,13 @@ class CurveInfo:
 class Observations:
     """``N`` samples of one object's brightness (module docstring).
 
+    A batch of ``S`` objects (or noise draws of one) observed at the same times under the same geometry has
+    ``mag`` and ``sigma`` of shape ``(S, N)``; a missing sample of one of them is NaN (a file leaves it out).
+
     Attributes:
         t: sample times ``(N,)`` (s from ``epoch``), non-decreasing, float64.
-        mag: magnitudes ``(N,)``.
-        sigma: their 1σ ``(N,)`` (mag, > 0).
+        mag: magnitudes ``(N,)`` or ``(S, N)``.
+        sigma: their 1σ, the shape of ``mag`` (mag, > 0).
         curve: the light curve of each sample ``(N,)`` (int64, indices into ``curves``).
         curves: the light curves (at least one).
         sun: unit vectors object → Sun ``(N, 3)``, or ``None`` for the config's fixed geometry.
@@ -74,14 +77,17 @@ class Observations:
         n = self.t.shape[0] if self.t.ndim == 1 else -1
         if n < 1:
             raise ObservationsError(f"t: expected a 1-D tensor of at least one sample time, got {tuple(self.t.shape)}")
-        for name in ("mag", "sigma", "curve"):
-            value = getattr(self, name)
-            if value.shape != (n,):
-                raise ObservationsError(f"{name}: expected shape ({n},), got {tuple(value.shape)}")
+        if self.curve.shape != (n,):
+            raise ObservationsError(f"curve: expected shape ({n},), got {tuple(self.curve.shape)}")
+        if self.mag.ndim not in (1, 2) or self.mag.shape[-1] != n:
+            raise ObservationsError(f"mag: expected shape ({n},) or (S, {n}), got {tuple(self.mag.shape)}")
+        if self.sigma.shape != self.mag.shape:
+            raise ObservationsError(f"sigma: expected the shape of mag {tuple(self.mag.shape)}, got "
+                                    f"{tuple(self.sigma.shape)}")
         if not bool(torch.isfinite(self.t).all()) or (n > 1 and not bool((torch.diff(self.t) >= 0).all())):
             raise ObservationsError("t: sample times must be finite and non-decreasing")
-        if not bool(torch.isfinite(self.mag).all()):
-            raise ObservationsError("mag: every magnitude must be finite (leave a missing sample out)")
+        if bool(torch.isinf(self.mag).any()):
+            raise ObservationsError("mag: a magnitude is infinite (a missing sample is NaN or left out)")
         if not bool((self.sigma > 0).all()):
             raise ObservationsError("sigma: every 1-sigma must be > 0 mag")
         if not self.curves:
@@ -126,6 +132,8 @@ class Observations:
         offsets = [0.0] * len(parts) if offsets_s is None else [float(o) for o in offsets_s]
         if len(offsets) != len(parts):
             raise ObservationsError(f"offsets_s: {len(offsets)} offsets for {len(parts)} observations")
+        if any(p.batch is not None for p in parts):
+            raise ObservationsError("combine: takes the observations of one object each (mag (N,)), not batches")
         with_geometry = [p.has_geometry for p in parts]
         if any(with_geometry) and not all(with_geometry):
             first = parts[with_geometry.index(False)]
@@ -150,6 +158,15 @@ class Observations:
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
+
+    @property
+    def batch(self) -> int | None:
+        """``S`` for a batch (``mag (S, N)``), ``None`` for one object."""
+        return None if self.mag.ndim == 1 else int(self.mag.shape[0])
+
+    def batched(self) -> Observations:
+        """The same samples as a batch (``mag (S, N)``; one object becomes ``S = 1``)."""
+        return self if self.batch is not None else replace(self, mag=self.mag[None], sigma=self.sigma[None])
 
     @property
     def has_geometry(self) -> bool:
@@ -179,7 +196,7 @@ class Observations:
         kept = torch.unique(curve.cpu())
         renumber = torch.full((len(self.curves),), -1, dtype=torch.int64)
         renumber[kept] = torch.arange(kept.numel())
-        return replace(self, t=self.t[index], mag=self.mag[index], sigma=self.sigma[index],
+        return replace(self, t=self.t[index], mag=self.mag[..., index], sigma=self.sigma[..., index],
                        curve=renumber.to(curve.device)[curve], curves=tuple(self.curves[int(k)] for k in kept),
                        sun=pick(self.sun), observer=pick(self.observer), range_m=pick(self.range_m),
                        sun_range_m=pick(self.sun_range_m))
@@ -198,7 +215,7 @@ class Observations:
     def with_sigma(self, sigma) -> Observations:
         """The same samples with 1σ ``sigma`` (a number or ``(N,)``)."""
         sigma = torch.as_tensor(sigma, dtype=self.mag.dtype, device=self.mag.device)
-        return replace(self, sigma=sigma.expand(len(self)).clone())
+        return replace(self, sigma=sigma.expand(self.mag.shape).clone())
 
     def chi2_dof(self, parameters: int) -> int:
         """Degrees of freedom of a fit with ``parameters`` unknowns besides the zero points of the relative light

@@ -34,6 +34,8 @@ from torch import Tensor
 from lightcurve_gp.attitude.dynamics import propagate, quaternion_increments
 from lightcurve_gp.attitude.rotations import euler321_to_quat, quat_mul, quat_normalize, quat_to_rotvec
 from lightcurve_gp.config.load import Config
+from lightcurve_gp.observations.observations import CurveInfo, Observations
+from lightcurve_gp.observations.problem import Problem
 from lightcurve_gp.passes.geometry import PassGeometry, pass_geometry
 from lightcurve_gp.photometry.brdf import Surface
 from lightcurve_gp.photometry.render import Scene
@@ -96,6 +98,24 @@ class Scenario:
     def steps(self) -> int:
         """The number of filter steps ``T``."""
         return self.increments.shape[1]
+
+    def problem(self, *, oracle: bool = True) -> Problem:
+        """What the estimators are given (:class:`~lightcurve_gp.observations.problem.Problem`): the noisy light
+        curves with the true noise's 1σ, the filters' priors, the assumed rate and its increments; ``R`` left to the
+        config's ``filter.measurement_noise`` (what the filters are tuned with). ``oracle``: the true surface goes
+        with it for the oracle estimators (``matched_ukf``, ``matched_map``)."""
+        sigma = torch.full_like(self.observations, math.sqrt(self.noise_var))
+        obs = Observations(t=self.times.to(torch.float64), mag=self.observations, sigma=sigma,
+                           curve=torch.zeros(self.times.shape[0], dtype=torch.int64, device=self.times.device),
+                           curves=(CurveInfo("simulation"),),
+                           sun=None if self.geometry is None else self.geometry.sun.to(self.observations),
+                           observer=None if self.geometry is None else self.geometry.observer.to(self.observations),
+                           range_m=None if self.geometry is None else self.geometry.range_m.to(self.observations),
+                           epoch=None if self.geometry is None else self.geometry.start_utc)
+        return Problem(obs=obs, q_est0=self.q_est0, sigma0=self.sigma0, omega_est0=self.omega_est0,
+                       increments_assumed=self.increments_assumed, R=None,
+                       surface=self.surface if oracle else None, rho_true=self.rho_true if oracle else None,
+                       geometry=self.geometry)
 
     @property
     def P0(self) -> Tensor:
