@@ -70,7 +70,8 @@ def test_a_search_miss_is_told_from_the_truths_basin():
     missed = truth_reference(cfg, scene, sc, solution=plain, surface_known=False)
     assert KINDS[int(missed.kind[0])] == "miss" and float(missed.estimate_cost - missed.basin_cost) > 10.0
     assert float(missed.statistic) < float(missed.estimate_nees)  # the truth is near the minimum the search missed
-    probed = truth_reference(cfg, scene, sc, solution=whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False),
+    probed = truth_reference(cfg, scene, sc,
+                             solution=whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False),
                              surface_known=False)
     assert KINDS[int(probed.kind[0])] == "same" and float(probed.separation_deg) < 1.0
 

@@ -175,8 +175,8 @@ def test_noise_floor_continuation_finds_the_basin_the_prior_starts_miss():
     cfg = load_config(REALISTIC, ["scenario.noise_var=1e-4", "filter.measurement_noise=1e-4"])
     scene = Scene.from_config(cfg)
     sc = simulate_truths(cfg, draw_truths([1053]), scene)
-    plain = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False, noise_floor_mag=None, lobe_starts=(),
-                          misfit_z=None, probe_sigmas=())
+    plain = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False, noise_floor_mag=None,
+                          lobe_starts=(), misfit_z=None, probe_sigmas=())
     continued = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False, lobe_starts=(), misfit_z=None,
                               probe_sigmas=())
     assert float(angle_deg(plain.q0, sc.q_true[:, 0])) > 10.0
@@ -343,8 +343,8 @@ def test_noise_floor_continuation_is_off_at_and_above_the_floor(paper):
     """With R at the floor (0.1 mag) the MAP is the plain one, bit for bit; below it, the result differs only by the
     continuation's path (the same minimum on the paper's trajectory)."""
     cfg, scene, sc = paper
-    at_floor = [whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=True, R=0.1 ** 2, noise_floor_mag=floor)
-                for floor in (0.1, None)]
+    at_floor = [whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=True, R=0.1 ** 2,
+                              noise_floor_mag=floor) for floor in (0.1, None)]
     assert torch.equal(at_floor[0].q0, at_floor[1].q0)
     below = [whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=True, noise_floor_mag=floor)
              for floor in (0.1, None)]

@@ -64,7 +64,8 @@ SELECTED_LAM_RULES = ("given", "julier")
 
 @dataclass(frozen=True)
 class RunContext:
-    """What an estimator runs with: the config, the problem (observations and priors), its renderer (fixed, or per sample along the pass),
+    """What an estimator runs with: the config, the problem (observations and priors), its renderer (fixed, or per
+    sample along the pass),
     the trained GP (or ``None``), the checkpoint MAPs' spacing (s) and the prior draws the whole-arc MAPs screen
     for starts (:func:`~lightcurve_gp.evaluation.whole_arc.whole_arc_map`)."""
 
