@@ -53,11 +53,10 @@ def run_estimate(*args: str) -> int:
 
 # 7. options that do not apply are errors naming them, found before anything is loaded or written
 @pytest.mark.parametrize("args, message", [
-    (["--seeds", "5"], "error: --seeds: does not apply with --light-curve (the file is one observed light curve)\n"),
+    (["--seeds", "5"], "error: --seeds: does not apply with --light-curve (the files are the observations of one "
+                       "object)\n"),
     (["--rho-true", "0.5"], "error: --rho-true: does not apply with --light-curve (the file's magnitudes are what "
-                            "they are; filter.estimate_offset estimates their offset)\n"),
-    (["--estimators", "ukf"], "error: --estimators: does not apply with --light-curve (a file runs the GPUKF "
-                              "alone)\n"),
+                            "they are; the surface (rho with it) is estimated)\n"),
     (["--initial-attitude=0,0,0,1", "--bank-size", "64"],
      "error: --bank-size: does not apply with --initial-attitude (no bank runs)\n"),
     (["--solutions", "solutions.ecsv", "--bank-size", "64"],
@@ -170,7 +169,8 @@ def test_too_short_light_curves_are_refused_with_the_minimum(tmp_path, capsys, m
     lc = read_light_curve(simulate_path(tmp_path))
     lc.t, lc.mag, lc.mag_err = lc.t[:samples], lc.mag[:samples], lc.mag_err[:samples]
     short = write_light_curve(lc, tmp_path / "short.ecsv")
-    assert run_estimate("--model", str(model_file), "--light-curve", str(short), "--out", str(tmp_path / "out")) == 2
+    assert run_estimate("--model", str(model_file), "--light-curve", str(short), "--out", str(tmp_path / "out"),
+                        "--estimators", "gpukf") == 2
     assert capsys.readouterr().err == (
         f"error: {short}: {samples} sample{'s' if samples > 1 else ''}; the filter needs at least 4: the first "
         f"sets the start and each later one is one scalar update of a state with 3 unknowns (attitude)\n")
@@ -190,7 +190,8 @@ def test_a_span_the_propagation_cannot_cover_is_refused_naming_dt(tmp_path, caps
     lc.t = lc.t.copy()
     lc.t[-1] = 5 * 86400.0  # five days after the first sample
     far = write_light_curve(lc, tmp_path / "far.ecsv")
-    assert run_estimate("--model", str(model_file), "--light-curve", str(far), "--out", str(tmp_path / "out")) == 2
+    assert run_estimate("--model", str(model_file), "--light-curve", str(far), "--out", str(tmp_path / "out"),
+                        "--estimators", "gpukf") == 2
     assert capsys.readouterr().err == (
         f"error: {far}: the file spans 5.0 days; the known-spin propagation through its gaps takes 431940 sub-steps "
         f"of scenario.dt_s = 1 s, more than 100000; give a shorter light curve or a longer scenario.dt_s\n")

@@ -1,6 +1,6 @@
 """``python -m lightcurve_gp.estimate CONFIG [--model runs/<name>/model.pt]``: the config's scenario estimated.
 
-With ``--light-curve FILE`` it runs the GPUKF on a light-curve file instead
+With ``--light-curve FILE [FILE ...]`` it estimates from light-curve files instead, by default with the whole-arc MAP
 (:mod:`lightcurve_gp.commands.estimate_file`).
 
 Without ``--estimators`` it runs the recommended estimator for the config and its noise
@@ -254,9 +254,7 @@ def _run(args: argparse.Namespace) -> int:
     check_options(args)
     _check_numbers(args)
     cfg = load_config(args.config, args.overrides)
-    if args.light_curve is not None:  # an observed light curve: the GPUKF alone (estimate_file)
-        if args.model is None:
-            raise UserError("--model: --light-curve runs the GPUKF, which needs a trained model file")
+    if args.light_curve is not None:  # observed light curves: the whole-arc MAP by default (estimate_file)
         return run_on_file(args, cfg, *_load_checked_model(args, cfg))
     recommended = None
     if args.estimators is None:

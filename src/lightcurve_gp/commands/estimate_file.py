@@ -1,24 +1,25 @@
-"""``python -m lightcurve_gp.estimate CONFIG --model M --light-curve obs.ecsv``: the GPUKF on a light-curve file.
+"""``python -m lightcurve_gp.estimate CONFIG --light-curve FILE [FILE ...]``: the attitude of an observed object.
 
-Writes the new folder ``OUT/estimates/<name>/light_curve_<file stem>/`` atomically (an existing one is refused unless
-``--force``): ``attitude_history.ecsv`` (:func:`lightcurve_gp.observed.run.history_table`), ``summary.json`` (the NIS
-against its χ² band, the bank's size, time and best members with their posterior weights, the run's provenance),
-``bank.ecsv`` (every bank member, ranked) when the global start ran, ``light_curve.png`` and ``attitude.png``.
-Without ``--initial-attitude`` the run starts from the global-start bank (``--bank-size`` filters over SO(3); with
-``--bank-prune-after-s`` only the best ``--bank-prune-keep`` run past that time), and the bank's posterior is judged
-(:mod:`lightcurve_gp.observed.verdict`): ``summary.json``'s ``verdict`` is ``"unique"`` or ``"ambiguous"`` (``null``
-without a bank) and an ambiguous answer is printed as a warning in words; the exit code stays 0.
+Files of one object (:mod:`lightcurve_gp.observed.observations_file`: any sample times, gaps of any length, each
+file its own light curve with its own geometry; ``--relative``: their zero points are unknown) become one
+:class:`~lightcurve_gp.observations.Observations`, and by default the recommended estimator runs on it
+(:mod:`lightcurve_gp.observed.arc_run`: the surface-state filter, then the whole-arc MAP of attitude and surface,
+the shape known, ω known), from ``--initial-attitude`` (with ``filter.p0_deg`` its 1σ) or from the best family of an
+inversion's ``--solutions`` (its attitude and body rate). It writes the new folder
+``OUT/estimates/<name>/light_curve_<stem>/`` atomically (an existing one is refused unless ``--force``):
+``attitude_history.ecsv`` (every sample's attitude with its 1σ over the whole arc, the fit and its residuals,
+astropy units), ``summary.json`` (the verdict, χ² against its distribution with its p-value, surface, zero points,
+modes, provenance), ``light_curve.png`` (the fit over the data with the residuals) and ``attitude.png``; it prints
+the fit and the verdict in words (exit 0 also for ``"no_fit"``).
 
-Options that do not apply are refused before anything is read (:func:`check_options`): ``--seeds``, ``--rho-true``
-and ``--estimators`` with ``--light-curve``; ``--initial-attitude``, ``--solutions`` and the bank options without
-it; the bank options with ``--initial-attitude`` or ``--solutions`` (no bank runs then). A light curve too short
-for the filter's state, or too long for the known-spin propagation, is refused before the filter runs
-(:func:`lightcurve_gp.observed.run.check_light_curve`).
+``--estimators gpukf`` runs the GPUKF instead on one file (``--model``; without a start, the global-start bank of
+``--bank-size`` filters over SO(3), its verdict ``"unique"`` or ``"ambiguous"``); other estimators of the registry
+that need no truth (``ukf``, ``joint_ukf``, ``surface_ukf``, ``surface_ukf_select``, ``no_update``) run beside ``map``
+and write ``attitude_history_<name>.ecsv``.
 
-A file with per-sample geometry or a TLE and site runs along its pass
-(:func:`lightcurve_gp.observed.run.file_geometry`) with a model that takes geometry.
-``--solutions solutions.ecsv`` (from ``python -m lightcurve_gp.invert``) starts the filter from the best family of the
-inversion instead: its attitude at the first sample and its body rate (which replaces ``scenario.omega0_deg_s``).
+Options that do not apply are refused before anything is read (:func:`check_options`): ``--seeds`` and
+``--rho-true`` with ``--light-curve``; ``--initial-attitude``, ``--solutions`` and the bank options without it; the
+bank options with a start or without ``gpukf``.
 """
 
 from __future__ import annotations
@@ -39,9 +40,20 @@ from lightcurve_gp.commands.common import (
     run_interruptible,
 )
 from lightcurve_gp.commands.layout import light_curve_folder
+from lightcurve_gp.evaluation.registry import ESTIMATORS, RunContext
 from lightcurve_gp.files import RunFolder, write_json_atomic
+from lightcurve_gp.observed.arc_run import (
+    arc_history_table,
+    arc_report,
+    arc_summary,
+    check_observations,
+    estimate_arc,
+    estimate_table,
+    file_scene,
+)
 from lightcurve_gp.observed.lightcurve_file import read_light_curve, write_table
-from lightcurve_gp.observed.plots import attitude_with_uncertainty, light_curve_band
+from lightcurve_gp.observed.observations_file import read_observations
+from lightcurve_gp.observed.plots import attitude_with_uncertainty, fit_with_residuals, light_curve_band
 from lightcurve_gp.observed.result import finish
 from lightcurve_gp.observed.run import (
     FileGeometryError,
@@ -53,22 +65,33 @@ from lightcurve_gp.observed.run import (
 from lightcurve_gp.observed.solutions import SolutionsFileError, best_solution, read_solutions
 from lightcurve_gp.observed.verdict import ambiguity_images
 
-__all__ = ["BANK_DEFAULTS", "add_file_arguments", "check_options", "parse_quaternion", "run_on_file"]
+__all__ = ["BANK_DEFAULTS", "FILE_DEFAULT", "FILE_ESTIMATORS", "add_file_arguments", "check_options", "file_estimators",
+           "parse_quaternion", "run_on_file"]
 
 #: the bank options' values when not given
 BANK_DEFAULTS = {"bank_size": 1024, "bank_keep": 5, "bank_prune_after_s": None, "bank_prune_keep": 64}
 #: options of a simulated scenario, and why a file has no use for them
 SCENARIO_OPTIONS = {
-    "seeds": "the file is one observed light curve",
-    "rho_true": "the file's magnitudes are what they are; filter.estimate_offset estimates their offset",
-    "estimators": "a file runs the GPUKF alone"}
+    "seeds": "the files are the observations of one object",
+    "rho_true": "the file's magnitudes are what they are; the surface (rho with it) is estimated"}
+#: what runs on files unless --estimators says otherwise
+FILE_DEFAULT = "map"
+#: estimators that run on files beside map (the registry's, without the truth)
+FILE_ESTIMATORS = ("map", "gpukf", "ukf", "joint_ukf", "surface_ukf", "surface_ukf_select", "no_update")
 
 
 def add_file_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of a run on a light-curve file."""
-    parser.add_argument("--light-curve", type=Path, default=None,
-                        help="run the GPUKF on this light-curve file (.ecsv, .csv, .fits) instead of simulating; "
-                             "writes OUT/estimates/<name>/light_curve_<file stem>/")
+    parser.add_argument("--light-curve", type=Path, nargs="+", default=None, metavar="FILE",
+                        help="estimate from these light-curve files of one object (.ecsv, .csv, .fits; any sample "
+                             "times, each file its own light curve) instead of simulating; by default the whole-arc "
+                             "MAP; writes OUT/estimates/<name>/light_curve_<first file's stem>/")
+    parser.add_argument("--relative", action="store_true",
+                        help="with --light-curve: the files' zero points are unknown (relative photometry); one "
+                             "magnitude offset per file is fitted")
+    parser.add_argument("--mag-err", type=float, default=None,
+                        help="with --light-curve: 1-sigma (mag) of every sample of a file without a mag_err column "
+                             "(default: the square root of filter.measurement_noise)")
     parser.add_argument("--initial-attitude", default=None, metavar="Q1,Q2,Q3,Q4",
                         help="with --light-curve: start from this quaternion (scalar last) instead of the bank; write "
                              "--initial-attitude=Q1,... when Q1 is negative")
@@ -98,12 +121,14 @@ def check_options(args: argparse.Namespace) -> None:
         for name, why in SCENARIO_OPTIONS.items():
             if given(name):
                 raise UserError(f"{_option(name)}: does not apply with --light-curve ({why})")
-    for name in ("initial_attitude", "solutions", *BANK_DEFAULTS):
+    for name in ("initial_attitude", "solutions", "mag_err", *BANK_DEFAULTS):
         if given(name) and args.light_curve is None:
             raise UserError(f"{_option(name)}: applies only with --light-curve")
         for start in ("initial_attitude", "solutions"):
             if given(name) and name in BANK_DEFAULTS and given(start):
                 raise UserError(f"{_option(name)}: does not apply with {_option(start)} (no bank runs)")
+    if args.relative and args.light_curve is None:
+        raise UserError("--relative: applies only with --light-curve")
     if given("bank_prune_keep") and not given("bank_prune_after_s"):
         raise UserError("--bank-prune-keep: applies only with --bank-prune-after-s")
     for name, value in BANK_DEFAULTS.items():
@@ -124,9 +149,25 @@ def parse_quaternion(text: str) -> torch.Tensor:
     return q
 
 
-def _check_arguments(args: argparse.Namespace) -> torch.Tensor | None:
-    if args.model is None:
-        raise UserError("--model: --light-curve runs the GPUKF, which needs a trained model file")
+def file_estimators(text: str | None) -> list[str]:
+    """The estimators ``--estimators`` names for files (default :data:`FILE_DEFAULT`); a :class:`UserError` names one
+    that cannot run on a file."""
+    if text is None:
+        return [FILE_DEFAULT]
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise UserError("--estimators: empty list")
+    for name in names:
+        if name not in FILE_ESTIMATORS:
+            why = "it needs the truth of a simulation" if name in ESTIMATORS else "no such estimator"
+            raise UserError(f"--estimators: {name!r} cannot run on a light-curve file ({why}); choose from "
+                            f"{', '.join(FILE_ESTIMATORS)}")
+    if "gpukf" in names and len(names) > 1:
+        raise UserError("--estimators: gpukf runs alone on a light-curve file (its own start and bank)")
+    return names
+
+
+def _check_bank(args: argparse.Namespace) -> None:
     if args.bank_size < 1 or not 1 <= args.bank_keep <= args.bank_size:
         raise UserError(f"--bank-size/--bank-keep: need bank size >= 1 and 1 <= keep <= size, got "
                         f"{args.bank_size} and {args.bank_keep}")
@@ -134,7 +175,6 @@ def _check_arguments(args: argparse.Namespace) -> torch.Tensor | None:
                                                  args.bank_prune_keep < args.bank_keep):
         raise UserError(f"--bank-prune-after-s/--bank-prune-keep: need a time > 0 and at least --bank-keep "
                         f"({args.bank_keep}) members kept, got {args.bank_prune_after_s:g} and {args.bank_prune_keep}")
-    return None if args.initial_attitude is None else parse_quaternion(args.initial_attitude)
 
 
 def _from_solutions(args: argparse.Namespace, cfg):
@@ -149,12 +189,86 @@ def _from_solutions(args: argparse.Namespace, cfg):
     return dataclasses.replace(cfg, scenario=dataclasses.replace(cfg.scenario, omega0_deg_s=rate)), q
 
 
+def _folder(args: argparse.Namespace, cfg) -> Path:
+    first = Path(args.light_curve[0])
+    stem = first if len(args.light_curve) == 1 else first.with_name(f"{first.stem}_and_{len(args.light_curve) - 1}"
+                                                                     f"_more{first.suffix}")
+    return light_curve_folder(args.out, cfg.name, stem)
+
+
 def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
-    """The command's body for ``--light-curve`` (module docstring); everything is checked before the filter runs."""
+    """The command's body for ``--light-curve`` (module docstring); everything is checked before anything runs."""
+    names = file_estimators(args.estimators)
+    if names == ["gpukf"]:
+        return _run_gpukf(args, cfg, model, model_info)
+    for name in BANK_DEFAULTS:
+        if getattr(args, name) != BANK_DEFAULTS[name]:
+            raise UserError(f"{_option(name)}: applies only with --estimators gpukf (the bank of filters)")
+    if args.mag_err is not None and not args.mag_err > 0:
+        raise UserError(f"--mag-err: {args.mag_err:g} must be > 0 mag")
+    q0 = None if args.initial_attitude is None else parse_quaternion(args.initial_attitude)
+    if getattr(args, "solutions", None) is not None:
+        cfg, q0 = _from_solutions(args, cfg)
+    if q0 is None:
+        raise UserError("--initial-attitude: the whole-arc MAP needs a start: give --initial-attitude, or "
+                        "--solutions from python -m lightcurve_gp.invert (which needs none)")
+    mag_err = args.mag_err if args.mag_err is not None else math.sqrt(cfg.filter.measurement_noise)
+    try:
+        obs = read_observations(args.light_curve, mag_err=mag_err, relative=args.relative)
+        check_observations(obs)
+        scene = file_scene(cfg, obs)
+    except (FileGeometryError, ValueError) as exc:
+        raise UserError(str(exc)) from None
+    check_output_root(args.out)
+    folder = _folder(args, cfg)
+    check_new_folder(folder, args.force)
+    record = provenance(cfg, config_file=str(args.config), light_curves=[str(p) for p in args.light_curve],
+                        initial_attitude=args.initial_attitude, relative=args.relative, mag_err_default=mag_err,
+                        solutions=None if getattr(args, "solutions", None) is None else str(args.solutions),
+                        estimators=names, **model_info)
+    omega0 = torch.deg2rad(torch.tensor(cfg.scenario.omega0_deg_s, dtype=torch.float64))
+    sigma0 = math.radians(cfg.filter.p0_deg)
+    run = run_interruptible(lambda: estimate_arc(cfg, obs, q0=q0, sigma0=sigma0, omega0=omega0),
+                            status="running the surface-state filter, then the whole-arc MAP",
+                            progress=progress_enabled(args.no_progress))
+    others = {}
+    for name in (n for n in names if n != "map"):
+        context = RunContext(cfg, run.problem, scene, model)
+        others[name] = run_interruptible(lambda n=name: ESTIMATORS[n].run(context), status=f"running {name}",
+                                         progress=progress_enabled(args.no_progress))
+    summary = arc_summary(run, record)
+    with RunFolder(folder, force=args.force) as tmp:
+        history = arc_history_table(run)
+        write_table(history, tmp / "attitude_history.ecsv", fmt="ascii.ecsv")
+        for name, estimate in others.items():
+            write_table(estimate_table(run.problem, estimate), tmp / f"attitude_history_{name}.ecsv",
+                        fmt="ascii.ecsv")
+        write_json_atomic(summary, tmp / "summary.json")
+        title = f"{Path(args.light_curve[0]).name}{' …' if len(args.light_curve) > 1 else ''}: whole-arc MAP " \
+                f"({summary['verdict'].replace('_', ' ')})"
+        fit_with_residuals(history, tmp / "light_curve.png", title=title)
+        attitude_with_uncertainty(history, tmp / "attitude.png", title=title)
+    print("\n".join(arc_report(run)))
+    print(f"written: {folder}")
+    return 0
+
+
+def _check_arguments(args: argparse.Namespace) -> torch.Tensor | None:
+    if args.model is None:
+        raise UserError("--model: the gpukf estimator needs a trained model file (python -m lightcurve_gp.train)")
+    if len(args.light_curve) != 1:
+        raise UserError("--light-curve: gpukf runs on one light-curve file; the default estimator takes several")
+    _check_bank(args)
+    return None if args.initial_attitude is None else parse_quaternion(args.initial_attitude)
+
+
+def _run_gpukf(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
+    """The GPUKF on one file, from a start or from the global-start bank."""
     q0 = _check_arguments(args)
     if getattr(args, "solutions", None) is not None:
         cfg, q0 = _from_solutions(args, cfg)
-    lc = read_light_curve(args.light_curve)
+    lc = read_light_curve(args.light_curve[0])
+    args.light_curve = args.light_curve[0]
     check_light_curve(cfg, lc)
     try:
         check_model_takes_geometry(model, lc)

@@ -190,7 +190,7 @@ def map_solution(cfg: Config, scene: Scene, sc: Problem, *, screen: int = 0) -> 
     surface state started from its result (:func:`~lightcurve_gp.evaluation.whole_arc.whole_arc_map`; ``screen``
     prior draws screened for starts)."""
     start = run_surface_filter(cfg, scene, q_est0=sc.q_est0, observations=sc.observations,
-                               increments=sc.increments_assumed, sigma0=sc.sigma0, geometry=sc.geometry)
+                               increments=sc.increments_assumed, sigma0=sc.sigma0, geometry=sc.geometry, R=sc.R)
     return whole_arc_map(cfg, scene, sc, start=start, surface_known=False, screen=screen)
 
 

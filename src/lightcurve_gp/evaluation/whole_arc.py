@@ -222,7 +222,7 @@ def arc_setup(cfg: Config, scene: Scene, sc: Problem, *, surface_known: bool, R:
     R = sc.noise_variance(cfg.filter.measurement_noise) if R is None else R
     problem = ArcProblem(scene, q_ref=sc.q_est0, seed=torch.arange(S), cumulative=cum, observations=sc.observations,
                          weight=_weights(sc.observations, R), surface=sc.surface if surface_known else None,
-                         workers=workers)
+                         zero_points=sc.obs.zero_point_indicator(), workers=workers)
     sigma0 = sc.sigma0.to(sc.q_est0)
     mean, precision = torch.zeros(S, 3, dtype=cum.dtype), sigma0.pow(-2).unsqueeze(-1).expand(S, 3)
     theta0 = None

@@ -136,7 +136,8 @@ def run_filter(cfg: Config, model: ObservationModel, *, q_est0: Tensor, observat
 
 
 def run_surface_filter(cfg: Config, scene: Scene, *, q_est0: Tensor, observations: Tensor, increments: Tensor,
-                       sigma0: Tensor | None = None, geometry=None) -> FilterHistory:
+                       sigma0: Tensor | None = None, geometry=None, R: Tensor | float | None = None
+                       ) -> FilterHistory:
     """The USQUE on ``[δp, θ]`` with the surface state ``θ`` (:mod:`lightcurve_gp.observation.surface_state`): the
     renderer of ``scene`` (the known shape) with every sigma point's surface, ``θ0`` and its prior about ``cfg``'s
     reference surface, ``R`` from ``filter.surface_measurement_noise`` when set; ω known.
@@ -145,6 +146,8 @@ def run_surface_filter(cfg: Config, scene: Scene, *, q_est0: Tensor, observation
         scene: the renderer: fixed, or per sample along the pass ``geometry`` (its first sample gives ``θ0``).
         observations: ``(B, T+1)`` (mag); q_est0: ``(B, 4)``; increments: ``(T, 4)`` or ``(B, T, 4)``.
         sigma0: per-filter initial attitude std ``(B,)`` (rad); default ``filter.p0_deg``.
+        R: the observations' own noise variance (scalar or ``(B, T+1)``, mag², a file's ``mag_err²``), which
+            replaces ``filter.measurement_noise`` and ``filter.surface_measurement_noise``.
     """
     first = scene.sample(0) if scene.per_sample else scene
     theta0, std = surface_state_prior(scene=first, q_est0=q_est0, y0=observations[:, 0],
@@ -154,4 +157,4 @@ def run_surface_filter(cfg: Config, scene: Scene, *, q_est0: Tensor, observation
     model = SurfaceStateRenderer(scene)
     return run_usque(model=step_models(model, geometry=geometry)[1], q_est0=q_est0, P0=P0, observations=observations,
                      m_past0=first_observation(observations), increments=increments,
-                     params=filter_params(cfg, model, surface=True), theta0=theta0)
+                     params=filter_params(cfg, model, R=R, surface=True), theta0=theta0)

@@ -63,14 +63,19 @@ class ArcProblem:
         cumulative: ``Δ_k`` of each object ``(S, T+1, 4)``; observations: ``(S, T+1)`` (mag, NaN: missing).
         weight: ``1/σ_k`` ``(S, T+1)`` (mag⁻¹), 0 for a sample left out (``k = 0``, missing).
         surface: the known surface of each object (fields ``(S,)``); ``None``: the surface state is in ``x``.
+        zero_points: ``(T+1, C)`` indicator of the samples of each light curve whose zero point is unknown
+            (relative photometry), or ``None``: each such curve's magnitude offset is profiled out of the residuals
+            (its weighted mean residual removed, the exact minimum over the offset), so the state keeps its size.
         workers: Python threads that render the pieces of one call side by side (each piece's operations release
             the interpreter); the results do not depend on it. Run with one torch thread (:func:`torch_threads`) so
             the two kinds of parallelism do not compete.
     """
 
     def __init__(self, scene: Scene, *, q_ref: Tensor, seed: Tensor, cumulative: Tensor, observations: Tensor,
-                 weight: Tensor, surface: Surface | None, workers: int = 1) -> None:
+                 weight: Tensor, surface: Surface | None, zero_points: Tensor | None = None,
+                 workers: int = 1) -> None:
         self.scene, self.q_ref, self.seed, self.surface = scene, q_ref, seed, surface
+        self.zero_points = None if zero_points is None else zero_points.to(weight)
         self.workers = int(workers)
         self.y = torch.where(weight > 0, observations, 0.0)
         self.weight = weight
@@ -120,10 +125,23 @@ class ArcProblem:
         return torch.cat([render(piece) for piece in pieces])
 
     def __call__(self, x: Tensor, rows: Tensor) -> Tensor:
-        """Whitened residuals ``(A, T+1)``; 0 where a sample is left out."""
+        """Whitened residuals ``(A, T+1)``; 0 where a sample is left out; the relative light curves' offsets
+        profiled out (:meth:`offsets`)."""
+        return self.residuals(x, rows)[0]
+
+    def residuals(self, x: Tensor, rows: Tensor) -> tuple[Tensor, Tensor | None]:
+        """Whitened residuals ``(A, T+1)`` and the relative light curves' best magnitude offsets ``(A, C)`` (added
+        to the prediction; ``None`` without relative curves)."""
         s = self.seed[rows]
         w = self.weight[s]
-        return torch.where(w > 0, (self.y[s] - self.magnitudes(x, rows)) * w, 0.0)
+        d = self.y[s] - self.magnitudes(x, rows)
+        r = torch.where(w > 0, d * w, 0.0)
+        if self.zero_points is None:
+            return r, None
+        ok = torch.isfinite(r) & (w > 0)
+        w2 = torch.where(ok, w * w, 0.0)
+        offsets = (w2 * torch.where(ok, d, 0.0)) @ self.zero_points / (w2 @ self.zero_points).clamp_min(1e-300)
+        return r - w * (offsets @ self.zero_points.T), offsets
 
 
 @contextmanager

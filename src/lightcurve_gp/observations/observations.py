@@ -183,6 +183,14 @@ class Observations:
         """Time from the first to the last sample (s)."""
         return float(self.t[-1] - self.t[0])
 
+    def zero_point_indicator(self) -> Tensor | None:
+        """``(N, C')`` indicator (0/1, the magnitudes' dtype) of the samples of each of the ``C'`` relative light
+        curves, or ``None`` when every zero point is known."""
+        relative = torch.nonzero(self.relative).flatten().to(self.curve.device)
+        if relative.numel() == 0:
+            return None
+        return (self.curve.unsqueeze(-1) == relative).to(self.mag.dtype)
+
     def counts(self) -> Tensor:
         """Samples per light curve ``(C,)``."""
         return torch.bincount(self.curve.cpu(), minlength=len(self.curves))

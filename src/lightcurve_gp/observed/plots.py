@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 
 from lightcurve_gp.evaluation.plots import AXES, plain_log_ticks, save_figure
 
-__all__ = ["DENSE_SAMPLES", "ZOOM_SAMPLES", "light_curve_band", "attitude_with_uncertainty"]
+__all__ = ["DENSE_SAMPLES", "ZOOM_SAMPLES", "light_curve_band", "attitude_with_uncertainty", "fit_with_residuals"]
 
 #: above this many samples a light curve is drawn as a density (module docstring)
 DENSE_SAMPLES = 5000
@@ -127,6 +127,35 @@ def attitude_with_uncertainty(history: Table, path: str | Path, title: str = "")
     fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncols=2, frameon=False, fontsize=8,
                title="3-2-1 angles of A(q); to first order a small error about body z moves yaw, y pitch and x "
                      "roll (pitch away from ±90°)", title_fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    return save_figure(fig, path)
+
+
+def fit_with_residuals(history: Table, path: str | Path, title: str = "") -> Path:
+    """The observed magnitudes and the whole-arc fit (brighter up), one colour per light curve, above the
+    residuals in units of each sample's 1σ (the ±2σ lines dashed): what a fit's χ² summarises, sample by sample."""
+    t = np.asarray(history["t_s"], dtype=float)
+    obs, fit = np.asarray(history["mag_obs"], dtype=float), np.asarray(history["mag_fit"], dtype=float)
+    z = np.asarray(history["residual_sigmas"], dtype=float)
+    curve = np.asarray(history["curve"], dtype=int)
+    fig = Figure(figsize=(7.5, 5.5), layout="constrained")
+    top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=(2.2, 1.0))
+    dense = t.size > DENSE_SAMPLES
+    for c in np.unique(curve):
+        on = curve == c
+        line = top.plot(t[on], fit[on], lw=1, label=f"fit, light curve {c + 1}" if c < 8 else None)[0]
+        top.plot(t[on], obs[on], ".", ms=1.5 if dense else 2.5, color="black", alpha=0.6, rasterized=dense,
+                 label="observed" if c == curve[0] else None)
+        bottom.plot(t[on], z[on], ".", ms=1.5 if dense else 2.5, color=line.get_color(), rasterized=dense)
+    top.invert_yaxis()
+    top.set_ylabel(MAG_LABEL)
+    for level in (-2.0, 2.0):
+        bottom.axhline(level, color="grey", lw=0.8, ls="--")
+    bottom.axhline(0.0, color="grey", lw=0.6)
+    bottom.set_ylabel("residual / 1σ")
+    bottom.set_xlabel(TIME_LABEL)
+    top.legend(fontsize=8, frameon=False, ncols=3)
     if title:
         fig.suptitle(title, fontsize=10)
     return save_figure(fig, path)
