@@ -20,8 +20,8 @@ from pathlib import Path
 import torch
 
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.evaluation.whole_arc import whole_arc_map
 from lightcurve_gp.filters.setup import run_surface_filter
+from lightcurve_gp.inference.arc_search import whole_arc_map
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_truths
 from lightcurve_gp.simulation.truths import draw_truths

@@ -31,7 +31,7 @@ from lightcurve_gp.config.load import ConfigError, config_hash, load_config
 from lightcurve_gp.evaluation.registry import map_solution
 from lightcurve_gp.evaluation.reporting import csv_text, markdown_table
 from lightcurve_gp.evaluation.truth_reference import KINDS, truth_reference
-from lightcurve_gp.evaluation.whole_arc import search_settings
+from lightcurve_gp.inference.arc_search import search_settings
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario, simulate_truths
 from lightcurve_gp.simulation.truths import draw_truths
@@ -79,7 +79,7 @@ def stored_case(cfg, case: str, seeds: range, scene: Scene, root: Path) -> tuple
         return one_case(cfg, scene, sc), []
 
     extra = {"study": "nees_reference", "case": case, "seeds": list(seeds),
-             "search": search_settings(surface_known=False, noise_var=cfg.filter.measurement_noise)}
+             "search": search_settings(cfg.map, surface_known=False, noise_var=cfg.filter.measurement_noise)}
     case_id = config_hash(cfg, "geometry", "shape", "surface", "scenario", "filter", "evaluation", extra=extra)
     record, _ = resume_case(root, case_id, compute, values={"case": case, "noise_var": cfg.scenario.noise_var},
                             seeds=seeds, estimators=["map"])

@@ -45,7 +45,7 @@ from experiments.common import ROOT, command_line, floats, seed_range, write_out
 from lightcurve_gp.config.load import ConfigError, config_hash, load_config
 from lightcurve_gp.evaluation.harness import run_estimators
 from lightcurve_gp.evaluation.reporting import csv_text, format_triple, markdown_table, scenario_summary, seed_rows
-from lightcurve_gp.evaluation.whole_arc import search_settings
+from lightcurve_gp.inference.arc_search import search_settings
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario, simulate_truths
 from lightcurve_gp.simulation.truths import draw_truths
@@ -118,7 +118,7 @@ def cell(cfg, case: str, seeds: range, estimators, *, model, scene, root: Path
         extra = {"study": "realistic_noise", "format": FORMAT, "case": case, "seeds": list(seeds), "estimator": name,
                  "model": model_key(cfg) if name == "gpukf" else None}
         if name in ("map", "matched_map"):  # the search's settings
-            extra["search"] = search_settings(surface_known=name == "matched_map",
+            extra["search"] = search_settings(cfg.map, surface_known=name == "matched_map",
                                               noise_var=cfg.filter.measurement_noise)
         case_id = config_hash(cfg, *sections, extra=extra)
         compute = functools.partial(lambda n: run_case(cfg, make(), n, model=model, scene=scene), name)

@@ -1,6 +1,7 @@
 """The truth's likelihood ratio: zero at the estimate, the Laplace NEES where the cost is quadratic, and the seed
 kinds (the truth's basin, another, a search miss)."""
 
+import dataclasses
 from dataclasses import replace
 from pathlib import Path
 
@@ -10,13 +11,18 @@ import torch
 from lightcurve_gp.attitude.rotations import quat_mul, rotvec_to_quat
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.evaluation.truth_reference import KINDS, truth_reference
-from lightcurve_gp.evaluation.whole_arc import whole_arc_map
+from lightcurve_gp.inference.arc_search import whole_arc_map
 from lightcurve_gp.observation.surface_state import surface_from_state
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario, simulate_truths
 from lightcurve_gp.simulation.truths import draw_truths
 
 REALISTIC = Path(__file__).resolve().parents[1] / "configs" / "boxwing_realistic.yaml"
+
+
+def search(cfg, **changes):
+    """The config's whole-arc search with ``changes``."""
+    return dataclasses.replace(cfg.map, **changes)
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +72,8 @@ def test_a_search_miss_is_told_from_the_truths_basin():
     cfg = load_config(REALISTIC, ["scenario.noise_var=1e-4", "filter.measurement_noise=1e-4"])
     scene = Scene.from_config(cfg)
     sc = simulate_truths(cfg, draw_truths([1064]), scene)
-    plain = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False, probe_sigmas=())
+    plain = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False,
+                          settings=search(cfg, probe_sigmas=()))
     missed = truth_reference(cfg, scene, sc, solution=plain, surface_known=False)
     assert KINDS[int(missed.kind[0])] == "miss" and float(missed.estimate_cost - missed.basin_cost) > 10.0
     assert float(missed.statistic) < float(missed.estimate_nees)  # the truth is near the minimum the search missed

@@ -1,6 +1,7 @@
 """The whole-arc batch MAP as an estimator: it equals the MAP references, its Laplace covariance is consistent on a
 toy with a known answer, the mixture covariance's closed form, and each estimator's bound."""
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -13,7 +14,7 @@ from lightcurve_gp.attitude.rotations import quat_conj, quat_mul, quat_to_rotvec
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.evaluation.bounds import ScenarioBounds, estimator_bound
 from lightcurve_gp.evaluation.harness import run_estimators
-from lightcurve_gp.evaluation.whole_arc import arc_estimate, misfit_threshold, weak_direction_starts, whole_arc_map
+from lightcurve_gp.evaluation.registry import arc_estimate
 from lightcurve_gp.filters.setup import run_surface_filter
 from lightcurve_gp.inference.arc import (
     ArcProblem,
@@ -23,6 +24,7 @@ from lightcurve_gp.inference.arc import (
     prior_axis_starts,
     prior_corner_starts,
 )
+from lightcurve_gp.inference.arc_search import misfit_threshold, weak_direction_starts, whole_arc_map
 from lightcurve_gp.inference.attitude import MapPrior, map_attitude, map_known_rate
 from lightcurve_gp.inference.surface import map_with_surface
 from lightcurve_gp.observation.parametric import Parametric
@@ -34,6 +36,11 @@ from lightcurve_gp.simulation.truths import draw_truths
 
 REALISTIC = Path(__file__).resolve().parents[1] / "configs" / "boxwing_realistic.yaml"
 SHORT = ["scenario.duration_s=200", "evaluation.rmse_window_s=[100, 200]"]
+
+
+def search(cfg, **changes):
+    """The config's whole-arc search with ``changes``."""
+    return dataclasses.replace(cfg.map, **changes)
 
 
 def angle_deg(q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
@@ -175,10 +182,10 @@ def test_noise_floor_continuation_finds_the_basin_the_prior_starts_miss():
     cfg = load_config(REALISTIC, ["scenario.noise_var=1e-4", "filter.measurement_noise=1e-4"])
     scene = Scene.from_config(cfg)
     sc = simulate_truths(cfg, draw_truths([1053]), scene)
-    plain = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False, noise_floor_mag=None,
-                          lobe_starts=(), misfit_z=None, probe_sigmas=())
-    continued = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False, lobe_starts=(), misfit_z=None,
-                              probe_sigmas=())
+    plain = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False,
+                          settings=search(cfg, noise_floor_mag=None, lobe_starts=(), misfit_z=None, probe_sigmas=()))
+    continued = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False,
+                              settings=search(cfg, lobe_starts=(), misfit_z=None, probe_sigmas=()))
     assert float(angle_deg(plain.q0, sc.q_true[:, 0])) > 10.0
     assert float(angle_deg(continued.q0, sc.q_true[:, 0])) < 1.0
     assert float(continued.cost) < 0.5 * float(plain.cost)
@@ -193,9 +200,10 @@ def test_surface_starts_find_the_lobes_the_prior_mean_misses():
     cfg = load_config(REALISTIC, ["scenario.noise_var=0.01", "filter.measurement_noise=0.01"])
     scene = Scene.from_config(cfg)
     sc = simulate_truths(cfg, draw_truths([1050]), scene)
-    plain = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False, lobe_starts=(), misfit_z=None,
-                          probe_sigmas=())
-    lobes = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False, misfit_z=None, probe_sigmas=())
+    plain = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False,
+                          settings=search(cfg, lobe_starts=(), misfit_z=None, probe_sigmas=()))
+    lobes = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False,
+                          settings=search(cfg, misfit_z=None, probe_sigmas=()))
     assert float(angle_deg(plain.q0, sc.q_true[:, 0])) > 10.0
     assert float(angle_deg(lobes.q0, sc.q_true[:, 0])) < 5.0
     assert float(lobes.cost) < 0.5 * float(plain.cost)
@@ -211,9 +219,11 @@ def test_misfit_test_searches_again_with_unequal_lobes():
     cfg = load_config(REALISTIC, ["scenario.noise_var=1e-4", "filter.measurement_noise=1e-4"])
     scene = Scene.from_config(cfg)
     sc = simulate_truths(cfg, draw_truths([1038]), scene)
-    first = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False, misfit_z=None, probe_sigmas=())
-    again = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False, probe_sigmas=(), again_draws=0)
-    threshold = float(misfit_threshold(torch.isfinite(sc.observations[:, 1:]).double()))
+    first = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False,
+                          settings=search(cfg, misfit_z=None, probe_sigmas=()))
+    again = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False,
+                          settings=search(cfg, probe_sigmas=(), again_draws=0))
+    threshold = float(misfit_threshold(torch.isfinite(sc.observations[:, 1:]).double(), cfg.map.misfit_z))
     assert threshold == pytest.approx(300.0 + math.sqrt(300.0))
     assert float(first.cost) > 10 * threshold
     assert float(again.cost) < 319.0
@@ -234,9 +244,10 @@ def test_second_search_screens_prior_attitudes_with_every_lobe_setting():
     sc = simulate_truths(cfg, draw_truths([1276, 1000]), scene)
     start = run_surface_filter(cfg, scene, q_est0=sc.q_est0, observations=sc.observations,
                                increments=sc.increments_assumed, sigma0=sc.sigma0)
-    plain = whole_arc_map(cfg, scene, sc.problem(), start=start, surface_known=False, again_draws=0)
+    plain = whole_arc_map(cfg, scene, sc.problem(), start=start, surface_known=False,
+                          settings=search(cfg, again_draws=0))
     screened = whole_arc_map(cfg, scene, sc.problem(), start=start, surface_known=False)
-    threshold = float(misfit_threshold(torch.isfinite(sc.observations[:1, 1:]).double()))
+    threshold = float(misfit_threshold(torch.isfinite(sc.observations[:1, 1:]).double(), cfg.map.misfit_z))
     assert bool(plain.searched_again[0]) and not bool(plain.searched_again[1])
     assert float(plain.cost[0]) > 100 * threshold and float(angle_deg(plain.q0[:1], sc.q_true[:1, 0])) > 45.0
     assert float(screened.cost[0]) < 294.0 and float(angle_deg(screened.q0[:1], sc.q_true[:1, 0])) < 1.0
@@ -294,7 +305,8 @@ def test_weak_direction_probe_finds_the_basin_the_search_misses():
     cfg = load_config(REALISTIC, ["scenario.noise_var=1e-4", "filter.measurement_noise=1e-4"])
     scene = Scene.from_config(cfg)
     sc = simulate_truths(cfg, draw_truths([1064]), scene)
-    plain = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False, probe_sigmas=())
+    plain = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False,
+                          settings=search(cfg, probe_sigmas=()))
     probed = whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=False)
     lo, hi = chi2_band(3, 1)
 
@@ -344,9 +356,10 @@ def test_noise_floor_continuation_is_off_at_and_above_the_floor(paper):
     continuation's path (the same minimum on the paper's trajectory)."""
     cfg, scene, sc = paper
     at_floor = [whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=True, R=0.1 ** 2,
-                              noise_floor_mag=floor) for floor in (0.1, None)]
+                              settings=search(cfg, noise_floor_mag=floor)) for floor in (0.1, None)]
     assert torch.equal(at_floor[0].q0, at_floor[1].q0)
-    below = [whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=True, noise_floor_mag=floor)
+    below = [whole_arc_map(cfg, scene, sc.problem(), start=None, surface_known=True,
+                           settings=search(cfg, noise_floor_mag=floor))
              for floor in (0.1, None)]
     assert angle_deg(below[0].q0, below[1].q0).max() < 1e-3
 

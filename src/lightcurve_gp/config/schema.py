@@ -25,7 +25,7 @@ import torch
 __all__ = ["ConfigError", "Config", "GeometryConfig", "OrbitElementsConfig", "SiteConfig", "ShapeConfig",
            "SurfaceConfig", "DataConfig", "TrainingSurfacesConfig", "SpinRangeConfig", "ModelConfig",
            "ExactModelConfig", "SparseModelConfig", "TruthSurfaceConfig", "ScenarioConfig", "FilterConfig",
-           "EvaluationConfig", "MODEL_KIND_SECTIONS"]
+           "MapConfig", "EvaluationConfig", "MODEL_KIND_SECTIONS"]
 
 
 class ConfigError(ValueError):
@@ -369,6 +369,35 @@ class FilterConfig:
 
 
 @dataclass(kw_only=True)
+class MapConfig:
+    """The whole-arc MAP's search (:mod:`lightcurve_gp.inference.arc_search`): its starts, the continuation in the
+    noise, the misfit test's second search and the weak-direction probe. Every default was chosen on the tuning seeds
+    of the random truths (docs/studies/realistic-photometry.md)."""
+
+    screen: int = _spec(0, lo=0, omit_default=True, doc="prior draws screened by cost for more starts (0: none)")
+    keep: int = _spec(4, lo=1, omit_default=True, doc="screened draws that become starts")
+    noise_floor_mag: float | None = _spec(0.1, lo=0.0, lo_open=True, omit_default=True,
+                                          doc="the continuation's noise floor (mag); null: no continuation")
+    floor_keep: int = _spec(4, lo=1, omit_default=True, doc="the continuation's solutions that start the true-noise "
+                                                           "solve")
+    floor_iterations: int = _spec(10, lo=1, omit_default=True, doc="Levenberg-Marquardt iterations of the "
+                                                                   "continuation's first stage")
+    lobe_starts: list[float] = _spec([10.0, 100.0, 1000.0, 10000.0], lo=0.0, lo_open=True, omit_default=True,
+                                     doc="lobe exponents n_u = n_v of the surface starts (surface unknown)")
+    misfit_z: float | None = _spec(1.0, omit_default=True,
+                                   doc="the misfit test: a best cost above nu/2 + z sqrt(nu/2) is searched again; "
+                                       "null: no test")
+    lobe_pairs: list[list[float]] = _spec([[1.0e4, 10.0], [10.0, 1.0e4], [3000.0, 100.0], [100.0, 3000.0]],
+                                          lo=0.0, lo_open=True, omit_default=True,
+                                          doc="unequal lobe exponents (n_u, n_v) of the second search's starts")
+    again_draws: int = _spec(256, lo=0, omit_default=True, doc="the second search's screen of prior attitude draws")
+    again_keep: int = _spec(8, lo=1, omit_default=True, doc="screened draws the second search solves from")
+    probe_sigmas: list[float] = _spec([2.5], lo=0.0, lo_open=True, omit_default=True,
+                                      doc="the weak-direction probe: standard deviations along the weakest attitude "
+                                          "direction (empty: no probe)")
+
+
+@dataclass(kw_only=True)
 class EvaluationConfig:
     """Scoring windows and evaluation options."""
 
@@ -390,6 +419,7 @@ class Config:
     scenario: ScenarioConfig
     filter: FilterConfig
     evaluation: EvaluationConfig
+    map: MapConfig = field(default_factory=MapConfig, metadata=_hash_rule(omit_default=True))
 
     @property
     def torch_dtype(self) -> torch.dtype:

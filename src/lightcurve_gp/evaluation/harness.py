@@ -90,7 +90,7 @@ def check_estimators(cfg: Config, estimators: Sequence[str], model: ObservationM
 
 def run_estimators(cfg: Config, scenario: Scenario, *, estimators: Sequence[str] = DEFAULT_ESTIMATORS,
                    model: ObservationModel | None = None, scene: Scene | None = None,
-                   map_every_s: float = 50.0, map_screen: int = 0, bounds: bool = True) -> ScenarioResult:
+                   map_every_s: float = 50.0, bounds: bool = True) -> ScenarioResult:
     """Run the chosen estimators on every seed of ``scenario`` and score them over ``evaluation.rmse_window_s``.
 
     Args:
@@ -102,13 +102,12 @@ def run_estimators(cfg: Config, scenario: Scenario, *, estimators: Sequence[str]
         scene: the renderer of the scenario (default ``Scene.from_config(cfg)``: fixed, or per sample along the
             pass).
         map_every_s: checkpoint spacing of the checkpoint MAP estimators inside the window (s).
-        map_screen: prior draws the whole-arc MAPs screen by cost for starts (0: none).
         bounds: put each estimator's Cramér–Rao bound beside its scores (``crb_deg``,
             :mod:`lightcurve_gp.evaluation.bounds`; computed once per scenario and set of unknowns, not timed).
     """
     check_estimators(cfg, estimators, model, along_pass=scenario.geometry is not None)
     scene = (scene or Scene.from_config(cfg)).to(device=torch.device(cfg.device), dtype=cfg.torch_dtype)
-    context = RunContext(cfg, scenario.problem(), scene, model, map_every_s, map_screen)
+    context = RunContext(cfg, scenario.problem(), scene, model, map_every_s)
     window = tuple(cfg.evaluation.rmse_window_s)
     group = scenario_ambiguity_group(cfg, scenario, scene)
     grp = (float(cfg.filter.grp_a), float(cfg.filter.grp_f))

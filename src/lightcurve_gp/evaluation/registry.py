@@ -24,7 +24,7 @@ assumes. Along a pass every model predicts step ``k`` with the geometry of sampl
 * ``map`` — the whole-arc batch MAP of the initial attitude and the surface state (surface unknown, shape known,
   ω known) from every sample at once: started from the ``surface_ukf`` run and seven prior starts, its Laplace
   covariance (a mixture where several basins fit) carried to every sample
-  (:mod:`lightcurve_gp.evaluation.whole_arc`);
+  (:mod:`lightcurve_gp.inference.arc_search`, settings ``map:``);
 * ``matched_map`` — the same with the truth's surface known (an oracle, started from the ``matched_ukf`` run);
 * ``no_update`` — the initial estimate propagated with the assumed rate (a filter that learned nothing; its
   covariance stays ``P0``).
@@ -40,14 +40,15 @@ import torch
 from torch import Tensor
 
 from lightcurve_gp.attitude.dynamics import propagate_only
+from lightcurve_gp.attitude.rotations import attitude_matrix, quat_mul
 from lightcurve_gp.config.load import Config
 from lightcurve_gp.evaluation.scoring import Estimate
-from lightcurve_gp.evaluation.whole_arc import arc_estimate, whole_arc_map
 from lightcurve_gp.filters.selection import select_by_likelihood
 from lightcurve_gp.filters.setup import run_filter, run_surface_filter
 from lightcurve_gp.filters.state import FilterHistory
 from lightcurve_gp.inference.arc import ArcSolution
-from lightcurve_gp.inference.surface import map_with_surface
+from lightcurve_gp.inference.arc_search import whole_arc_map
+from lightcurve_gp.inference.surface import cumulative_increments, map_with_surface
 from lightcurve_gp.observation.base import ObservationModel
 from lightcurve_gp.observation.parametric import Parametric
 from lightcurve_gp.observation.surface_state import reference_surface
@@ -56,7 +57,7 @@ from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.truths import truth_is_model_surface
 
 __all__ = ["RunContext", "Estimator", "ESTIMATORS", "DEFAULT_ESTIMATORS", "SELECTED_LAM_RULES",
-           "run_surface_filter_selected", "map_checkpoints", "map_estimate", "map_solution"]
+           "run_surface_filter_selected", "map_checkpoints", "map_estimate", "map_solution", "arc_estimate"]
 
 #: the λ rules the selecting surface-state filter runs with (``filter.lam_rule``)
 SELECTED_LAM_RULES = ("given", "julier")
@@ -64,17 +65,15 @@ SELECTED_LAM_RULES = ("given", "julier")
 
 @dataclass(frozen=True)
 class RunContext:
-    """What an estimator runs with: the config, the problem (observations and priors), its renderer (fixed, or per
-    sample along the pass),
-    the trained GP (or ``None``), the checkpoint MAPs' spacing (s) and the prior draws the whole-arc MAPs screen
-    for starts (:func:`~lightcurve_gp.evaluation.whole_arc.whole_arc_map`)."""
+    """What an estimator runs with: the config (the whole-arc MAPs' search in its ``map`` section), the problem
+    (observations and priors), its renderer (fixed, or per sample along the pass), the trained GP (or ``None``) and
+    the checkpoint MAPs' spacing (s)."""
 
     cfg: Config
     problem: Problem
     scene: Scene
     model: ObservationModel | None = None
     map_every_s: float = 50.0
-    map_screen: int = 0
 
 
 @dataclass(frozen=True)
@@ -185,24 +184,32 @@ def map_estimate(cfg: Config, scene: Scene, sc: Problem, *, surface: bool, every
                     offset_final=None if surface else est.x[:, -1, 3])
 
 
-def map_solution(cfg: Config, scene: Scene, sc: Problem, *, screen: int = 0) -> ArcSolution:
+def map_solution(cfg: Config, scene: Scene, sc: Problem) -> ArcSolution:
     """What ``map`` runs on every seed of ``sc``: the surface-state filter, then the whole-arc MAP of attitude and
-    surface state started from its result (:func:`~lightcurve_gp.evaluation.whole_arc.whole_arc_map`; ``screen``
-    prior draws screened for starts)."""
+    surface state started from its result (:func:`~lightcurve_gp.inference.arc_search.whole_arc_map`, the search of
+    ``cfg.map``)."""
     start = run_surface_filter(cfg, scene, q_est0=sc.q_est0, observations=sc.observations,
                                increments=sc.increments_assumed, sigma0=sc.sigma0, geometry=sc.geometry, R=sc.R)
-    return whole_arc_map(cfg, scene, sc, start=start, surface_known=False, screen=screen)
+    return whole_arc_map(cfg, scene, sc, start=start, surface_known=False)
+
+
+def arc_estimate(sc: Problem, solution: ArcSolution) -> Estimate:
+    """The :class:`~lightcurve_gp.evaluation.scoring.Estimate` of a whole-arc solution at every sample: ``q̂_k = Δ_k ⊗
+    q̂_0`` with covariance ``A(Δ_k) Σ A(Δ_k)ᵀ`` (``Σ`` the reported attitude covariance at ``t_0``)."""
+    cum = cumulative_increments(sc.increments_assumed.to(sc.q_est0))
+    rot = attitude_matrix(cum)  # A(Δ_k) turns the error at t_0 to sample k
+    P = rot @ solution.attitude_covariance.unsqueeze(1) @ rot.mT
+    return Estimate(quat_mul(cum, solution.q0.unsqueeze(1)), P)
 
 
 def _map(ctx: RunContext) -> Estimate:
-    return arc_estimate(ctx.problem, map_solution(ctx.cfg, ctx.scene, ctx.problem, screen=ctx.map_screen))
+    return arc_estimate(ctx.problem, map_solution(ctx.cfg, ctx.scene, ctx.problem))
 
 
 def _matched_map(ctx: RunContext) -> Estimate:
     sc = _oracle(ctx, "matched_map")
     start = _matched_ukf(ctx).history
-    return arc_estimate(sc, whole_arc_map(ctx.cfg, ctx.scene, sc, start=start, surface_known=True,
-                                          screen=ctx.map_screen))
+    return arc_estimate(sc, whole_arc_map(ctx.cfg, ctx.scene, sc, start=start, surface_known=True))
 
 
 def _no_update(ctx: RunContext) -> Estimate:

@@ -32,8 +32,8 @@ from torch import Tensor
 
 from lightcurve_gp.attitude.metrics import attitude_error_vector, nees
 from lightcurve_gp.config.load import Config
-from lightcurve_gp.evaluation.whole_arc import arc_setup
 from lightcurve_gp.inference.arc import ArcSolution, solve_starts
+from lightcurve_gp.inference.arc_search import arc_setup
 from lightcurve_gp.inference.crb import surface_state
 from lightcurve_gp.inference.solver import GaussianPrior, least_squares_cost
 from lightcurve_gp.photometry.render import Scene

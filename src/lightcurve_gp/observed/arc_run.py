@@ -5,7 +5,7 @@ any sample times) with a start (an attitude at the first sample and its 1σ) and
 ``map`` runs on a simulation (:func:`lightcurve_gp.evaluation.registry.map_solution`: the shape known, the
 surface unknown, ω known, each sample with its own 1σ and geometry, the unknown zero point of every relative light
 curve profiled out). The answer is a smoother's: the attitude at every sample with the whole arc's covariance
-``A(Δ_k) Σ A(Δ_k)ᵀ`` (:func:`~lightcurve_gp.evaluation.whole_arc.arc_estimate`), the surface, the zero points and the
+``A(Δ_k) Σ A(Δ_k)ᵀ`` (:func:`~lightcurve_gp.evaluation.registry.arc_estimate`), the surface, the zero points and the
 fitted light curve.
 
 The fit is judged as any least-squares fit: its ``χ² = Σ r_k²`` over the ``n`` samples it uses (the first sets the
@@ -30,10 +30,10 @@ from torch import Tensor
 
 from lightcurve_gp.attitude.rotations import quat_to_euler321
 from lightcurve_gp.config.load import Config
-from lightcurve_gp.evaluation.registry import map_solution
+from lightcurve_gp.evaluation.registry import arc_estimate, map_solution
 from lightcurve_gp.evaluation.scoring import Estimate
-from lightcurve_gp.evaluation.whole_arc import arc_estimate, arc_setup
 from lightcurve_gp.inference.arc import ArcSolution
+from lightcurve_gp.inference.arc_search import arc_setup
 from lightcurve_gp.observation.surface_state import surface_from_state
 from lightcurve_gp.observations.observations import Observations
 from lightcurve_gp.observations.problem import Problem, problem_from_observations
@@ -116,17 +116,15 @@ def file_scene(cfg: Config, obs: Observations) -> Scene:
     return scene.to(device=torch.device(cfg.device), dtype=cfg.torch_dtype)
 
 
-def estimate_arc(cfg: Config, obs: Observations, *, q0: Tensor, sigma0: float, omega0: Tensor,
-                 screen: int = 0) -> ArcRun:
+def estimate_arc(cfg: Config, obs: Observations, *, q0: Tensor, sigma0: float, omega0: Tensor) -> ArcRun:
     """The recommended estimator on ``obs`` (module docstring): from the attitude ``q0 (4,)`` at the first sample
-    with 1σ ``sigma0`` (rad) per axis, the body rate ``omega0 (3,)`` (rad/s) known, ``screen`` prior draws
-    screened for more starts."""
+    with 1σ ``sigma0`` (rad) per axis, the body rate ``omega0 (3,)`` (rad/s) known, the search of ``cfg.map``."""
     start = time.perf_counter()
     problem = problem_from_observations(obs, q_est0=q0, sigma0=sigma0, omega0=omega0,
                                         inertia=cfg.shape.inertia_kg_m2, dtype=cfg.torch_dtype,
                                         device=torch.device(cfg.device))
     scene = file_scene(cfg, obs)
-    solution = map_solution(cfg, scene, problem, screen=screen)
+    solution = map_solution(cfg, scene, problem)
     setup = arc_setup(cfg, scene, problem, surface_known=False)
     local = setup.problem.recentred(solution.q0, torch.zeros(1, dtype=torch.int64))
     x = torch.cat([torch.zeros(1, 3, dtype=solution.q0.dtype), solution.theta], -1)

@@ -1,41 +1,44 @@
-"""The whole-arc batch MAP as an estimator: started from a filter's result and a small set of prior starts, solved on
-every seed of a scenario at once (:mod:`lightcurve_gp.inference.arc`), its covariance carried to every sample.
+"""The whole-arc batch MAP's search: started from a filter's result and a small set of prior starts, solved for every
+object of a :class:`~lightcurve_gp.observations.problem.Problem` at once (:mod:`lightcurve_gp.inference.arc`); its
+settings are the config's ``map:`` section (:class:`~lightcurve_gp.config.schema.MapConfig`, written ``map.x``
+below, validated and hashed like every section).
 
 Starts (``K`` per seed, one batch): the filter's final attitude moved back to ``t_0`` by the known motion (and its
 final surface state), the prior mean ``q_est,0`` and the prior mean turned by ``±√3 σ0`` about each body axis; with
 the surface unknown also the filter's and the prior mean's attitude and surface state with both lobe exponents set
-to each of :data:`LOBE_STARTS` (a light curve whose glints come from a lobe decades from the prior's is out of reach
+to each of ``map.lobe_starts`` (a light curve whose glints come from a lobe decades from the prior's is out of reach
 of a local search in ``log n``); with ``screen > 0`` also the ``keep`` best by posterior cost of ``screen``
 quasi-random draws from the prior (a scrambled Sobol' sequence mapped to ``N(0, σ0² I)``, the surface at its prior
-mean), which costs one rendering of the arc per draw. Below the noise floor (``R < NOISE_FLOOR_MAG²``, 0.1 mag) the
+mean), which costs one rendering of the arc per draw. Below the noise floor (``R < map.noise_floor_mag²``, 0.1 mag) the
 search is a continuation in the noise: every start, and the prior mean turned to the eight corners
-``(±σ0, ±σ0, ±σ0)``, is first solved with ``max(R, floor²)`` for at most :data:`FLOOR_ITERATIONS`
+``(±σ0, ±σ0, ±σ0)``, is first solved with ``max(R, floor²)`` for at most ``map.floor_iterations``
 Levenberg–Marquardt iterations (a landscape whose narrow basins the prior still outweighs; this stage only ranks
-basins) and the :data:`FLOOR_KEEP` best solutions per seed start the solve with ``R``; at and above the floor
+basins) and the ``map.floor_keep`` best solutions per seed start the solve with ``R``; at and above the floor
 nothing changes.
 
 The misfit test (surface unknown): the best cost of a seed whose fit is right is ``½ χ²_ν`` of its ``ν`` observed
 samples, mean ``ν/2`` and standard deviation ``√(ν/2)``, whatever the noise; a seed above
-``ν/2 + MISFIT_Z √(ν/2)`` is searched again, from its best solution's and the filter's attitude and surface state with
-the lobe exponents set to each unequal pair of :data:`LOBE_PAIRS` (a glint of a lobe narrow along one axis and broad
-along the other is out of reach of starts with ``n_u = n_v``), and from the :data:`AGAIN_KEEP` best of
-:data:`AGAIN_DRAWS` quasi-random prior draws of the attitude, each with every lobe setting of :data:`LOBE_PAIRS` and
-:data:`LOBE_STARTS`, ranked by posterior cost (at the floor below it: the attitude of a narrow-lobed truth far from
+``ν/2 + map.misfit_z √(ν/2)`` is searched again, from its best solution's and the filter's attitude and surface state
+with the lobe exponents set to each unequal pair of ``map.lobe_pairs`` (a glint of a lobe narrow along one axis and
+broad along the other is out of reach of starts with ``n_u = n_v``), and from the ``map.again_keep`` best of
+``map.again_draws`` quasi-random prior draws of the attitude, each with every lobe setting of ``map.lobe_pairs`` and
+``map.lobe_starts``, ranked by posterior cost (at the floor below it: the attitude of a narrow-lobed truth far from
 the filter's answer is out of reach of both other kinds of start), each with the same continuation below the floor;
 the modes are found among the solutions of both searches. Seeds that pass the test cost nothing more (with
-``MISFIT_Z = 1`` about one in six whose fit is right is searched again).
+``map.misfit_z = 1`` about one in six whose fit is right is searched again).
 
 The weak-direction probe (every seed, surface known or not): a second basin of about the same cost often lies along
 the valley of the best solution's weakest attitude direction, a few of its standard deviations away, behind a ridge
 that a local search does not cross; the mixture then holds one mode where the data hold two. Every seed is started
 again from its best solution moved ``±k`` standard deviations along that direction, the surface state along the
-valley with it (:func:`weak_direction_starts`, ``k`` in :data:`PROBE_SIGMAS`), solved with the true noise, and the
+valley with it (:func:`weak_direction_starts`, ``k`` in ``map.probe_sigmas``), solved with the true noise, and the
 modes are found among all solutions. Each choice was made on the tuning seeds of the random truths (1000–1089; the
 study ``docs/studies/realistic-photometry.md`` has the numbers).
 
-The measurement noise is the filters' ``R`` (``filter.measurement_noise``, or a per-sample ``R``); ω is known (the
-scenario's assumed rate). The estimate at sample ``k`` is ``q̂_k = Δ_k ⊗ q̂_0`` with covariance ``A(Δ_k) Σ A(Δ_k)ᵀ``
-(``Σ`` the reported attitude covariance at ``t_0``), so the NEES is scored at every sample.
+The measurement noise is the problem's ``R`` (a file's ``mag_err²``) or the filters' ``filter.measurement_noise``; ω is
+known (the problem's assumed rate); the unknown zero point of every relative light curve is profiled out. The estimate
+at sample ``k`` is ``q̂_k = Δ_k ⊗ q̂_0`` with covariance ``A(Δ_k) Σ A(Δ_k)ᵀ`` (``Σ`` the reported attitude covariance
+at ``t_0``; :func:`lightcurve_gp.evaluation.registry.arc_estimate`).
 """
 
 from __future__ import annotations
@@ -50,9 +53,9 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from lightcurve_gp.attitude.rotations import attitude_matrix, quat_conj, quat_mul, rotvec_to_quat
+from lightcurve_gp.attitude.rotations import quat_conj, quat_mul, rotvec_to_quat
 from lightcurve_gp.config.load import Config
-from lightcurve_gp.evaluation.scoring import Estimate
+from lightcurve_gp.config.schema import MapConfig
 from lightcurve_gp.filters.setup import first_observation
 from lightcurve_gp.filters.state import FilterHistory
 from lightcurve_gp.inference.arc import (
@@ -73,33 +76,11 @@ from lightcurve_gp.observation.surface_state import reference_surface, surface_s
 from lightcurve_gp.observations.problem import Problem
 from lightcurve_gp.photometry.render import Scene
 
-__all__ = ["ArcSetup", "arc_setup", "SCREEN_SEED", "NOISE_FLOOR_MAG", "FLOOR_KEEP", "FLOOR_ITERATIONS",
-           "LOBE_STARTS", "MISFIT_Z", "LOBE_PAIRS", "AGAIN_DRAWS", "AGAIN_KEEP", "PROBE_SIGMAS",
-           "weak_direction_starts", "search_settings", "misfit_threshold", "whole_arc_map", "arc_estimate"]
+__all__ = ["ArcSetup", "arc_setup", "SCREEN_SEED", "weak_direction_starts", "search_settings", "misfit_threshold",
+           "whole_arc_map"]
 
 #: seed of the scrambled Sobol' draws of the screening
 SCREEN_SEED = 27
-#: the continuation's noise floor (mag): below it the starts are first solved with this noise (module docstring)
-NOISE_FLOOR_MAG = 0.1
-#: the continuation's solutions per seed that start the solve with the true noise
-FLOOR_KEEP = 4
-#: Levenberg–Marquardt iterations of the continuation's first stage (it only ranks basins for the second)
-FLOOR_ITERATIONS = 10
-#: lobe exponents ``n_u = n_v`` of the surface starts (surface unknown): one per decade of the range the prior
-#: expects (10 … 10⁴)
-LOBE_STARTS = (10.0, 100.0, 1000.0, 10000.0)
-#: the misfit test: a seed whose best cost exceeds ``ν/2 + MISFIT_Z √(ν/2)`` (``ν`` its observed samples: the mean
-#: and one standard deviation of ``χ²_ν / 2``) is searched again (surface unknown; module docstring)
-MISFIT_Z = 1.0
-#: unequal lobe exponents ``(n_u, n_v)`` of the second search's starts
-LOBE_PAIRS = ((1.0e4, 10.0), (10.0, 1.0e4), (3000.0, 100.0), (100.0, 3000.0))
-#: the second search's screen: quasi-random prior draws of the attitude (each with every lobe setting of
-#: ``LOBE_PAIRS`` and ``LOBE_STARTS``) and how many of the best per seed it solves from
-AGAIN_DRAWS = 256
-AGAIN_KEEP = 8
-#: the weak-direction probe: every seed is started again from its best solution moved this many standard deviations
-#: along each sign of its weakest attitude direction (:func:`weak_direction_starts`), solved with the true noise
-PROBE_SIGMAS = (2.5,)
 
 
 def _weights(observations: Tensor, R: float | Tensor) -> Tensor:
@@ -164,19 +145,22 @@ def weak_direction_starts(solved: ArcStarts, sigmas: Sequence[float]) -> tuple[T
     return q, theta
 
 
-def search_settings(*, surface_known: bool, noise_var: float) -> dict[str, Any]:
-    """The default search of :func:`whole_arc_map` as JSON values, what a stored result depends on (a case key):
-    the continuation (``None`` at and above the floor), the surface starts and the misfit test's second search (surface
-    unknown only) and the probe."""
-    floor = noise_var < NOISE_FLOOR_MAG ** 2
-    out: dict[str, Any] = {"floor": [NOISE_FLOOR_MAG, FLOOR_KEEP, FLOOR_ITERATIONS] if floor else None,
-                           "lobes": None if surface_known else list(LOBE_STARTS), "probe": list(PROBE_SIGMAS)}
+def search_settings(settings: MapConfig, *, surface_known: bool, noise_var: float) -> dict[str, Any]:
+    """The search of :func:`whole_arc_map` under ``settings`` as JSON values, what a stored result depends on (a case
+    key): the continuation (``None`` at and above the floor), the surface starts and the misfit test's second search
+    (surface unknown only) and the probe."""
+    floor_mag = settings.noise_floor_mag
+    floor = floor_mag is not None and noise_var < floor_mag ** 2
+    out: dict[str, Any] = {"floor": [floor_mag, settings.floor_keep, settings.floor_iterations] if floor else None,
+                           "lobes": None if surface_known else list(settings.lobe_starts),
+                           "probe": list(settings.probe_sigmas)}
     if not surface_known:
-        out["misfit"] = [MISFIT_Z, [list(p) for p in LOBE_PAIRS], AGAIN_DRAWS, AGAIN_KEEP]
+        out["misfit"] = [settings.misfit_z, [list(p) for p in settings.lobe_pairs], settings.again_draws,
+                         settings.again_keep]
     return out
 
 
-def misfit_threshold(weight: Tensor, z: float = MISFIT_Z) -> Tensor:
+def misfit_threshold(weight: Tensor, z: float) -> Tensor:
     """The cost ``ν/2 + z √(ν/2)`` ``(S,)`` above which a seed's fit is suspect, ``ν`` its samples with weight
     ``(S, T+1)`` > 0 (the whitened residuals' ``½ χ²_ν`` has mean ``ν/2`` and standard deviation ``√(ν/2)``)."""
     nu = (weight > 0).sum(-1).to(weight.dtype)
@@ -235,45 +219,37 @@ def arc_setup(cfg: Config, scene: Scene, sc: Problem, *, surface_known: bool, R:
 
 
 def whole_arc_map(cfg: Config, scene: Scene, sc: Problem, *, start: FilterHistory | None, surface_known: bool,
-                  R: float | Tensor | None = None, screen: int = 0, keep: int = 4,
-                  noise_floor_mag: float | None = NOISE_FLOOR_MAG, floor_keep: int = FLOOR_KEEP,
-                  floor_iterations: int = FLOOR_ITERATIONS, lobe_starts: Sequence[float] = LOBE_STARTS,
-                  misfit_z: float | None = MISFIT_Z, lobe_pairs: Sequence[tuple[float, float]] = LOBE_PAIRS,
-                  again_draws: int = AGAIN_DRAWS, again_keep: int = AGAIN_KEEP,
-                  probe_sigmas: Sequence[float] = PROBE_SIGMAS,
+                  R: float | Tensor | None = None, settings: MapConfig | None = None,
                   workers: int | None = None) -> ArcSolution:
-    """The whole-arc MAP of every seed of ``sc`` (module docstring).
+    """The whole-arc MAP of every object of ``sc`` (module docstring).
 
     Args:
-        cfg: the config (``filter.measurement_noise``, ``filter.offset_prior_std``, the reference surface).
+        cfg: the config (``filter.measurement_noise``, ``filter.offset_prior_std``, the reference surface, ``map``).
         scene: the renderer of the known shape (fixed, or per sample along the pass).
-        sc: the scenario; its ``q_est0`` and ``sigma0`` are the prior, its assumed increments the motion.
-        start: a filter's run on the same seeds (its final estimate is one start), or ``None``.
-        surface_known: render with the truth's surface (an oracle, like ``matched_ukf``); else the surface state
-            is estimated with the surface-state filter's prior.
-        R: the noise variance (mag²), a number or per sample ``(S, T+1)``; default ``filter.measurement_noise``.
-        screen, keep: prior draws screened by cost and how many of them become starts (0: none).
-        noise_floor_mag: the continuation's noise floor (mag): where some ``R`` is below its square, every start
-            (and the prior's cube corners) is first solved with ``max(R, floor²)`` and the ``floor_keep`` best
-            solutions per seed start the solve with ``R``; ``None``: no continuation. ``floor_iterations``: the
-            first stage's Levenberg–Marquardt iterations at most (the second takes ``ARC_OPTIONS``').
-        lobe_starts: with the surface unknown, the filter's and the prior mean's attitude and surface state are also
-            started with both lobe exponents set to each of these (``()``: no surface starts).
-        misfit_z, lobe_pairs: with the surface unknown, the seeds whose best cost fails the misfit test
-            (:func:`misfit_threshold` with ``misfit_z``; ``None``: no test) are searched again from their best
-            solution's and the filter's attitude and surface state with the lobe exponents set to each pair
-            ``(n_u, n_v)`` of ``lobe_pairs`` (``()``: no second search); the modes are found among both searches'
-            solutions.
-        again_draws, again_keep: the second search also screens ``again_draws`` quasi-random prior draws of the
-            attitude, each with the lobe exponents set to every pair of ``lobe_pairs`` and every value of
-            ``lobe_starts``, by posterior cost (with the continuation's floor when there is one), and solves from the
-            ``again_keep`` best per seed (0 draws: no screen).
-        probe_sigmas: every seed is started again from its best solution moved this many standard deviations along
-            each sign of its weakest attitude direction (:func:`weak_direction_starts`; ``()``: no probe).
+        sc: the problem; its ``q_est0`` and ``sigma0`` are the prior, its assumed increments the motion.
+        start: a filter's run on the same objects (its final estimate is one start), or ``None``.
+        surface_known: render with the truth's surface (an oracle, like ``matched_ukf``: ``sc.surface``); else the
+            surface state is estimated with the surface-state filter's prior.
+        R: the noise variance (mag²), a number or per sample ``(S, T+1)``; default the problem's, else
+            ``filter.measurement_noise``.
+        settings: the search (default ``cfg.map``): ``screen`` and ``keep`` prior draws screened by cost for starts;
+            the continuation below ``noise_floor_mag`` (every start, and the prior's cube corners, first solved with
+            ``max(R, floor²)`` for at most ``floor_iterations``, the ``floor_keep`` best per object then solved with
+            ``R``; ``None``: none); with the surface unknown the surface starts at each of ``lobe_starts`` and the
+            misfit test (``misfit_z``; ``None``: none) whose failing objects are searched again from the unequal
+            ``lobe_pairs`` and from the ``again_keep`` best of ``again_draws`` prior draws with every lobe setting;
+            the probe along the weakest direction at each of ``probe_sigmas`` (empty: none).
         workers: threads that render independent pieces of the problems side by side, torch held to one thread
             meanwhile (:class:`~lightcurve_gp.inference.arc.ArcProblem`); default the caller's torch thread count.
             The result does not depend on it.
     """
+    settings = cfg.map if settings is None else settings
+    screen, keep = settings.screen, settings.keep
+    noise_floor_mag, floor_keep, floor_iterations = (settings.noise_floor_mag, settings.floor_keep,
+                                                     settings.floor_iterations)
+    lobe_starts, misfit_z = tuple(settings.lobe_starts), settings.misfit_z
+    lobe_pairs = tuple(tuple(p) for p in settings.lobe_pairs)
+    again_draws, again_keep, probe_sigmas = settings.again_draws, settings.again_keep, tuple(settings.probe_sigmas)
     workers = torch.get_num_threads() if workers is None else int(workers)
     R = sc.noise_variance(cfg.filter.measurement_noise) if R is None else R
     setup = arc_setup(cfg, scene, sc, surface_known=surface_known, R=R, workers=workers)
@@ -341,11 +317,3 @@ def _search(problem: ArcProblem, floored: ArcProblem | None, *, starts: Tensor, 
                                        prior_precision=precision, keep=floor_keep,
                                        options=replace(ARC_OPTIONS, iterations=floor_iterations))
     return solve_starts(problem, starts=starts, theta_starts=thetas, prior_mean=mean, prior_precision=precision)
-
-
-def arc_estimate(sc: Problem, solution: ArcSolution) -> Estimate:
-    """The :class:`~lightcurve_gp.evaluation.scoring.Estimate` of a whole-arc solution at every sample."""
-    cum = cumulative_increments(sc.increments_assumed.to(sc.q_est0))
-    rot = attitude_matrix(cum)  # A(Δ_k) turns the error at t_0 to sample k
-    P = rot @ solution.attitude_covariance.unsqueeze(1) @ rot.mT
-    return Estimate(quat_mul(cum, solution.q0.unsqueeze(1)), P)
