@@ -162,9 +162,10 @@ def periodogram(t_s: np.ndarray, mag: np.ndarray, mag_err: np.ndarray | None = N
     if not rates and detection:
         peak = 360.0 * float(frequency[top[0]])
         others = ", ".join(f"{360 * f:.3g}" for f in frequency[top[1:]])
+        others = f"; other peaks at {others} deg/s" if others else ""
         raise ValueError(f"rate range {lo:g}-{hi:g} deg/s excludes every periodogram candidate: no rate in it fits "
                          f"the light curve, whose periodogram's strongest peak is at {peak:.3g} deg/s (the light "
-                         f"curve repeats every {360.0 / peak:.3g} s{f'; other peaks at {others} deg/s' if others else ''}"
+                         f"curve repeats every {360.0 / peak:.3g} s{others}"
                          f"), and the candidates are 0.5, 1 and 2 times a peak; widen the range to "
                          f"{RATE_FACTORS[0] * peak:.3g}-{RATE_FACTORS[-1] * peak:.3g} deg/s if the object may spin "
                          f"that fast")
