@@ -31,12 +31,14 @@ from pathlib import Path
 import torch
 
 from lightcurve_gp.commands.common import (
+    STRICT_HELP,
     UserError,
     check_new_folder,
     check_output_root,
     progress_enabled,
     provenance,
     run_interruptible,
+    warn,
 )
 from lightcurve_gp.commands.layout import light_curve_folder
 from lightcurve_gp.files import RunFolder, write_json_atomic
@@ -85,6 +87,7 @@ def add_file_arguments(parser: argparse.ArgumentParser) -> None:
                              "--bank-prune-keep (default: no pruning)")
     parser.add_argument("--bank-prune-keep", type=int, default=None,
                         help="bank members that continue after --bank-prune-after-s (default 64)")
+    parser.add_argument("--strict", action="store_true", help=f"with --light-curve: {STRICT_HELP}")
 
 
 def _option(name: str) -> str:
@@ -104,6 +107,8 @@ def check_options(args: argparse.Namespace) -> None:
         for start in ("initial_attitude", "solutions"):
             if given(name) and name in BANK_DEFAULTS and given(start):
                 raise UserError(f"{_option(name)}: does not apply with {_option(start)} (no bank runs)")
+    if args.strict and args.light_curve is None:
+        raise UserError("--strict: applies only with --light-curve")
     if given("bank_prune_keep") and not given("bank_prune_after_s"):
         raise UserError("--bank-prune-keep: applies only with --bank-prune-after-s")
     for name, value in BANK_DEFAULTS.items():
@@ -158,7 +163,7 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
     check_light_curve(cfg, lc)
     try:
         check_model_takes_geometry(model, lc)
-        geometry = file_geometry(lc)
+        geometry = file_geometry(lc, strict=args.strict, warn=warn)
     except FileGeometryError as exc:
         raise UserError(str(exc)) from None
     check_output_root(args.out)

@@ -26,6 +26,7 @@ from matplotlib.figure import Figure
 from tqdm.auto import tqdm
 
 from lightcurve_gp.commands.common import (
+    STRICT_HELP,
     UserError,
     add_common_arguments,
     apply_threads,
@@ -34,6 +35,7 @@ from lightcurve_gp.commands.common import (
     progress_enabled,
     provenance,
     run_command,
+    warn,
 )
 from lightcurve_gp.commands.layout import invert_folder
 from lightcurve_gp.config.load import load_config
@@ -69,6 +71,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="1-sigma of every magnitude (mag) for a file without a mag_err column")
     parser.add_argument("--max-log-ratio", type=float, default=10.0,
                         help="families within this many nats of the best log-likelihood are reported (default 10)")
+    parser.add_argument("--strict", action="store_true", help=STRICT_HELP)
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY.PATH=VALUE",
                         help="override a config value (repeatable)")
     add_common_arguments(parser)
@@ -87,9 +90,11 @@ def _settings(args: argparse.Namespace) -> InversionSettings:
     return InversionSettings(starts=args.starts, seed=args.seed, rate_range_deg_s=(args.rate_min, args.rate_max))
 
 
-def file_problem(cfg, lc: LightCurve, mag_err: float | None) -> tuple[TrajectoryProblem, Scene, torch.Tensor]:
+def file_problem(cfg, lc: LightCurve, mag_err: float | None,
+                 strict: bool = False) -> tuple[TrajectoryProblem, Scene, torch.Tensor]:
     """The file as a :class:`~lightcurve_gp.inference.trajectory.TrajectoryProblem` (no anchors yet), its scene and
-    its sample times (s from the first); a :class:`UserError` names what does not fit."""
+    its sample times (s from the first); a :class:`UserError` names what does not fit (with ``strict``, samples its
+    TLE and site say cannot have been observed; without, they are a warning)."""
     dtype, device = cfg.torch_dtype, torch.device(cfg.device)
     dt = float(cfg.scenario.dt_s)
     steps = np.round(lc.t / dt)
@@ -100,7 +105,7 @@ def file_problem(cfg, lc: LightCurve, mag_err: float | None) -> tuple[Trajectory
     if lc.mag_err is None and mag_err is None:
         raise UserError(f"{lc.source}: no mag_err column; give the magnitudes' 1-sigma with --mag-err")
     try:
-        geometry = file_geometry(lc)
+        geometry = file_geometry(lc, strict=strict, warn=warn)
     except FileGeometryError as exc:
         raise UserError(str(exc)) from None
     scene = Scene.from_config(cfg) if cfg.geometry.kind == "fixed" or geometry is not None else None
@@ -164,7 +169,7 @@ def _run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config, args.overrides)
     settings = _settings(args)
     lc = read_light_curve(args.light_curve)
-    problem, scene, t = file_problem(cfg, lc, args.mag_err)
+    problem, scene, t = file_problem(cfg, lc, args.mag_err, args.strict)
     check_output_root(args.out)
     folder = invert_folder(args.out, cfg.name, args.light_curve)
     check_new_folder(folder, args.force)
