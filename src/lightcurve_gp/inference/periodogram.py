@@ -6,6 +6,10 @@ maxima ``f_k`` (the light curve's fundamental) give candidate rates. A facet mod
 twice per turn (the box-wing is symmetric under 180° turns), sometimes once, and a peak may sit on the first
 harmonic, so each peak proposes ``|ω| = 180 f_k``, ``360 f_k`` and ``720 f_k`` °/s (the issue's ½×, 1× and 2×).
 
+On a regular grid of step ``Δt`` a harmonic at a multiple of ``1 / (2 Δt)`` is zero at every sample and astropy's
+normal equations are singular there; the power is then computed by least squares that drop the empty column
+(:func:`lstsq_power`, equal to astropy's elsewhere).
+
 A noisy light curve (σ ≈ 0.7 mag) may show no peak at all: its strongest maxima are noise. The strongest peak is a
 **detection** when its false-alarm probability is below :data:`FALSE_ALARM` (at one frequency the model's improvement
 over a constant is ``F(2 nterms, N − 2 nterms − 1)``-distributed under white noise; over the grid, Bonferroni with

@@ -1,7 +1,9 @@
 """The light-curve file: one object's observed magnitudes, read and written with ``astropy.table``.
 
 Formats by suffix: ``.ecsv`` (metadata in the YAML header), ``.csv`` (metadata as ``# key: value`` comment lines
-before the column names) and ``.fits``/``.fit`` (metadata as header cards). Columns:
+before the column names; as a spreadsheet saves it too, with a byte-order mark, CRLF line ends or ``;`` between the
+columns and decimal commas: :mod:`lightcurve_gp.observed.text_tables`) and ``.fits``/``.fit`` (metadata as header
+cards). Columns:
 
 * ``time`` — UTC times as text in any form astropy's ``Time`` reads (``2025-01-01T00:00:00.000``,
   ``2025-01-01 00:00:00``...), or numbers: seconds from the metadata's ``epoch`` (a UTC time in any such form, quoted
