@@ -211,6 +211,16 @@ def test_a_tle_without_a_site_names_the_site_before_the_model():
         check_model_takes_geometry(FixedGeometryModel(), leo_curve("2024-05-15T15:55:00", np.arange(0.0, 60.0, 20.0)))
 
 
+def test_estimate_on_a_tle_without_a_site_names_the_site(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(estimate, "_load_checked_model", lambda args, cfg: (FixedGeometryModel(), {}))
+    path = write_light_curve(leo_curve("2024-05-15T15:55:00", np.arange(0.0, 200.0, 20.0), site=False),
+                             tmp_path / "leo.csv")
+    assert estimate.main([BOXWING, "--out", str(tmp_path / "out"), "--no-progress", "--model", "m.pt",
+                          "--light-curve", str(path), "--initial-attitude=0,0,0,1"]) == 2
+    assert capsys.readouterr().err == (f"error: {path}: metadata site_lat_deg: missing (a file with a TLE needs the "
+                                       f"observing site: site_lat_deg, site_lon_deg, site_alt_m)\n")
+
+
 # 4. and 5. a CSV as a spreadsheet saves it: byte-order mark, CRLF, ';' between columns with decimal commas
 
 PLAIN = ("# band: V\n# epoch: 2025-01-01T00:00:00\ntime,mag,mag_err\n0,12.5,0.1\n1.5,12.75,0.1\n3,-0.25,0.125\n")
