@@ -16,7 +16,8 @@ for the filter's state, or too long for the known-spin propagation, is refused b
 (:func:`lightcurve_gp.observed.run.check_light_curve`).
 
 A file with per-sample geometry or a TLE and site runs along its pass
-(:func:`lightcurve_gp.observed.run.file_geometry`) with a model that takes geometry.
+(:func:`lightcurve_gp.observed.run.file_geometry`) with a model that takes geometry; samples its TLE and site say
+cannot have been observed are one warning line on stderr, or refused with ``--strict``.
 ``--solutions solutions.ecsv`` (from ``python -m lightcurve_gp.invert``) starts the filter from the best family of the
 inversion instead: its attitude at the first sample and its body rate (which replaces ``scenario.omega0_deg_s``).
 """

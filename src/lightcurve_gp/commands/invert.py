@@ -11,7 +11,8 @@ estimates of the same file) atomically (an existing one is refused unless ``--fo
 * ``periodogram.png`` and ``light_curve.png`` (the observed magnitudes with each leading family's prediction).
 
 Sample times must lie on the ``scenario.dt_s`` grid (the propagation's step); ``mag_err`` gives each sample's 1σ,
-``--mag-err`` one value for a file without it. Errors are one line and exit code 2, as in every command.
+``--mag-err`` one value for a file without it. Errors are one line and exit code 2, as in every command; samples a
+file's TLE and site say cannot have been observed are one warning line, or refused with ``--strict``.
 """
 
 from __future__ import annotations

@@ -52,7 +52,8 @@ MAX_SUB_STEPS = 100_000
 
 
 class FileGeometryError(ValueError):
-    """The file's geometry cannot be used: a TLE without a site, or a model that takes no geometry."""
+    """The file's geometry cannot be used: a TLE without a site, a model that takes no geometry, or (strict)
+    samples the site cannot have seen."""
 
 
 @dataclass
@@ -90,12 +91,13 @@ def file_geometry(lc: LightCurve, *, strict: bool = False,
         geometry = orbit_pass(geo, np.asarray(lc.t, dtype=np.float64))
     except ConfigError as exc:
         raise FileGeometryError(f"{lc.source}: metadata tle_line1/tle_line2 and site: {exc}") from None
-    unseen = site_visibility(geometry, lat_deg=lat, lon_deg=lon, alt_km=alt_m / 1e3).describe(
-        lambda i: iso_times(lc.times[i]))
-    if unseen is not None and strict:
-        raise FileGeometryError(f"{lc.source}: {unseen} (refused with --strict)")
-    if unseen is not None and warn is not None:
-        warn(f"{lc.source}: {unseen}; check the TLE, the site and the times (--strict refuses such a file)")
+    if strict or warn is not None:
+        unseen = site_visibility(geometry, lat_deg=lat, lon_deg=lon, alt_km=alt_m / 1e3).describe(
+            lambda i: iso_times(lc.times[i]))
+        if unseen is not None and strict:
+            raise FileGeometryError(f"{lc.source}: {unseen} (refused with --strict)")
+        if unseen is not None:
+            warn(f"{lc.source}: {unseen}; check the TLE, the site and the times (--strict refuses such a file)")
     return geometry
 
 
