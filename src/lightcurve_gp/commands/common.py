@@ -47,7 +47,7 @@ from lightcurve_gp.observed.lightcurve_file import LightCurveFileError
 
 __all__ = ["DEFAULT_THREADS", "UserError", "Interrupted", "add_common_arguments", "apply_threads",
            "progress_enabled", "check_output_root", "check_new_folder", "check_overrides", "available_memory",
-           "format_bytes", "run_interruptible", "run_command", "exit_process", "provenance"]
+           "format_bytes", "warn", "STRICT_HELP", "run_interruptible", "run_command", "exit_process", "provenance"]
 
 #: torch intra-op threads of every command unless ``--threads`` says otherwise (see the module docstring)
 DEFAULT_THREADS = 1
@@ -143,6 +143,16 @@ def available_memory(device: str) -> float:
     except OSError:
         pass
     return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+
+
+def warn(message: str) -> None:
+    """One warning line on stderr, ``warning: <message>`` (the run goes on; exit code unchanged)."""
+    print(f"warning: {message}", file=sys.stderr, flush=True)
+
+
+#: the help of ``--strict`` on the commands that read a light-curve file
+STRICT_HELP = ("refuse a file whose TLE and site put samples where they cannot have been observed (the object below "
+               "the horizon, the site in daylight, the object in the Earth's shadow) instead of warning")
 
 
 def format_bytes(n: float) -> str:

@@ -20,6 +20,8 @@ and write ``attitude_history_<name>.ecsv``.
 Options that do not apply are refused before anything is read (:func:`check_options`): ``--seeds`` and
 ``--rho-true`` with ``--light-curve``; ``--initial-attitude``, ``--solutions`` and the bank options without it; the
 bank options with a start or without ``gpukf``.
+A file with a TLE and site whose samples cannot have been observed (below the horizon, the site in daylight, the
+object in the Earth's shadow) is one warning line on stderr, or refused with ``--strict``.
 """
 
 from __future__ import annotations
@@ -32,12 +34,14 @@ from pathlib import Path
 import torch
 
 from lightcurve_gp.commands.common import (
+    STRICT_HELP,
     UserError,
     check_new_folder,
     check_output_root,
     progress_enabled,
     provenance,
     run_interruptible,
+    warn,
 )
 from lightcurve_gp.commands.layout import light_curve_folder
 from lightcurve_gp.evaluation.registry import ESTIMATORS, RunContext
@@ -108,6 +112,7 @@ def add_file_arguments(parser: argparse.ArgumentParser) -> None:
                              "--bank-prune-keep (default: no pruning)")
     parser.add_argument("--bank-prune-keep", type=int, default=None,
                         help="bank members that continue after --bank-prune-after-s (default 64)")
+    parser.add_argument("--strict", action="store_true", help=f"with --light-curve: {STRICT_HELP}")
 
 
 def _option(name: str) -> str:
@@ -129,6 +134,8 @@ def check_options(args: argparse.Namespace) -> None:
                 raise UserError(f"{_option(name)}: does not apply with {_option(start)} (no bank runs)")
     if args.relative and args.light_curve is None:
         raise UserError("--relative: applies only with --light-curve")
+    if args.strict and args.light_curve is None:
+        raise UserError("--strict: applies only with --light-curve")
     if given("bank_prune_keep") and not given("bank_prune_after_s"):
         raise UserError("--bank-prune-keep: applies only with --bank-prune-after-s")
     for name, value in BANK_DEFAULTS.items():
@@ -214,7 +221,8 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
                         "--solutions from python -m lightcurve_gp.invert (which needs none)")
     mag_err = args.mag_err if args.mag_err is not None else math.sqrt(cfg.filter.measurement_noise)
     try:
-        obs = read_observations(args.light_curve, mag_err=mag_err, relative=args.relative)
+        obs = read_observations(args.light_curve, mag_err=mag_err, relative=args.relative, strict=args.strict,
+                                warn=warn)
         check_observations(obs)
         scene = file_scene(cfg, obs)
     except (FileGeometryError, ValueError) as exc:
@@ -272,7 +280,7 @@ def _run_gpukf(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
     check_light_curve(cfg, lc)
     try:
         check_model_takes_geometry(model, lc)
-        geometry = file_geometry(lc)
+        geometry = file_geometry(lc, strict=args.strict, warn=warn)
     except FileGeometryError as exc:
         raise UserError(str(exc)) from None
     check_output_root(args.out)

@@ -11,7 +11,8 @@ estimates of the same file) atomically (an existing one is refused unless ``--fo
 * ``periodogram.png`` and ``light_curve.png`` (the observed magnitudes with each leading family's prediction).
 
 Sample times must lie on the ``scenario.dt_s`` grid (the propagation's step); ``mag_err`` gives each sample's 1σ,
-``--mag-err`` one value for a file without it. Errors are one line and exit code 2, as in every command.
+``--mag-err`` one value for a file without it. Errors are one line and exit code 2, as in every command; samples a
+file's TLE and site say cannot have been observed are one warning line, or refused with ``--strict``.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from matplotlib.figure import Figure
 from tqdm.auto import tqdm
 
 from lightcurve_gp.commands.common import (
+    STRICT_HELP,
     UserError,
     add_common_arguments,
     apply_threads,
@@ -34,6 +36,7 @@ from lightcurve_gp.commands.common import (
     progress_enabled,
     provenance,
     run_command,
+    warn,
 )
 from lightcurve_gp.commands.layout import invert_folder
 from lightcurve_gp.config.load import load_config
@@ -69,6 +72,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="1-sigma of every magnitude (mag) for a file without a mag_err column")
     parser.add_argument("--max-log-ratio", type=float, default=10.0,
                         help="families within this many nats of the best log-likelihood are reported (default 10)")
+    parser.add_argument("--strict", action="store_true", help=STRICT_HELP)
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY.PATH=VALUE",
                         help="override a config value (repeatable)")
     add_common_arguments(parser)
@@ -87,9 +91,11 @@ def _settings(args: argparse.Namespace) -> InversionSettings:
     return InversionSettings(starts=args.starts, seed=args.seed, rate_range_deg_s=(args.rate_min, args.rate_max))
 
 
-def file_problem(cfg, lc: LightCurve, mag_err: float | None) -> tuple[TrajectoryProblem, Scene, torch.Tensor]:
+def file_problem(cfg, lc: LightCurve, mag_err: float | None,
+                 strict: bool = False) -> tuple[TrajectoryProblem, Scene, torch.Tensor]:
     """The file as a :class:`~lightcurve_gp.inference.trajectory.TrajectoryProblem` (no anchors yet), its scene and
-    its sample times (s from the first); a :class:`UserError` names what does not fit."""
+    its sample times (s from the first); a :class:`UserError` names what does not fit (with ``strict``, samples its
+    TLE and site say cannot have been observed; without, they are a warning)."""
     dtype, device = cfg.torch_dtype, torch.device(cfg.device)
     dt = float(cfg.scenario.dt_s)
     steps = np.round(lc.t / dt)
@@ -100,7 +106,7 @@ def file_problem(cfg, lc: LightCurve, mag_err: float | None) -> tuple[Trajectory
     if lc.mag_err is None and mag_err is None:
         raise UserError(f"{lc.source}: no mag_err column; give the magnitudes' 1-sigma with --mag-err")
     try:
-        geometry = file_geometry(lc)
+        geometry = file_geometry(lc, strict=strict, warn=warn)
     except FileGeometryError as exc:
         raise UserError(str(exc)) from None
     scene = Scene.from_config(cfg) if cfg.geometry.kind == "fixed" or geometry is not None else None
@@ -164,7 +170,7 @@ def _run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config, args.overrides)
     settings = _settings(args)
     lc = read_light_curve(args.light_curve)
-    problem, scene, t = file_problem(cfg, lc, args.mag_err)
+    problem, scene, t = file_problem(cfg, lc, args.mag_err, args.strict)
     check_output_root(args.out)
     folder = invert_folder(args.out, cfg.name, args.light_curve)
     check_new_folder(folder, args.force)

@@ -17,7 +17,7 @@ import trimesh
 
 from lightcurve_gp.config.schema import ConfigError
 
-__all__ = ["parse_utc", "check_tle", "load_mesh", "check_mesh_file", "check_mesh"]
+__all__ = ["parse_utc", "check_tle", "load_mesh", "check_closed", "check_mesh_file", "check_mesh"]
 
 _TLE_LENGTH = 69
 
@@ -66,7 +66,8 @@ def load_mesh(path: str | Path, *, process: bool = False) -> trimesh.Trimesh:
 
     Raises:
         FileNotFoundError: no such file.
-        ValueError: unreadable file, an empty mesh or zero-area faces.
+        ValueError: unreadable file, an empty mesh, zero-area faces, or a surface that is not closed with outward
+            normals (:func:`check_closed`).
     """
     path = Path(path)
     if not path.is_file():
@@ -81,7 +82,55 @@ def load_mesh(path: str | Path, *, process: bool = False) -> trimesh.Trimesh:
     if zero.size:
         raise ValueError(f"{path}: {zero.size} zero-area face(s) (first: face {int(zero[0])}); "
                          "a degenerate triangle has no normal")
+    check_closed(mesh, path)
     return mesh
+
+
+def _point(p: np.ndarray) -> str:
+    return "(" + ", ".join(f"{float(x):.6g}" for x in p) + ")"
+
+
+def check_closed(mesh: trimesh.Trimesh, path: str | Path) -> None:
+    """Refuse a mesh that does not bound a volume with outward normals (``ValueError`` naming ``path``).
+
+    The renderer sums the facets lit by the Sun and seen by the observer, with no self-shadowing, so it needs a
+    closed surface whose normals point outward: through a hole (an open box, a lone triangle) there are attitudes
+    with no such facet and the light curve has zero flux, an infinite magnitude; a triangle wound against its
+    neighbours, or all of them wound inward, lights the wrong side. Checked on a copy with coincident vertices
+    merged (a face may keep its own vertices, as the box-wing's do): every edge in exactly two triangles
+    (closed), traversed once in each direction (consistent winding), and a positive enclosed volume (outward).
+    """
+    merged = mesh.copy()
+    merged.merge_vertices()
+    vertices = np.asarray(merged.vertices)
+    edges, counts = np.unique(np.asarray(merged.edges_sorted), axis=0, return_counts=True)
+    open_edges = edges[counts == 1]
+    if open_edges.size:
+        a, b = vertices[open_edges[0]]
+        raise ValueError(f"{path}: not closed: {len(open_edges)} of its {len(edges)} edges belong to one triangle "
+                         f"only (a hole or a missing face; the first from {_point(a)} to {_point(b)}); the renderer "
+                         f"has no self-shadowing and needs a closed surface")
+    shared = edges[counts > 2]
+    if shared.size:
+        a, b = vertices[shared[0]]
+        raise ValueError(f"{path}: not a closed surface: {len(shared)} edge(s) belong to more than two triangles "
+                         f"(the first from {_point(a)} to {_point(b)}); give each part as its own closed surface")
+    directed, counts = np.unique(np.asarray(merged.edges), axis=0, return_counts=True)
+    twice = directed[counts > 1]
+    if twice.size:
+        a, b = vertices[twice[0]]
+        raise ValueError(f"{path}: inconsistent normals: {len(twice)} edge(s) are traversed in the same direction "
+                         f"by both their triangles (the first from {_point(a)} to {_point(b)}), so one of each pair "
+                         f"faces inward; wind every triangle counter-clockwise seen from outside")
+    a, b, c = np.moveaxis(np.asarray(merged.triangles, dtype=np.float64), 1, 0)
+    volume = float(np.einsum("ij,ij->", a, np.cross(b, c))) / 6.0  # signed: positive when the normals point out
+    scale = float(np.ptp(vertices, axis=0).max()) ** 3
+    if abs(volume) <= 1e-12 * scale:
+        raise ValueError(f"{path}: encloses no volume (its triangles lie back to back, a sheet with two sides); give "
+                         f"the sheet a thickness")
+    if volume < 0.0:
+        raise ValueError(f"{path}: the normals point inward (the triangles wind clockwise seen from outside; the "
+                         f"enclosed volume is {volume:.6g} m^3); reverse every triangle's winding")
 
 
 def check_mesh_file(mesh_path: str) -> None:
@@ -92,7 +141,7 @@ def check_mesh_file(mesh_path: str) -> None:
 
 def check_mesh(mesh_path: str) -> None:
     """Raise :class:`ConfigError` naming ``shape.mesh_path`` unless the file exists, trimesh reads it and it has
-    triangles of positive area."""
+    triangles of positive area that close a volume with outward normals."""
     check_mesh_file(mesh_path)
     try:
         load_mesh(mesh_path)

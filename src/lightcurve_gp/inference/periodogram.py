@@ -6,6 +6,10 @@ maxima ``f_k`` (the light curve's fundamental) give candidate rates. A facet mod
 twice per turn (the box-wing is symmetric under 180° turns), sometimes once, and a peak may sit on the first
 harmonic, so each peak proposes ``|ω| = 180 f_k``, ``360 f_k`` and ``720 f_k`` °/s (the issue's ½×, 1× and 2×).
 
+On a regular grid of step ``Δt`` a harmonic at a multiple of ``1 / (2 Δt)`` is zero at every sample and astropy's
+normal equations are singular there; the power is then computed by least squares that drop the empty column
+(:func:`lstsq_power`, equal to astropy's elsewhere).
+
 A noisy light curve (σ ≈ 0.7 mag) may show no peak at all: its strongest maxima are noise. The strongest peak is a
 **detection** when its false-alarm probability is below :data:`FALSE_ALARM` (at one frequency the model's improvement
 over a constant is ``F(2 nterms, N − 2 nterms − 1)``-distributed under white noise; over the grid, Bonferroni with
@@ -27,7 +31,7 @@ import numpy as np
 from astropy.timeseries import LombScargle
 from scipy.stats import f as f_distribution
 
-__all__ = ["FALSE_ALARM", "Periodogram", "periodogram", "resolution_rate_deg_s", "detection_power"]
+__all__ = ["FALSE_ALARM", "Periodogram", "periodogram", "lstsq_power", "resolution_rate_deg_s", "detection_power"]
 
 #: the false-alarm probability below which the strongest peak is a detection (module docstring)
 FALSE_ALARM = 1e-3
@@ -76,6 +80,37 @@ def detection_power(samples: int, nterms: int, independent: float, false_alarm: 
     return x / (1.0 + x)
 
 
+def lstsq_power(t: np.ndarray, y: np.ndarray, dy: np.ndarray | None, frequency: np.ndarray, nterms: int,
+                chunk: int = 256) -> np.ndarray:
+    """The standard-normalised multi-term Lomb–Scargle power ``1 − χ²(f) / χ²_const`` ``(F,)`` by least squares
+    that accept a rank-deficient model (singular values below ``1e-10`` of the largest dropped).
+
+    Equal to astropy's ``chi2`` method wherever that one's normal equations are regular; it also answers where they
+    are singular: on a regular grid of step ``Δt`` every harmonic ``k f`` at a multiple of ``1 / (2 Δt)`` has
+    ``sin(2π k f t) = 0`` at every sample, and the model there is the one without that column.
+
+    Args:
+        t: times ``(N,)`` (s); y: magnitudes ``(N,)``; dy: their 1σ ``(N,)`` or ``None`` (equal weights).
+        frequency: frequencies ``(F,)`` (Hz); nterms: harmonics of the model (a constant is always fitted).
+    """
+    w = np.ones_like(y) if dy is None else 1.0 / dy
+    yw = y * w
+    mean = np.sum(w * yw) / np.sum(w * w)
+    chi2_ref = float(np.sum((yw - mean * w) ** 2))
+    power = np.empty(frequency.size)
+    for start in range(0, frequency.size, chunk):
+        f = frequency[start:start + chunk]
+        phase = 2.0 * np.pi * f[:, None, None] * np.arange(1, nterms + 1) * t[None, :, None]  # (B, N, m)
+        design = np.concatenate([np.broadcast_to(np.ones((1, t.size, 1)), (f.size, t.size, 1)),
+                                 np.sin(phase), np.cos(phase)], -1) * w[None, :, None]  # (B, N, 2m + 1)
+        u, sv, _ = np.linalg.svd(design, full_matrices=False)
+        keep = sv > 1e-10 * sv[:, :1]
+        fitted = np.sum(np.where(keep, np.einsum("bnk,n->bk", u, yw), 0.0) ** 2, -1)
+        chi2 = float(np.sum(yw * yw)) - fitted
+        power[start:start + chunk] = 1.0 - chi2 / chi2_ref
+    return power
+
+
 def _local_maxima(power: np.ndarray) -> np.ndarray:
     """Indices of the interior local maxima of ``power``, strongest first."""
     inner = np.flatnonzero((power[1:-1] > power[:-2]) & (power[1:-1] >= power[2:])) + 1
@@ -115,7 +150,10 @@ def periodogram(t_s: np.ndarray, mag: np.ndarray, mag_err: np.ndarray | None = N
     df = 1.0 / (span * samples_per_peak)
     f_hi = max(0.5 / float(np.median(np.diff(np.sort(t)))), hi / 90.0)  # the sampling's pseudo-Nyquist frequency
     frequency = np.arange(df, f_hi + df, df)
-    power = LombScargle(t, y, dy, nterms=nterms).power(frequency)
+    try:
+        power = LombScargle(t, y, dy, nterms=nterms).power(frequency)
+    except np.linalg.LinAlgError:  # a harmonic on the sampling's Nyquist frequency: a singular model there
+        power = lstsq_power(t, y, dy, frequency, nterms)
     top = _local_maxima(power)[:peaks]
     rates = []
     for f in frequency[top]:
@@ -126,8 +164,15 @@ def periodogram(t_s: np.ndarray, mag: np.ndarray, mag_err: np.ndarray | None = N
     threshold = detection_power(t.size, nterms, 2 * nterms * span * f_hi)
     detection = bool(top.size) and float(power[top[0]]) > threshold
     if not rates and detection:
-        raise ValueError(f"rate range {lo:g}-{hi:g} deg/s excludes every periodogram candidate (peaks at "
-                         f"{', '.join(f'{360 * f:.3g}' for f in frequency[top])} deg/s x 0.5, 1, 2)")
+        peak = 360.0 * float(frequency[top[0]])
+        others = ", ".join(f"{360 * f:.3g}" for f in frequency[top[1:]])
+        others = f"; other peaks at {others} deg/s" if others else ""
+        raise ValueError(f"rate range {lo:g}-{hi:g} deg/s excludes every periodogram candidate: no rate in it fits "
+                         f"the light curve, whose periodogram's strongest peak is at {peak:.3g} deg/s (the light "
+                         f"curve repeats every {360.0 / peak:.3g} s{others}"
+                         f"), and the candidates are 0.5, 1 and 2 times a peak; widen the range to "
+                         f"{RATE_FACTORS[0] * peak:.3g}-{RATE_FACTORS[-1] * peak:.3g} deg/s if the object may spin "
+                         f"that fast")
     return Periodogram(frequency_hz=frequency, power=power, peak_frequency_hz=frequency[top], peak_power=power[top],
                        rates_deg_s=np.asarray(rates, dtype=np.float64), nterms=int(nterms), detection=detection,
                        threshold_power=threshold)

@@ -1,7 +1,9 @@
 """The light-curve file: one object's observed magnitudes, read and written with ``astropy.table``.
 
 Formats by suffix: ``.ecsv`` (metadata in the YAML header), ``.csv`` (metadata as ``# key: value`` comment lines
-before the column names) and ``.fits``/``.fit`` (metadata as header cards). Columns:
+before the column names; as a spreadsheet saves it too, with a byte-order mark, CRLF line ends or ``;`` between the
+columns and decimal commas: :mod:`lightcurve_gp.observed.text_tables`) and ``.fits``/``.fit`` (metadata as header
+cards). Columns:
 
 * ``time`` — UTC times as text in any form astropy's ``Time`` reads (``2025-01-01T00:00:00.000``,
   ``2025-01-01 00:00:00``...), or numbers: seconds from the metadata's ``epoch`` (a UTC time in any such form, quoted
@@ -39,6 +41,7 @@ from astropy.time import Time, TimeDelta
 from sgp4.api import Satrec
 
 from lightcurve_gp.files import atomic_path
+from lightcurve_gp.observed.text_tables import DECIMAL_COMMA, csv_dialect, data_line_numbers, decimal_points, text_lines
 from lightcurve_gp.observed.times import (
     MAX_SPAN_DAYS,
     NUMERIC_TIME_FORMATS,
@@ -186,9 +189,7 @@ class _Locator:
     def __init__(self, path: Path, fmt: str):
         self.lines: list[int] | None = None
         if fmt.startswith("ascii"):
-            numbers = [i for i, text in enumerate(path.read_text(errors="replace").splitlines(), 1)
-                       if text.strip() and not text.lstrip().startswith("#")]
-            self.lines = numbers[1:]  # the first is the column names
+            self.lines = data_line_numbers(text_lines(path))[1:]  # the first is the column names
 
     def __call__(self, row: int) -> str:
         if self.lines is not None and row < len(self.lines):
@@ -204,8 +205,15 @@ def _read_table(path: Path, fmt: str) -> Table:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            kwargs = {"comment": "#"} if fmt == "ascii.csv" else {}
-            table = Table.read(path, format=fmt, **kwargs)
+            if fmt == "ascii.csv":
+                lines = text_lines(path)
+                dialect = csv_dialect(lines)
+                table = Table.read(decimal_points(lines, dialect), format=fmt, comment="#",
+                                   delimiter=dialect.delimiter)
+            elif fmt.startswith("ascii"):
+                table = Table.read(text_lines(path), format=fmt)
+            else:
+                table = Table.read(path, format=fmt)
     except Exception as exc:  # astropy raises many kinds for a damaged file; one line says which file and why
         reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise LightCurveFileError(f"{path}: not a readable {fmt.removeprefix('ascii.').upper()} table "
@@ -244,7 +252,9 @@ def _float_column(table: Table, name: str, path: Path, where: _Locator) -> np.nd
             try:
                 float(v)
             except (TypeError, ValueError):
-                raise LightCurveFileError(f"{path}: {where(i)}: {name} {str(v)!r} is not a number") from None
+                hint = (" (a decimal comma: write a point, or separate the columns with ';' to have decimal commas "
+                        "read)" if DECIMAL_COMMA.match(str(v)) else "")
+                raise LightCurveFileError(f"{path}: {where(i)}: {name} {str(v)!r} is not a number{hint}") from None
         return values.astype(np.float64)
     return np.asarray(_column(table, name), dtype=np.float64)
 

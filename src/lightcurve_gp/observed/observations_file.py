@@ -9,7 +9,7 @@ kept as they are) and merged in time order; a file's light curve keeps its own g
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -22,13 +22,15 @@ from lightcurve_gp.observed.run import file_geometry
 __all__ = ["light_curve_observations", "read_observations"]
 
 
-def light_curve_observations(lc: LightCurve, *, mag_err: float | None = None, relative: bool = False) -> Observations:
+def light_curve_observations(lc: LightCurve, *, mag_err: float | None = None, relative: bool = False,
+                             strict: bool = False, warn: Callable[[str], None] | None = None) -> Observations:
     """One file's light curve as observations (times from its first sample); ``mag_err`` (mag) is every sample's
-    1σ when the file has no ``mag_err`` column (a :class:`LightCurveFileError` when neither gives one)."""
+    1σ when the file has no ``mag_err`` column (a :class:`LightCurveFileError` when neither gives one); ``strict``
+    and ``warn``: samples its TLE and site say cannot have been observed (:func:`file_geometry`)."""
     if lc.mag_err is None and mag_err is None:
         raise LightCurveFileError(f"{lc.source}: no mag_err column; give the magnitudes' 1-sigma (--mag-err)")
     sigma = lc.mag_err if lc.mag_err is not None else np.full(lc.t.size, float(mag_err))
-    geometry = file_geometry(lc)
+    geometry = file_geometry(lc, strict=strict, warn=warn)
     extra = {}
     if geometry is not None:
         extra = {"sun": geometry.sun, "observer": geometry.observer, "range_m": geometry.range_m}
@@ -37,7 +39,8 @@ def light_curve_observations(lc: LightCurve, *, mag_err: float | None = None, re
 
 
 def read_observations(paths: Sequence[str | Path], *, mag_err: float | None = None,
-                      relative: bool | Sequence[bool] = False) -> Observations:
+                      relative: bool | Sequence[bool] = False, strict: bool = False,
+                      warn: Callable[[str], None] | None = None) -> Observations:
     """Read light-curve files of one object into one :class:`Observations` (module docstring). ``relative``: one
     flag for every file or one per file (the zero point of that light curve is unknown). Errors are one
     :class:`LightCurveFileError` line naming the file."""
@@ -48,7 +51,8 @@ def read_observations(paths: Sequence[str | Path], *, mag_err: float | None = No
     if len(flags) != len(paths):
         raise LightCurveFileError(f"{len(flags)} zero-point flags for {len(paths)} light-curve files")
     curves = [read_light_curve(p) for p in paths]
-    parts = [light_curve_observations(lc, mag_err=mag_err, relative=r) for lc, r in zip(curves, flags)]
+    parts = [light_curve_observations(lc, mag_err=mag_err, relative=r, strict=strict, warn=warn)
+             for lc, r in zip(curves, flags)]
     first = curves[0].start
     offsets = [float((lc.start - first).sec) for lc in curves]
     try:

@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import torch
@@ -39,6 +40,7 @@ from lightcurve_gp.filters.setup import run_filter
 from lightcurve_gp.filters.usque import FilterHistory
 from lightcurve_gp.observed.lightcurve_file import LightCurve, LightCurveFileError, iso_times
 from lightcurve_gp.passes.geometry import PassGeometry, orbit_pass
+from lightcurve_gp.passes.visibility import site_visibility
 
 __all__ = ["ObservedRun", "FileGeometryError", "MAX_SUB_STEPS", "file_geometry", "check_model_takes_geometry",
            "check_light_curve", "file_inputs", "estimate_light_curve", "euler321_jacobian", "history_table",
@@ -50,7 +52,8 @@ MAX_SUB_STEPS = 100_000
 
 
 class FileGeometryError(ValueError):
-    """The file's geometry cannot be used: a TLE without a site, or a model that takes no geometry."""
+    """The file's geometry cannot be used: a TLE without a site, a model that takes no geometry, or (strict)
+    samples the site cannot have seen."""
 
 
 @dataclass
@@ -64,9 +67,12 @@ class ObservedRun:
     seconds: float
 
 
-def file_geometry(lc: LightCurve) -> PassGeometry | None:
+def file_geometry(lc: LightCurve, *, strict: bool = False,
+                  warn: Callable[[str], None] | None = None) -> PassGeometry | None:
     """The per-sample geometry of a file (module docstring): from its geometry columns, from its TLE and site, or
-    ``None`` when it gives neither."""
+    ``None`` when it gives neither. Samples of a TLE and site that cannot have been observed (the object below the
+    horizon, the site in daylight, the object in the Earth's shadow: :mod:`lightcurve_gp.passes.visibility`) are
+    named in one line, refused with ``strict`` (:class:`FileGeometryError`), else given to ``warn``."""
     if lc.geometry is not None:
         g = lc.geometry
         try:
@@ -76,21 +82,35 @@ def file_geometry(lc: LightCurve) -> PassGeometry | None:
             raise FileGeometryError(f"{lc.source}: geometry columns: {exc}") from None
     if not lc.has_tle:
         return None
-    if lc.site is None:
-        raise FileGeometryError(f"{lc.source}: metadata site_lat_deg: missing (a file with a TLE needs the observing "
-                                f"site: site_lat_deg, site_lon_deg, site_alt_m)")
+    _require_site(lc)
     lat, lon, alt_m = lc.site
     geo = GeometryConfig(kind="orbit", tle=[lc.meta["tle_line1"], lc.meta["tle_line2"]],
                          site=SiteConfig(lat_deg=lat, lon_deg=lon, alt_km=alt_m / 1e3), start_utc=lc.start.isot,
                          min_elevation_deg=-90.0)
     try:
-        return orbit_pass(geo, np.asarray(lc.t, dtype=np.float64))
+        geometry = orbit_pass(geo, np.asarray(lc.t, dtype=np.float64))
     except ConfigError as exc:
         raise FileGeometryError(f"{lc.source}: metadata tle_line1/tle_line2 and site: {exc}") from None
+    if strict or warn is not None:
+        unseen = site_visibility(geometry, lat_deg=lat, lon_deg=lon, alt_km=alt_m / 1e3).describe(
+            lambda i: iso_times(lc.times[i]))
+        if unseen is not None and strict:
+            raise FileGeometryError(f"{lc.source}: {unseen} (refused with --strict)")
+        if unseen is not None:
+            warn(f"{lc.source}: {unseen}; check the TLE, the site and the times (--strict refuses such a file)")
+    return geometry
+
+
+def _require_site(lc: LightCurve) -> None:
+    if lc.has_tle and lc.site is None:
+        raise FileGeometryError(f"{lc.source}: metadata site_lat_deg: missing (a file with a TLE needs the observing "
+                                f"site: site_lat_deg, site_lon_deg, site_alt_m)")
 
 
 def check_model_takes_geometry(model, lc: LightCurve) -> None:
-    """Refuse a file with geometry for a model that takes none (module docstring)."""
+    """Refuse a file with geometry for a model that takes none (module docstring); a TLE without its site is named
+    first."""
+    _require_site(lc)
     inputs = getattr(model, "config", {}).get("inputs")
     if (lc.geometry is not None or lc.has_tle) and inputs != "body_geometry":
         what = "per-sample geometry columns (sun_*, obs_*, range_km)" if lc.geometry is not None else "a TLE and site"
