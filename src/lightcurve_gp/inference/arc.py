@@ -39,6 +39,7 @@ from torch import Tensor
 from lightcurve_gp.attitude.rotations import attitude_matrix, quat_conj, quat_mul, quat_to_rotvec, rotvec_to_quat
 from lightcurve_gp.inference.jacobian import jacobian
 from lightcurve_gp.inference.solver import GaussianPrior, LeastSquaresOptions, batch_least_squares
+from lightcurve_gp.inference.zero_points import profile_zero_points
 from lightcurve_gp.observation.surface_state import surface_from_state
 from lightcurve_gp.photometry.brdf import Surface
 from lightcurve_gp.photometry.render import Scene
@@ -134,14 +135,11 @@ class ArcProblem:
         to the prediction; ``None`` without relative curves)."""
         s = self.seed[rows]
         w = self.weight[s]
-        d = self.y[s] - self.magnitudes(x, rows)
-        r = torch.where(w > 0, d * w, 0.0)
+        r = torch.where(w > 0, (self.y[s] - self.magnitudes(x, rows)) * w, 0.0)
         if self.zero_points is None:
             return r, None
-        ok = torch.isfinite(r) & (w > 0)
-        w2 = torch.where(ok, w * w, 0.0)
-        offsets = (w2 * torch.where(ok, d, 0.0)) @ self.zero_points / (w2 @ self.zero_points).clamp_min(1e-300)
-        return r - w * (offsets @ self.zero_points.T), offsets
+        r, offsets, _ = profile_zero_points(r, w, self.zero_points)
+        return r, offsets
 
 
 @contextmanager
