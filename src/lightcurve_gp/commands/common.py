@@ -68,14 +68,16 @@ FORCE_HELP = "replace an existing output folder (the old one is removed only whe
 
 
 def add_common_arguments(parser: argparse.ArgumentParser, *, force: bool = True, force_help: str = FORCE_HELP) -> None:
-    """Add ``--threads``, ``--no-progress``, ``--debug`` and (with ``force``) ``--force``, described by
-    ``force_help``, to ``parser``."""
+    """Add ``--threads``, ``--no-progress``, ``--debug``, ``--version`` and (with ``force``) ``--force``, described
+    by ``force_help``, to ``parser``."""
     parser.add_argument("--threads", type=int, default=DEFAULT_THREADS,
                         help=f"torch threads (default {DEFAULT_THREADS}: the filter's small per-step tensors run "
                              f"fastest on one thread, and one thread stays fast when other jobs share the cores)")
     parser.add_argument("--no-progress", action="store_true",
                         help="hide progress bars and status lines (also hidden when stderr is not a terminal)")
     parser.add_argument("--debug", action="store_true", help="show the traceback of an error instead of one line")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}",
+                        help="print the package's version and exit")
     if force:
         parser.add_argument("--force", action="store_true", help=force_help)
 

@@ -141,9 +141,10 @@ def write_outputs(result: ScenarioResult, folder: Path, title: str = "", record:
     return summary
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(prog: str = "lightcurve-gp estimate") -> argparse.ArgumentParser:
+    """The command's options; ``prog`` is how it was called (its usage line)."""
     parser = argparse.ArgumentParser(
-        prog="python -m lightcurve_gp.estimate",
+        prog=prog,
         description="Estimate the attitude of the config's simulated scenario over many noise seeds batched in one "
                     "run per estimator: the recommended estimator for the config and its noise (printed with the "
                     "reason), or --estimators (paper: the GPUKF, the conventional UKF, a matched-rho UKF and the "
@@ -291,7 +292,8 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def main(argv: list[str] | None = None, *, prog: str = "lightcurve-gp estimate") -> int:
+    """Run the command on ``argv`` (default ``sys.argv[1:]``), its usage shown as ``prog``; returns the exit code."""
+    args = build_parser(prog).parse_args(argv)
     return run_command(lambda: _run(args), debug=args.debug)
 

@@ -52,9 +52,10 @@ from lightcurve_gp.photometry.render import Scene
 __all__ = ["build_parser", "file_problem", "main"]
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(prog: str = "lightcurve-gp invert") -> argparse.ArgumentParser:
+    """The command's options; ``prog`` is how it was called (its usage line)."""
     parser = argparse.ArgumentParser(
-        prog="python -m lightcurve_gp.invert",
+        prog=prog,
         description="Estimate the attitude and spin of an object from its light curve alone (no initial guess): "
                     "every family of solutions within a likelihood ratio of the best, weighted by evidence.")
     parser.add_argument("config", help="YAML config: shape, surface (F0, n_u, n_v), inertia, dt, fixed geometry")
@@ -192,7 +193,8 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def main(argv: list[str] | None = None, *, prog: str = "lightcurve-gp invert") -> int:
+    """Run the command on ``argv`` (default ``sys.argv[1:]``), its usage shown as ``prog``; returns the exit code."""
+    args = build_parser(prog).parse_args(argv)
     return run_command(lambda: _run(args), debug=args.debug)
 

@@ -106,9 +106,10 @@ def truth_table(sc: Scenario, lc: LightCurve, record: dict, rows: np.ndarray) ->
     return table
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(prog: str = "lightcurve-gp simulate") -> argparse.ArgumentParser:
+    """The command's options; ``prog`` is how it was called (its usage line)."""
     parser = argparse.ArgumentParser(
-        prog="python -m lightcurve_gp.simulate",
+        prog=prog,
         description="Simulate the config's scenario and write its noisy light curve as a light-curve file "
                     "(.ecsv, .csv or .fits) with the truth in <stem>.truth.ecsv beside it.")
     parser.add_argument("config", help="YAML config, e.g. configs/boxwing_robust.yaml")
@@ -198,7 +199,8 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def main(argv: list[str] | None = None, *, prog: str = "lightcurve-gp simulate") -> int:
+    """Run the command on ``argv`` (default ``sys.argv[1:]``), its usage shown as ``prog``; returns the exit code."""
+    args = build_parser(prog).parse_args(argv)
     return run_command(lambda: _run(args), debug=args.debug)
 
