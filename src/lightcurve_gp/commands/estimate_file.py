@@ -6,8 +6,9 @@ against its χ² band, the bank's size, time and best members with their posteri
 ``bank.ecsv`` (every bank member, ranked) when the global start ran, ``light_curve.png`` and ``attitude.png``.
 Without ``--initial-attitude`` the run starts from the global-start bank (``--bank-size`` filters over SO(3); with
 ``--bank-prune-after-s`` only the best ``--bank-prune-keep`` run past that time), and the bank's posterior is judged
-(:mod:`lightcurve_gp.observed.verdict`): ``summary.json``'s ``verdict`` is ``"unique"`` or ``"ambiguous"`` (``null``
-without a bank) and an ambiguous answer is printed as a warning in words; the exit code stays 0.
+(:mod:`lightcurve_gp.observed.verdict`): ``summary.json``'s ``verdict`` is ``"unique"``, ``"ambiguous"`` or, for a
+bank too coarse to cover SO(3), ``"inconclusive"`` (``null`` without a bank); an ambiguous answer or a coarse bank is
+printed as a warning in words, as is a flat light curve; the exit code stays 0.
 
 Options that do not apply are refused before anything is read (:func:`check_options`): ``--seeds``, ``--rho-true``
 and ``--estimators`` with ``--light-curve``; ``--initial-attitude``, ``--solutions`` and the bank options without
@@ -34,12 +35,15 @@ from lightcurve_gp.commands.common import (
     UserError,
     check_new_folder,
     check_output_root,
+    check_unit_quaternion,
     progress_enabled,
     provenance,
     run_interruptible,
+    warn,
 )
 from lightcurve_gp.commands.layout import light_curve_folder
 from lightcurve_gp.files import RunFolder, write_json_atomic
+from lightcurve_gp.observed.information import flat_light_curve
 from lightcurve_gp.observed.lightcurve_file import read_light_curve, write_table
 from lightcurve_gp.observed.plots import attitude_with_uncertainty, light_curve_band
 from lightcurve_gp.observed.result import finish
@@ -112,7 +116,8 @@ def check_options(args: argparse.Namespace) -> None:
 
 
 def parse_quaternion(text: str) -> torch.Tensor:
-    """``"q1,q2,q3,q4"`` → a float64 tensor ``(4,)``; a :class:`UserError` names ``--initial-attitude``."""
+    """``"q1,q2,q3,q4"`` → a float64 unit quaternion ``(4,)``; a :class:`UserError` names ``--initial-attitude``
+    (and the norm, when it is off 1: :func:`~lightcurve_gp.commands.common.check_unit_quaternion`)."""
     try:
         values = [float(v) for v in text.split(",")]
     except ValueError:
@@ -121,6 +126,7 @@ def parse_quaternion(text: str) -> torch.Tensor:
     if q.numel() != 4 or not bool(torch.isfinite(q).all()) or float(q.norm()) < 1e-6:
         raise UserError(f"--initial-attitude: {text!r} must be four finite numbers q1,q2,q3,q4 (scalar last), "
                         f"not all zero")
+    check_unit_quaternion(values, option="--initial-attitude")
     return q
 
 
@@ -164,6 +170,7 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
     check_output_root(args.out)
     folder = light_curve_folder(args.out, cfg.name, args.light_curve)
     check_new_folder(folder, args.force)
+    warn(flat_light_curve(lc, noise_std=math.sqrt(cfg.filter.measurement_noise)))
     record = provenance(cfg, config_file=str(args.config), light_curve=str(args.light_curve),
                         initial_attitude=args.initial_attitude,
                         solutions=None if getattr(args, "solutions", None) is None else str(args.solutions),
@@ -180,7 +187,7 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
                                                          prune_keep=args.bank_prune_keep),
                             status=f"running the {status}", progress=progress_enabled(args.no_progress))
     group = None if run.bank is None else ambiguity_images(cfg, samples=len(lc.t), geometry=geometry)
-    result = finish(run, record=record, status=status, group=group,
+    result = finish(run, record=record, status=status, group=group, p0_deg=cfg.filter.p0_deg,
                     rho_reference=cfg.model.rho_reference if cfg.filter.estimate_offset else None)
     with RunFolder(folder, force=args.force) as tmp:
         write_table(result.history, tmp / "attitude_history.ecsv", fmt="ascii.ecsv")

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -170,7 +171,7 @@ def _run(args: argparse.Namespace) -> int:
     folder = invert_folder(args.out, cfg.name, args.light_curve)
     check_new_folder(folder, args.force)
     show = progress_enabled(args.no_progress)
-    say = (lambda message: tqdm.write(message)) if show else None
+    say = (lambda message: tqdm.write(message, file=sys.stderr)) if show else None
     group = ambiguity_group(scene, times_s=t, inertia=problem.inertia, rate_known=False, dt_s=problem.dt)
     try:
         inv = invert(problem, group, settings=settings, progress=say)
