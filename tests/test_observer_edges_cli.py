@@ -434,3 +434,20 @@ def test_the_estimate_table_puts_the_mean_against_the_band_of_a_mean():
     assert any(line.startswith("  median RMSE/CRB: the median over the seeds of the RMSE over the median CRB") and
                "not a broken bound" in line for line in table)
     assert "in band" not in "\n".join(table)  # no unqualified band
+
+
+def test_every_sweep_column_has_a_unit():
+    from lightcurve_gp.evaluation.reporting import RESULT_COLUMNS
+    from lightcurve_gp.sweep.tables import SUMMARY_COLUMNS, column_unit, table_units
+
+    units = table_units(["case_id", "scenario.noise_var"])
+    assert set(units["results.csv"]) == {"case_id", "scenario.noise_var", *RESULT_COLUMNS}
+    assert set(units["summary.csv"]) == {"case_id", "scenario.noise_var", *SUMMARY_COLUMNS}
+    expected = {"rmse_yaw_deg": "deg", "crb_roll_deg_q75": "deg", "omega_error_final_mod_symmetry_deg_s": "deg / s",
+                "lc_rmse_noisy_median": "mag", "seconds_per_step": "s", "nees_median": "", "share_nees_in_band": "",
+                "rmse_over_crb_pitch": "", "seed": "", "case_id": None, "scenario.noise_var": None, "error": None}
+    merged = {**units["results.csv"], **units["summary.csv"]}
+    assert {c: merged[c] for c in expected} == expected
+    with pytest.raises(ValueError) as err:
+        column_unit("new_metric")
+    assert str(err.value) == "column new_metric: no unit known"

@@ -35,6 +35,7 @@ from lightcurve_gp.commands.common import (
     progress_enabled,
     provenance,
     run_command,
+    warn,
 )
 from lightcurve_gp.commands.layout import invert_folder
 from lightcurve_gp.config.load import load_config
@@ -44,6 +45,7 @@ from lightcurve_gp.inference.families import Families, families
 from lightcurve_gp.inference.forward import GroupRenderer
 from lightcurve_gp.inference.inversion import Inversion, InversionSettings, invert
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
+from lightcurve_gp.observed.information import flat_light_curve
 from lightcurve_gp.observed.lightcurve_file import LightCurve, read_light_curve
 from lightcurve_gp.observed.run import FileGeometryError, file_geometry
 from lightcurve_gp.observed.solutions import solutions_table, write_solutions
@@ -170,6 +172,7 @@ def _run(args: argparse.Namespace) -> int:
     check_output_root(args.out)
     folder = invert_folder(args.out, cfg.name, args.light_curve)
     check_new_folder(folder, args.force)
+    warn(flat_light_curve(lc, noise_std=args.mag_err if args.mag_err is not None else float(np.median(lc.mag_err))))
     show = progress_enabled(args.no_progress)
     say = (lambda message: tqdm.write(message, file=sys.stderr)) if show else None
     group = ambiguity_group(scene, times_s=t, inertia=problem.inertia, rate_known=False, dt_s=problem.dt)

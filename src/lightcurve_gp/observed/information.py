@@ -8,7 +8,7 @@ shows no variation beyond its noise and :func:`flat_light_curve` returns a warni
 below its 99 % point) would also flag the paper's case at σ = 0.71 mag (χ² 664 for 600 degrees of freedom, a
 variation of about a third of the noise), where the estimators still gain on the start; the warning is kept for
 light curves that show nothing. ``σ_k`` is the file's ``mag_err`` when it has one, else the noise the run assumes
-(``filter.measurement_noise``).
+(``filter.measurement_noise`` for ``estimate``, ``--mag-err`` for ``invert``).
 """
 
 from __future__ import annotations
