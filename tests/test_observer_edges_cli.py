@@ -356,7 +356,7 @@ def test_a_flat_file_a_bad_start_and_a_coarse_bank_on_the_command_line(tmp_path,
     ("          ", ""),
 ])
 def test_a_bar_becomes_a_plain_line(bar, line):
-    from lightcurve_gp.commands.common import progress_line
+    from lightcurve_gp.commands.progress import progress_line
 
     assert progress_line(bar) == line
 
@@ -366,7 +366,7 @@ def test_bars_to_a_file_are_lines_at_an_interval(monkeypatch):
 
     from tqdm import tqdm
 
-    from lightcurve_gp.commands.common import ProgressLines
+    from lightcurve_gp.commands.progress import ProgressLines
 
     now = [0.0]
     monkeypatch.setattr("tqdm.std.time", lambda: now[0])  # tqdm's own clock: its elapsed and remaining times

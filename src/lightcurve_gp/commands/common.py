@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import re
 import shlex
 import shutil
 import signal
@@ -34,7 +33,7 @@ import sys
 import tempfile
 import threading
 import time
-from contextlib import contextmanager, redirect_stderr
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator
@@ -43,12 +42,13 @@ import torch
 from tqdm.auto import tqdm
 
 from lightcurve_gp import __version__
+from lightcurve_gp.commands.progress import has_descriptor, progress_output
 from lightcurve_gp.config.load import ConfigError, config_to_dict
 from lightcurve_gp.observation.serialization import ModelFileError
 from lightcurve_gp.observed.lightcurve_file import LightCurveFileError
 
 __all__ = ["DEFAULT_THREADS", "UserError", "Interrupted", "add_common_arguments", "apply_threads",
-           "progress_enabled", "progress_line", "ProgressLines", "progress_output", "check_output_root",
+           "progress_enabled", "check_output_root",
            "check_new_folder", "check_overrides", "check_unit_quaternion", "available_memory", "format_bytes",
            "run_interruptible", "warn", "run_command", "exit_process", "provenance"]
 
@@ -95,111 +95,8 @@ def apply_threads(threads: int) -> int:
 
 def progress_enabled(no_progress: bool) -> bool:
     """Progress output is on unless ``--no-progress`` is given or stderr is neither a terminal (bars) nor a file or
-    pipe (plain lines, :class:`ProgressLines`): an in-memory stream gets none."""
-    return not no_progress and (sys.stderr.isatty() or _has_descriptor(sys.stderr))
-
-
-def _has_descriptor(stream) -> bool:
-    try:
-        stream.fileno()
-    except (AttributeError, OSError, ValueError):  # io.UnsupportedOperation is an OSError and a ValueError
-        return False
-    return True
-
-
-#: seconds between two progress lines of one bar when stderr is a file or pipe
-PROGRESS_LINE_INTERVAL = 10.0
-_ESCAPES = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
-_BAR_GRAPHIC = re.compile(r"\|[^|]*\|")
-_TIMES = re.compile(r"\[(?P<elapsed>[^<\],]+)(?:<(?P<left>[^,\]]+))?(?:, (?P<rate>[^\]]+))?\]")
-
-
-def progress_line(text: str) -> str:
-    """A tqdm bar's text as a plain line: the bar graphic dropped, ``[elapsed<left, rate]`` in words (``about …
-    left`` only where tqdm knows it)."""
-    def words(m: re.Match) -> str:
-        left = m["left"] if m["left"] and "?" not in m["left"] else None
-        rate = m["rate"] if m["rate"] and "?" not in m["rate"] else None
-        return ", ".join(filter(None, (f"{m['elapsed']} elapsed", left and f"about {left} left", rate)))
-    return " ".join(_TIMES.sub(words, _BAR_GRAPHIC.sub(" ", text)).split())
-
-
-class ProgressLines:
-    """Stands in for stderr when it is a file or pipe: tqdm's redraws (``\\r`` + the bar, cursor moves) become plain
-    lines (:func:`progress_line`): each bar's first state, then at most one every ``interval`` seconds, its
-    completion (100 %) and the last state of a status line when it is cleared; every other write (errors, warnings,
-    messages) passes through unchanged."""
-
-    def __init__(self, stream, *, interval: float = PROGRESS_LINE_INTERVAL,
-                 clock: Callable[[], float] = time.monotonic):
-        self.stream, self.interval, self.clock = stream, interval, clock
-        self._lock = threading.Lock()
-        self._pending: dict[str, str] = {}  # per bar (its description): the latest state, not yet written
-        self._shown: dict[str, str] = {}  # per bar: the last line written
-        self._last: dict[str, float] = {}  # per bar: when it was written
-        self._current = ""  # the bar redrawn last
-        self._in_bar = False  # the last write was part of a redraw
-
-    def write(self, text: str) -> int:
-        with self._lock:
-            plain = _ESCAPES.sub("", text)
-            if "\r" not in plain:
-                if not (self._in_bar and plain.strip("\n") == ""):  # a bar's cursor move or closing newline
-                    self.stream.write(plain)
-                    self._in_bar = False
-                return len(text)
-            self._in_bar = True
-            head, *parts = plain.split("\r")
-            if head.strip("\n"):
-                self.stream.write(head)
-            for part in parts:
-                state = progress_line(part)
-                if not state:  # a status line cleared (leave=False): its last state
-                    self._emit(self._current, self._pending.get(self._current, "") != self._shown.get(self._current))
-                    continue
-                bar = part.partition(":")[0].strip()
-                self._pending[bar], self._current = state, bar
-                if self.clock() - self._last.get(bar, -math.inf) >= self.interval:
-                    self._emit(bar, state != self._shown.get(bar))
-                elif " 100% " in f" {state} ":  # done: once, whatever tqdm redraws at its close
-                    self._emit(bar, _count(state) != _count(self._shown.get(bar, "")))
-            return len(text)
-
-    def _emit(self, bar: str, show: bool) -> None:
-        """Write ``bar``'s pending state when ``show``; it is no longer pending either way."""
-        state = self._pending.pop(bar, "")
-        if state and show:
-            self.stream.write(state + "\n")
-            self.stream.flush()
-            self._shown[bar], self._last[bar] = state, self.clock()
-
-    def flush(self) -> None:
-        self.stream.flush()
-
-    def isatty(self) -> bool:
-        return False
-
-    def fileno(self) -> int:
-        return self.stream.fileno()
-
-    def __getattr__(self, name: str):
-        return getattr(self.stream, name)
-
-
-def _count(line: str) -> str:
-    """A progress line without its times and rate: its description, share and count."""
-    return line.partition(" elapsed")[0].rsplit(" ", 1)[0]
-
-
-@contextmanager
-def progress_output() -> Iterator[None]:
-    """While open, progress bars written to a stderr that is a file or pipe come out as plain lines
-    (:class:`ProgressLines`); on a terminal, or an in-memory stream, stderr is left as it is."""
-    if sys.stderr.isatty() or not _has_descriptor(sys.stderr) or isinstance(sys.stderr, ProgressLines):
-        yield
-        return
-    with redirect_stderr(ProgressLines(sys.stderr)):
-        yield
+    pipe (plain lines, :class:`~lightcurve_gp.commands.progress.ProgressLines`): an in-memory stream gets none."""
+    return not no_progress and (sys.stderr.isatty() or has_descriptor(sys.stderr))
 
 
 def check_output_root(out: Path) -> None:
