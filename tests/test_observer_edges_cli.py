@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.metadata
+import json
 import os
 import signal
 import subprocess
@@ -306,7 +307,6 @@ def model_file(tmp_path_factory) -> Path:
 
 def test_a_flat_file_a_bad_start_and_a_coarse_bank_on_the_command_line(tmp_path, capsys, model_file, observed):
     import dataclasses
-    import json
 
     from astropy.table import Table
 
@@ -405,6 +405,9 @@ def test_a_command_with_stderr_in_a_file_writes_progress_lines(tmp_path, monkeyp
     assert "\r" not in log.read_text() and lines[0] == "estimators: 0% 0/1 00:00 elapsed"
     assert lines[1].startswith("running no_update: 00:0") and lines[-1].startswith("estimators: 100% 1/1 00:0")
     assert "about 00:00 left" in lines[-1]
+    # 13. results.json says where the NEES mean lies against the band of a mean (no NEES without updates: "-")
+    results = json.loads((tmp_path / "out" / "estimates" / "tiny" / "rho0.5" / "results.json").read_text())
+    assert results["estimators"]["no_update"]["nees_mean_against_band_95"] == "-"
     capsys.readouterr()
     assert estimate.main([BOXWING, *as_sets(TINY), "--seeds", "2", "--estimators", "no_update", "--out",
                           str(tmp_path / "out2")]) == 0
@@ -451,3 +454,11 @@ def test_every_sweep_column_has_a_unit():
     with pytest.raises(ValueError) as err:
         column_unit("new_metric")
     assert str(err.value) == "column new_metric: no unit known"
+
+
+@pytest.mark.parametrize("value, where", [(1.0, "below"), (2.02, "inside"), (4.16, "inside"), (4.2, "above"),
+                                          (float("nan"), "-")])
+def test_against_band(value, where):
+    from lightcurve_gp.commands.estimate import against_band
+
+    assert against_band(value, 2.02, 4.16) == where

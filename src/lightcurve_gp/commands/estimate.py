@@ -149,6 +149,8 @@ def write_outputs(result: ScenarioResult, folder: Path, title: str = "", record:
     summary["seed_values"] = list(sc.seeds)
     summary["per_seed_rmse_deg"] = {n: r.rmse_deg.tolist() for n, r in result.results.items()}
     summary["columns"] = list(COLUMN_NOTES)
+    for entry in summary["estimators"].values():  # the table's "mean's band" column, for readers of the file
+        entry["nees_mean_against_band_95"] = against_band(entry["nees_mean"], *summary["nees_band_95"])
     summary["run"] = record or {}
     write_json_atomic(summary, folder / "results.json")
     first = ", ".join(filter(None, (title, f"noise seed {sc.seeds[0]}")))
