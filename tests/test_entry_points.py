@@ -37,7 +37,7 @@ def test_command_help_is_the_command_s_own(name, capsys):
     with pytest.raises(SystemExit) as stop:
         main([name, "--help"])
     assert stop.value.code == 0
-    assert f"python -m lightcurve_gp.{name}" in capsys.readouterr().out
+    assert capsys.readouterr().out.startswith(f"usage: lightcurve-gp {name} [-h]")
 
 
 @pytest.mark.slow  # ~8 s on two loaded cores
@@ -45,10 +45,10 @@ def test_python_dash_m_package_dispatches():
     done = subprocess.run([sys.executable, "-m", "lightcurve_gp", "simulate", "--help"], capture_output=True,
                           text=True, timeout=120)
     assert done.returncode == 0
-    assert "python -m lightcurve_gp.simulate" in done.stdout
+    assert done.stdout.startswith("usage: python -m lightcurve_gp simulate [-h]")
 
 
-def test_an_interrupt_during_a_command_s_import_is_answered_once_the_import_is_done(monkeypatch):
+def test_an_interrupt_during_a_command_s_import_is_answered_once_the_import_is_done(monkeypatch, sigint_default):
     """A SIGINT inside the import (in torch's C++ initialisation it would abort the process) waits for its end."""
     finished = []
 

@@ -39,7 +39,7 @@ def simulated(tmp_path, *extra):
 def estimated(tmp_path, model_file, obs, *extra):
     out = tmp_path / "out"
     code = estimate.main([ROBUST, "--model", str(model_file), "--light-curve", str(obs), "--out", str(out),
-                          "--no-progress", *SETS, *extra])
+                          "--no-progress", "--estimators", "gpukf", *SETS, *extra])
     return code, out / "estimates" / "tiny_robust" / f"light_curve_{obs.stem}"
 
 

@@ -145,7 +145,7 @@ def blocking() -> int:
     return 0
 
 
-def test_interrupt_reaches_the_command_during_a_blocking_call(capsys):
+def test_interrupt_reaches_the_command_during_a_blocking_call(capsys, sigint_default):
     # Ctrl-C in a terminal is a real SIGINT to the process, which also wakes the main thread's wait;
     # _thread.interrupt_main only sets the flag that the main thread checks between bytecodes.
     threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT)).start()
@@ -155,7 +155,7 @@ def test_interrupt_reaches_the_command_during_a_blocking_call(capsys):
     assert capsys.readouterr().err == "interrupted; nothing written\n"
 
 
-def test_interrupt_taken_inside_a_finaliser_still_reaches_the_command(capsys):
+def test_interrupt_taken_inside_a_finaliser_still_reaches_the_command(capsys, sigint_default):
     """The garbage collector may run a finaliser (or a gc callback) on the main thread just when Ctrl-C comes; an
     exception raised there is only printed, so a KeyboardInterrupt raised by the default handler would be lost."""
     class Finalised:

@@ -12,8 +12,14 @@ import importlib
 import signal
 import sys
 import threading
+from pathlib import Path
 
-__all__ = ["COMMANDS", "main", "run", "usage", "import_deferring_interrupts"]
+from lightcurve_gp import __version__
+
+__all__ = ["COMMANDS", "ENTRY", "main", "run", "usage", "import_deferring_interrupts"]
+
+#: the console script's name (pyproject.toml's ``[project.scripts]``)
+ENTRY = "lightcurve-gp"
 
 #: command name -> (the module whose ``main(argv) -> exit code`` runs it, one line of help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -25,26 +31,33 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
-def usage() -> str:
-    """The one-screen help: the commands and how to get each one's options."""
+def usage(prog: str = ENTRY) -> str:
+    """The one-screen help: the commands and how to get each one's options, as called by ``prog``."""
     width = max(map(len, COMMANDS))
-    lines = ["usage: lightcurve-gp COMMAND [options]", "", "commands:"]
+    lines = [f"usage: {prog} COMMAND [options]", f"       {prog} --version", "", "commands:"]
     lines += [f"  {name:<{width}}  {text}" for name, (_, text) in COMMANDS.items()]
-    lines += ["", "lightcurve-gp COMMAND --help lists the options of COMMAND."]
+    lines += ["", f"{prog} COMMAND --help lists the options of COMMAND."]
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Dispatch ``argv`` (default ``sys.argv[1:]``) to the named command; exit code 2 for an unknown one."""
+def main(argv: list[str] | None = None, *, prog: str = ENTRY, command_prog: str | None = None) -> int:
+    """Dispatch ``argv`` (default ``sys.argv[1:]``) to the named command; exit code 2 for an unknown one.
+
+    ``prog`` is how the entry point was called (``lightcurve-gp`` or ``python -m lightcurve_gp``), shown in the usage
+    and version lines; the command's own usage shows ``command_prog`` (default ``"<prog> <command>"``; the
+    ``python -m lightcurve_gp.<command>`` shims pass theirs)."""
     argv = sys.argv[1:] if argv is None else list(argv)
     if not argv or argv[0] in ("-h", "--help"):
-        print(usage())
+        print(usage(prog))
         return 0 if argv else 2
+    if argv[0] in ("-V", "--version"):
+        print(f"{prog} {__version__}")
+        return 0
     name, rest = argv[0], argv[1:]
     if name not in COMMANDS:
         print(f"error: {name!r} is not a command; choose from {', '.join(COMMANDS)}", file=sys.stderr)
         return 2
-    return import_deferring_interrupts(COMMANDS[name][0]).main(rest)
+    return import_deferring_interrupts(COMMANDS[name][0]).main(rest, prog=command_prog or f"{prog} {name}")
 
 
 def import_deferring_interrupts(name: str):
@@ -54,9 +67,11 @@ def import_deferring_interrupts(name: str):
     A SIGINT that lands inside torch's C++ initialisation, raised there as a Python exception, aborts the process
     (``terminate called after throwing an instance of 'pybind11::error_already_set'``, no exit code 130); noted by a
     handler and answered after the import, it is the one line of every interrupt. Off the main thread (where no
-    handler can be set) the import is plain.
+    handler can be set), or where SIGINT is ignored (a script's background job: Ctrl-C is not meant for it), the
+    import is plain.
     """
-    if threading.current_thread() is not threading.main_thread():
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is signal.SIG_IGN):
         return importlib.import_module(name)
     hits: list[int] = []
     previous = signal.signal(signal.SIGINT, lambda signum, frame: hits.append(signum))
@@ -69,16 +84,20 @@ def import_deferring_interrupts(name: str):
     return module
 
 
-def run(argv: list[str] | None = None) -> None:
-    """The ``lightcurve-gp`` console script (and the ``python -m lightcurve_gp.<command>`` shims): :func:`main` of
-    ``argv`` (default ``sys.argv[1:]``), then the process ends the way every command ends."""
+def run(argv: list[str] | None = None, *, prog: str | None = None, command_prog: str | None = None) -> None:
+    """The ``lightcurve-gp`` console script (and ``python -m lightcurve_gp``, and the ``python -m
+    lightcurve_gp.<command>`` shims): :func:`main` of ``argv`` (default ``sys.argv[1:]``), then the process ends the
+    way every command ends. ``prog`` defaults to the name the process was started as (the console script's)."""
     try:
-        code = main(argv)
+        code = main(argv, prog=prog or Path(sys.argv[0]).name or ENTRY, command_prog=command_prog)
     except KeyboardInterrupt:  # only while a command's module loads: a running command handles its own
         print("interrupted; nothing written", file=sys.stderr)
         sys.exit(130)
-    importlib.import_module("lightcurve_gp.commands.common").exit_process(code)  # loaded already by the command
+    common = sys.modules.get("lightcurve_gp.commands.common")  # loaded by every command; not by --help, --version
+    if common is None:
+        sys.exit(code)
+    common.exit_process(code)
 
 
 if __name__ == "__main__":
-    run()
+    run(prog="python -m lightcurve_gp")

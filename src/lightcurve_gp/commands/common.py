@@ -24,6 +24,7 @@ worker as finished).
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import shlex
 import shutil
@@ -41,13 +42,15 @@ import torch
 from tqdm.auto import tqdm
 
 from lightcurve_gp import __version__
+from lightcurve_gp.commands.progress import has_descriptor, progress_output
 from lightcurve_gp.config.load import ConfigError, config_to_dict
 from lightcurve_gp.observation.serialization import ModelFileError
 from lightcurve_gp.observed.lightcurve_file import LightCurveFileError
 
 __all__ = ["DEFAULT_THREADS", "UserError", "Interrupted", "add_common_arguments", "apply_threads",
-           "progress_enabled", "check_output_root", "check_new_folder", "check_overrides", "available_memory",
-           "format_bytes", "warn", "STRICT_HELP", "run_interruptible", "run_command", "exit_process", "provenance"]
+           "progress_enabled", "check_output_root", "check_new_folder", "check_overrides", "check_unit_quaternion",
+           "available_memory", "format_bytes", "warn", "STRICT_HELP", "run_interruptible", "run_command",
+           "exit_process", "provenance"]
 
 #: torch intra-op threads of every command unless ``--threads`` says otherwise (see the module docstring)
 DEFAULT_THREADS = 1
@@ -68,14 +71,16 @@ FORCE_HELP = "replace an existing output folder (the old one is removed only whe
 
 
 def add_common_arguments(parser: argparse.ArgumentParser, *, force: bool = True, force_help: str = FORCE_HELP) -> None:
-    """Add ``--threads``, ``--no-progress``, ``--debug`` and (with ``force``) ``--force``, described by
-    ``force_help``, to ``parser``."""
+    """Add ``--threads``, ``--no-progress``, ``--debug``, ``--version`` and (with ``force``) ``--force``, described
+    by ``force_help``, to ``parser``."""
     parser.add_argument("--threads", type=int, default=DEFAULT_THREADS,
                         help=f"torch threads (default {DEFAULT_THREADS}: the filter's small per-step tensors run "
                              f"fastest on one thread, and one thread stays fast when other jobs share the cores)")
     parser.add_argument("--no-progress", action="store_true",
                         help="hide progress bars and status lines (also hidden when stderr is not a terminal)")
     parser.add_argument("--debug", action="store_true", help="show the traceback of an error instead of one line")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}",
+                        help="print the package's version and exit")
     if force:
         parser.add_argument("--force", action="store_true", help=force_help)
 
@@ -89,8 +94,9 @@ def apply_threads(threads: int) -> int:
 
 
 def progress_enabled(no_progress: bool) -> bool:
-    """Progress output is on unless ``--no-progress`` is given or stderr is not a terminal."""
-    return not no_progress and sys.stderr.isatty()
+    """Progress output is on unless ``--no-progress`` is given or stderr is neither a terminal (bars) nor a file or
+    pipe (plain lines, :class:`~lightcurve_gp.commands.progress.ProgressLines`): an in-memory stream gets none."""
+    return not no_progress and (sys.stderr.isatty() or has_descriptor(sys.stderr))
 
 
 def check_output_root(out: Path) -> None:
@@ -130,6 +136,20 @@ def check_overrides(overrides: list[str]) -> None:
         seen[key] = text
 
 
+#: how far a given quaternion's norm may be off 1 (rounding in a copied value), beyond which it is refused
+UNIT_TOLERANCE = 1e-3
+
+
+def check_unit_quaternion(values: list[float], *, option: str) -> None:
+    """Refuse a quaternion whose norm is off 1 by more than :data:`UNIT_TOLERANCE` (a typo, or not a rotation
+    at all), naming ``option`` and the norm; a :class:`UserError`."""
+    norm = math.sqrt(sum(v * v for v in values))
+    if abs(norm - 1.0) > UNIT_TOLERANCE:
+        text = ",".join(f"{v:g}" for v in values)
+        raise UserError(f"{option}: {text} has norm {norm:.6g}, not 1 (a unit quaternion q1,q2,q3,q4, scalar last, "
+                        f"within {UNIT_TOLERANCE:g}); divide by its norm if that is the attitude meant")
+
+
 def available_memory(device: str) -> float:
     """Bytes the run can still allocate on ``device``: free device memory on a CUDA device, else the system's
     ``MemAvailable`` (Linux), else its physical memory."""
@@ -143,11 +163,6 @@ def available_memory(device: str) -> float:
     except OSError:
         pass
     return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
-
-
-def warn(message: str) -> None:
-    """One warning line on stderr, ``warning: <message>`` (the run goes on; exit code unchanged)."""
-    print(f"warning: {message}", file=sys.stderr, flush=True)
 
 
 #: the help of ``--strict`` on the commands that read a light-curve file
@@ -213,8 +228,21 @@ def run_interruptible(fn: Callable[[], Any], *, status: str = "", progress: bool
     return box["value"]
 
 
+def warn(message: str | None) -> None:
+    """One warning line on stderr, ``warning: <message>``; nothing for ``None``. A warning never changes the exit
+    code."""
+    if message:
+        print(f"warning: {message}", file=sys.stderr, flush=True)
+
+
 def run_command(body: Callable[[], int], *, debug: bool) -> int:
-    """Run a command's body with the error policy of the module docstring; returns the exit code."""
+    """Run a command's body with the error policy of the module docstring, its progress as lines when stderr is a
+    file or pipe (:func:`progress_output`); returns the exit code."""
+    with progress_output():
+        return _run_with_policy(body, debug=debug)
+
+
+def _run_with_policy(body: Callable[[], int], *, debug: bool) -> int:
     try:
         return body()
     except (UserError, ConfigError, ModelFileError, LightCurveFileError) as exc:

@@ -38,6 +38,7 @@ from lightcurve_gp.commands.common import (
     UserError,
     check_new_folder,
     check_output_root,
+    check_unit_quaternion,
     progress_enabled,
     provenance,
     run_interruptible,
@@ -55,6 +56,7 @@ from lightcurve_gp.observed.arc_run import (
     estimate_table,
     file_scene,
 )
+from lightcurve_gp.observed.information import flat_light_curve
 from lightcurve_gp.observed.lightcurve_file import read_light_curve, write_table
 from lightcurve_gp.observed.observations_file import read_observations
 from lightcurve_gp.observed.plots import attitude_with_uncertainty, fit_with_residuals, light_curve_band
@@ -144,7 +146,8 @@ def check_options(args: argparse.Namespace) -> None:
 
 
 def parse_quaternion(text: str) -> torch.Tensor:
-    """``"q1,q2,q3,q4"`` → a float64 tensor ``(4,)``; a :class:`UserError` names ``--initial-attitude``."""
+    """``"q1,q2,q3,q4"`` → a float64 unit quaternion ``(4,)``; a :class:`UserError` names ``--initial-attitude``
+    (and the norm, when it is off 1: :func:`~lightcurve_gp.commands.common.check_unit_quaternion`)."""
     try:
         values = [float(v) for v in text.split(",")]
     except ValueError:
@@ -153,6 +156,7 @@ def parse_quaternion(text: str) -> torch.Tensor:
     if q.numel() != 4 or not bool(torch.isfinite(q).all()) or float(q.norm()) < 1e-6:
         raise UserError(f"--initial-attitude: {text!r} must be four finite numbers q1,q2,q3,q4 (scalar last), "
                         f"not all zero")
+    check_unit_quaternion(values, option="--initial-attitude")
     return q
 
 
@@ -230,6 +234,8 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
     check_output_root(args.out)
     folder = _folder(args, cfg)
     check_new_folder(folder, args.force)
+    for path in args.light_curve:
+        warn(flat_light_curve(read_light_curve(path), noise_std=mag_err))
     record = provenance(cfg, config_file=str(args.config), light_curves=[str(p) for p in args.light_curve],
                         initial_attitude=args.initial_attitude, relative=args.relative, mag_err_default=mag_err,
                         solutions=None if getattr(args, "solutions", None) is None else str(args.solutions),
@@ -286,6 +292,7 @@ def _run_gpukf(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
     check_output_root(args.out)
     folder = light_curve_folder(args.out, cfg.name, args.light_curve)
     check_new_folder(folder, args.force)
+    warn(flat_light_curve(lc, noise_std=math.sqrt(cfg.filter.measurement_noise)))
     record = provenance(cfg, config_file=str(args.config), light_curve=str(args.light_curve),
                         initial_attitude=args.initial_attitude,
                         solutions=None if getattr(args, "solutions", None) is None else str(args.solutions),
@@ -302,7 +309,7 @@ def _run_gpukf(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
                                                          prune_keep=args.bank_prune_keep),
                             status=f"running the {status}", progress=progress_enabled(args.no_progress))
     group = None if run.bank is None else ambiguity_images(cfg, samples=len(lc.t), geometry=geometry)
-    result = finish(run, record=record, status=status, group=group,
+    result = finish(run, record=record, status=status, group=group, p0_deg=cfg.filter.p0_deg,
                     rho_reference=cfg.model.rho_reference if cfg.filter.estimate_offset else None)
     with RunFolder(folder, force=args.force) as tmp:
         write_table(result.history, tmp / "attitude_history.ecsv", fmt="ascii.ecsv")

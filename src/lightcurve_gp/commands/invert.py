@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +47,7 @@ from lightcurve_gp.inference.families import Families, families
 from lightcurve_gp.inference.forward import GroupRenderer
 from lightcurve_gp.inference.inversion import Inversion, InversionSettings, invert
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
+from lightcurve_gp.observed.information import flat_light_curve
 from lightcurve_gp.observed.lightcurve_file import LightCurve, read_light_curve
 from lightcurve_gp.observed.run import FileGeometryError, file_geometry
 from lightcurve_gp.observed.solutions import solutions_table, write_solutions
@@ -55,9 +57,10 @@ from lightcurve_gp.photometry.render import Scene
 __all__ = ["build_parser", "file_problem", "main"]
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(prog: str = "lightcurve-gp invert") -> argparse.ArgumentParser:
+    """The command's options; ``prog`` is how it was called (its usage line)."""
     parser = argparse.ArgumentParser(
-        prog="python -m lightcurve_gp.invert",
+        prog=prog,
         description="Estimate the attitude and spin of an object from its light curve alone (no initial guess): "
                     "every family of solutions within a likelihood ratio of the best, weighted by evidence.")
     parser.add_argument("config", help="YAML config: shape, surface (F0, n_u, n_v), inertia, dt, fixed geometry")
@@ -174,8 +177,9 @@ def _run(args: argparse.Namespace) -> int:
     check_output_root(args.out)
     folder = invert_folder(args.out, cfg.name, args.light_curve)
     check_new_folder(folder, args.force)
+    warn(flat_light_curve(lc, noise_std=args.mag_err if args.mag_err is not None else float(np.median(lc.mag_err))))
     show = progress_enabled(args.no_progress)
-    say = (lambda message: tqdm.write(message)) if show else None
+    say = (lambda message: tqdm.write(message, file=sys.stderr)) if show else None
     group = ambiguity_group(scene, times_s=t, inertia=problem.inertia, rate_known=False, dt_s=problem.dt)
     try:
         inv = invert(problem, group, settings=settings, progress=say)
@@ -198,7 +202,8 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def main(argv: list[str] | None = None, *, prog: str = "lightcurve-gp invert") -> int:
+    """Run the command on ``argv`` (default ``sys.argv[1:]``), its usage shown as ``prog``; returns the exit code."""
+    args = build_parser(prog).parse_args(argv)
     return run_command(lambda: _run(args), debug=args.debug)
 

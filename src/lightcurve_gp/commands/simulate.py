@@ -5,8 +5,9 @@ with ``rho_true``, Gaussian noise of ``noise_var`` drawn with ``--seed`` alone �
 :func:`lightcurve_gp.simulation.scenario.simulate_scenario`) and writes it as a light-curve file
 (:mod:`lightcurve_gp.observed.lightcurve_file`: ``time`` from ``--start``, ``mag``, ``mag_err = √noise_var`` unless
 ``--no-mag-err``), with the truth in the sidecar ``<stem>.truth.ecsv`` beside it: per sample the true quaternion,
-body rate (rad/s) and noise-free magnitude; in its metadata the seed, ``rho_true``, the config's initial estimate
-``q_est0`` (what ``estimate --initial-attitude`` takes to repeat the simulated run) and the config.
+body rate (deg/s) and noise-free magnitude, each column with its unit; in its metadata the seed, ``rho_true``, the
+config's initial estimate ``q_est0`` (what ``estimate --initial-attitude`` takes to repeat the simulated run) and the
+config.
 
 Along a pass (``geometry.kind: orbit``) the file starts at ``geometry.start_utc``, carries the per-sample geometry
 columns (``sun_*``, ``obs_*``: unit vectors object → Sun and object → observer, GCRS; ``range_km``) and holds the
@@ -53,6 +54,7 @@ from lightcurve_gp.observed.lightcurve_file import (
     light_curve_table,
     write_table,
 )
+from lightcurve_gp.observed.table_units import ISO_UTC, QUATERNION, set_units
 from lightcurve_gp.simulation.scenario import Scenario, simulate_scenario
 
 __all__ = ["truth_path", "truth_table", "random_truth", "build_parser", "main"]
@@ -93,22 +95,30 @@ def truth_path(out: Path) -> Path:
     return out.with_name(f"{out.stem}.truth.ecsv")
 
 
+#: the truth sidecar's units: the body rate in deg/s like the config's ``omega0_deg_s`` and ``solutions.ecsv``
+TRUTH_UNITS = {**{f"q{i}": QUATERNION for i in range(1, 5)}, **{f"omega_{a}": "deg / s" for a in "xyz"},
+               "mag_clean": "mag"}
+
+
 def truth_table(sc: Scenario, lc: LightCurve, record: dict, rows: np.ndarray) -> Table:
-    """The truth of one simulated light curve at its samples ``rows`` of the scenario: time (ISO UTC), ``q1…q4``,
-    ``omega_x…z`` (rad/s), ``mag_clean``."""
-    q, w = sc.q_true[0].cpu().numpy()[rows], sc.omega_true[0].cpu().numpy()[rows]
+    """The truth of one simulated light curve at its samples ``rows`` of the scenario: time (ISO UTC), ``q1…q4``
+    (scalar last, inertial → body), ``omega_x…z`` (body rate, deg/s), ``mag_clean`` (mag); every column with its
+    unit (:data:`TRUTH_UNITS`)."""
+    q, w = sc.q_true[0].cpu().numpy()[rows], np.degrees(sc.omega_true[0].cpu().numpy()[rows])
     table = Table({"time": iso_times(lc.times), **{f"q{i + 1}": q[:, i] for i in range(4)},
                    **{f"omega_{a}": w[:, i] for i, a in enumerate("xyz")},
                    "mag_clean": sc.m_clean[0].cpu().numpy()[rows]})
+    set_units(table, TRUTH_UNITS, {"time": ISO_UTC})
     table.meta.update({"seed": sc.seeds[0], "rho_true": sc.rho_true, "noise_var": sc.noise_var,
                        "q_est0": [float(v) for v in sc.q_est0[0].tolist()],
                        "simulation": json.dumps(json_ready(record), default=str, allow_nan=False)})
     return table
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(prog: str = "lightcurve-gp simulate") -> argparse.ArgumentParser:
+    """The command's options; ``prog`` is how it was called (its usage line)."""
     parser = argparse.ArgumentParser(
-        prog="python -m lightcurve_gp.simulate",
+        prog=prog,
         description="Simulate the config's scenario and write its noisy light curve as a light-curve file "
                     "(.ecsv, .csv or .fits) with the truth in <stem>.truth.ecsv beside it.")
     parser.add_argument("config", help="YAML config, e.g. configs/boxwing_robust.yaml")
@@ -198,7 +208,8 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def main(argv: list[str] | None = None, *, prog: str = "lightcurve-gp simulate") -> int:
+    """Run the command on ``argv`` (default ``sys.argv[1:]``), its usage shown as ``prog``; returns the exit code."""
+    args = build_parser(prog).parse_args(argv)
     return run_command(lambda: _run(args), debug=args.debug)
 

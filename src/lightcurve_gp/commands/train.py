@@ -73,9 +73,10 @@ def _summary(result: dict, store: Path) -> str:
     return "\n".join(f"{k.ljust(width)}  {v}" for k, v in rows)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(prog: str = "lightcurve-gp train") -> argparse.ArgumentParser:
+    """The command's options; ``prog`` is how it was called (its usage line)."""
     parser = argparse.ArgumentParser(
-        prog="python -m lightcurve_gp.train",
+        prog=prog,
         description="Generate or load the training set of CONFIG, fit its GP observation model (model.kind: exact "
                     "or sparse) and evaluate it on held-out trajectories with random attitudes and rho values off the "
                     "training grid, on the config's device. Writes the new folder OUT/<name>/ (model.pt, "
@@ -131,7 +132,8 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def main(argv: list[str] | None = None, *, prog: str = "lightcurve-gp train") -> int:
+    """Run the command on ``argv`` (default ``sys.argv[1:]``), its usage shown as ``prog``; returns the exit code."""
+    args = build_parser(prog).parse_args(argv)
     return run_command(lambda: _run(args), debug=args.debug)
 

@@ -22,7 +22,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from astropy import units as u
 from astropy.table import Table
 from astropy.time import Time, TimeDelta
 from scipy.stats import chi2
@@ -38,6 +37,7 @@ from lightcurve_gp.observation.surface_state import surface_from_state
 from lightcurve_gp.observations.observations import Observations
 from lightcurve_gp.observations.problem import Problem, problem_from_observations
 from lightcurve_gp.observed.run import euler321_jacobian
+from lightcurve_gp.observed.table_units import ISO_UTC, QUATERNION, set_units
 from lightcurve_gp.photometry.render import Scene
 
 __all__ = ["ArcRun", "P_NO_FIT", "UNIQUE_WEIGHT", "STATE_SIZE", "estimate_arc", "check_observations", "file_scene",
@@ -47,6 +47,8 @@ __all__ = ["ArcRun", "P_NO_FIT", "UNIQUE_WEIGHT", "STATE_SIZE", "estimate_arc", 
 P_NO_FIT = 1e-3
 #: a fit is unique when its best mode carries at least this share of the evidence
 UNIQUE_WEIGHT = 0.9
+#: the 3-2-1 angles of the tables
+ANGLES = ("yaw", "pitch", "roll")
 #: the unknowns of the whole-arc MAP with the surface unknown (attitude 3, surface state 4)
 STATE_SIZE = 7
 
@@ -151,9 +153,9 @@ def _times(run: ArcRun) -> np.ndarray:
 
 
 def arc_history_table(run: ArcRun) -> Table:
-    """The attitude history (one row per sample, astropy units): UTC time, ``t_s``, the light curve, ``q1…q4``,
-    yaw/pitch/roll (3-2-1 of ``A(q)``) and the 1σ of the error about body x, y, z and of yaw, pitch, roll (the
-    whole arc's covariance), the observed and fitted magnitudes, the residual and the whitened residual."""
+    """The attitude history (one row per sample, a unit on every column): UTC time, ``t_s``, the light curve,
+    ``q1…q4``, yaw/pitch/roll (3-2-1 of ``A(q)``) and the 1σ of the error about body x, y, z and of yaw, pitch, roll
+    (the whole arc's covariance), the observed and fitted magnitudes, the residual and the whitened residual."""
     q = run.estimate.q_est[0].cpu()
     euler_rad = quat_to_euler321(q)
     P = run.estimate.P[0].cpu().to(euler_rad.dtype)
@@ -162,27 +164,19 @@ def arc_history_table(run: ArcRun) -> Table:
     sigma_euler = torch.diagonal(J @ P @ J.mT, dim1=-2, dim2=-1).clamp_min(0).sqrt().rad2deg().numpy()
     euler = torch.rad2deg(euler_rad).numpy()
     obs = run.obs
-    mag = obs.mag[0].cpu().numpy()
-    fit = run.fitted.detach().cpu().numpy()
-    sig = obs.sigma[0].cpu().numpy()
-    table = Table()
-    table["time"] = _times(run)
-    table["t_s"] = obs.t.cpu().numpy() * u.s
-    table["curve"] = obs.curve.cpu().numpy()
-    for i in range(4):
-        table[f"q{i + 1}"] = q[:, i].numpy()
-    for i, name in enumerate(("yaw", "pitch", "roll")):
-        table[f"{name}_deg"] = euler[:, i] * u.deg
-    for i, axis in enumerate("xyz"):
-        table[f"sigma_{axis}_deg"] = sigma[:, i] * u.deg
-    for i, name in enumerate(("yaw", "pitch", "roll")):
-        table[f"sigma_{name}_deg"] = sigma_euler[:, i] * u.deg
-    table["mag_obs"] = mag * u.mag
-    table["mag_err"] = sig * u.mag
-    table["mag_fit"] = fit * u.mag
-    table["residual"] = (mag - fit) * u.mag
-    table["residual_sigmas"] = np.where(run.used.cpu().numpy(), (mag - fit) / sig, np.nan)
-    return table
+    mag, fit, sig = (x.detach().cpu().numpy() for x in (obs.mag[0], run.fitted, obs.sigma[0]))
+    cols = {"time": _times(run), "t_s": obs.t.cpu().numpy(), "curve": obs.curve.cpu().numpy()}
+    cols.update({f"q{i + 1}": q[:, i].numpy() for i in range(4)})
+    cols.update({f"{name}_deg": euler[:, i] for i, name in enumerate(ANGLES)})
+    cols.update({f"sigma_{axis}_deg": sigma[:, i] for i, axis in enumerate("xyz")})
+    cols.update({f"sigma_{name}_deg": sigma_euler[:, i] for i, name in enumerate(ANGLES)})
+    cols.update({"mag_obs": mag, "mag_err": sig, "mag_fit": fit, "residual": mag - fit,
+                 "residual_sigmas": np.where(run.used.cpu().numpy(), (mag - fit) / sig, np.nan)})
+    units = {"t_s": "s", "curve": "", **{f"q{i}": QUATERNION for i in range(1, 5)},
+             **{f"{n}_deg": "deg" for n in ANGLES}, **{f"sigma_{a}_deg": "deg" for a in (*"xyz", *ANGLES)},
+             **{k: "mag" for k in ("mag_obs", "mag_err", "mag_fit", "residual")}, "residual_sigmas": ""}
+    return set_units(Table(cols), units, {"time": ISO_UTC, "curve": "light curve (0 = the first file)",
+                                          "residual_sigmas": "residual / mag_err (NaN: not in the fit)"})
 
 
 def estimate_table(problem: Problem, estimate: Estimate) -> Table:
@@ -191,17 +185,15 @@ def estimate_table(problem: Problem, estimate: Estimate) -> Table:
     q = estimate.q_est[0].cpu()
     rows = torch.arange(q.shape[0]) if estimate.samples is None else estimate.samples.cpu()
     euler = torch.rad2deg(quat_to_euler321(q)).numpy()
-    table = Table()
-    table["t_s"] = problem.obs.t.cpu()[rows].numpy() * u.s
-    for i in range(4):
-        table[f"q{i + 1}"] = q[:, i].numpy()
-    for i, name in enumerate(("yaw", "pitch", "roll")):
-        table[f"{name}_deg"] = euler[:, i] * u.deg
     sigma = np.full((q.shape[0], 3), np.nan) if estimate.P is None else \
         torch.rad2deg(torch.diagonal(estimate.P[0].cpu(), dim1=-2, dim2=-1).clamp_min(0).sqrt()).numpy()
-    for i, axis in enumerate("xyz"):
-        table[f"sigma_{axis}_deg"] = sigma[:, i] * u.deg
-    return table
+    cols = {"t_s": problem.obs.t.cpu()[rows].numpy()}
+    cols.update({f"q{i + 1}": q[:, i].numpy() for i in range(4)})
+    cols.update({f"{name}_deg": euler[:, i] for i, name in enumerate(ANGLES)})
+    cols.update({f"sigma_{axis}_deg": sigma[:, i] for i, axis in enumerate("xyz")})
+    units = {"t_s": "s", **{f"q{i}": QUATERNION for i in range(1, 5)}, **{f"{n}_deg": "deg" for n in ANGLES},
+             **{f"sigma_{a}_deg": "deg" for a in "xyz"}}
+    return set_units(Table(cols), units)
 
 
 def arc_summary(run: ArcRun, record: dict) -> dict:

@@ -41,6 +41,7 @@ from astropy.time import Time, TimeDelta
 from sgp4.api import Satrec
 
 from lightcurve_gp.files import atomic_path
+from lightcurve_gp.observed.table_units import ISO_UTC, set_units
 from lightcurve_gp.observed.text_tables import DECIMAL_COMMA, csv_dialect, data_line_numbers, decimal_points, text_lines
 from lightcurve_gp.observed.times import (
     MAX_SPAN_DAYS,
@@ -59,6 +60,10 @@ __all__ = ["LightCurve", "LightCurveFileError", "GEOMETRY_COLUMNS", "MAG_LIMIT",
            "tle_epoch", "write_table", "write_light_curve"]
 
 GEOMETRY_COLUMNS = ("sun_x", "sun_y", "sun_z", "obs_x", "obs_y", "obs_z", "range_km")
+#: the units a written light-curve file gives its columns (:mod:`~lightcurve_gp.observed.table_units`); ``time``'s
+#: follows the time format (ISO strings carry a description instead)
+LIGHT_CURVE_UNITS = {"mag": "mag", "mag_err": "mag", **{c: "" for c in GEOMETRY_COLUMNS[:6]}, "range_km": "km"}
+TIME_UNITS = {"iso": ("", ISO_UTC), "mjd": ("d", "MJD (UTC)"), "seconds": ("s", "seconds from the epoch (metadata)")}
 SITE_KEYS = ("site_lat_deg", "site_lon_deg", "site_alt_m")
 META_KEYS = (*SITE_KEYS, "tle_line1", "tle_line2", "band", "epoch", "time_format")
 #: an apparent magnitude beyond this is not an observation (the Sun is −26.7)
@@ -152,7 +157,8 @@ def light_curve_table(lc: LightCurve, time_format: str = "iso") -> Table:
     elif time_format == "mjd":
         meta["time_format"] = "mjd"
     table.meta.update(meta)
-    return table
+    unit, description = TIME_UNITS[time_format]
+    return set_units(table, {"time": unit, **LIGHT_CURVE_UNITS}, {"time": description})
 
 
 def write_table(table: Table, path: str | Path, *, fmt: str) -> None:

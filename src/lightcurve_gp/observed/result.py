@@ -57,7 +57,7 @@ class FileResult:
 
 
 def finish(run: ObservedRun, *, record: dict, status: str, rho_reference: float | None,
-           group: AmbiguityGroup | None) -> FileResult:
+           group: AmbiguityGroup | None, p0_deg: float | None = None) -> FileResult:
     """The finished result of ``run``.
 
     Args:
@@ -67,8 +67,10 @@ def finish(run: ObservedRun, *, record: dict, status: str, rho_reference: float 
         rho_reference: the reference ρ the estimated offset is turned into ρ̂ with (``None``: no offset estimated).
         group: the exact ambiguity group of the file (:func:`~lightcurve_gp.observed.verdict.ambiguity_images`)
             whose images the bank's verdict counts as one answer; needed when a bank ran, else ``None``.
+        p0_deg: the members' prior (``filter.p0_deg``): the verdict then says whether the bank covers SO(3)
+            (:func:`~lightcurve_gp.observed.verdict.bank_coverage`).
     """
-    verdict = None if run.bank is None else bank_verdict(run.bank, group)
+    verdict = None if run.bank is None else bank_verdict(run.bank, group, p0_deg=p0_deg)
     return FileResult(run=run, history=history_table(run, rho_reference),
                       bank=None if run.bank is None else bank_table(run.bank), verdict=verdict,
                       summary=summary(run, record, verdict), status=status)

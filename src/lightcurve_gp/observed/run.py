@@ -39,6 +39,7 @@ from lightcurve_gp.filters.offset import offset_to_rho
 from lightcurve_gp.filters.setup import run_filter
 from lightcurve_gp.filters.usque import FilterHistory
 from lightcurve_gp.observed.lightcurve_file import LightCurve, LightCurveFileError, iso_times
+from lightcurve_gp.observed.table_units import ISO_UTC, QUATERNION, set_units
 from lightcurve_gp.passes.geometry import PassGeometry, orbit_pass
 from lightcurve_gp.passes.visibility import site_visibility
 
@@ -201,7 +202,7 @@ def history_table(run: ObservedRun, rho_reference: float | None) -> Table:
     """The attitude history: time (ISO UTC), ``t_s``, ``q1…q4``, yaw/pitch/roll (deg, 3-2-1 of ``A(q)``), the 1σ
     of the attitude error about x, y, z (deg, from the GRP block of ``P``) and of yaw, pitch and roll (deg, the same
     block through :func:`euler321_jacobian`), the offset and ρ̂ with their 1σ when estimated, the observed and
-    predicted magnitude with its σ (``√Pyy``), the innovation and the NIS."""
+    predicted magnitude with its σ (``√Pyy``), the innovation and the NIS; every column with its astropy unit."""
     h = run.history
     q = h.q_est[0].cpu()
     euler_rad = quat_to_euler321(q)
@@ -223,7 +224,10 @@ def history_table(run: ObservedRun, rho_reference: float | None) -> Table:
     cols.update({"mag_obs": run.lc.mag, "mag_pred": h.y_pred[0].cpu().numpy(),
                  "mag_pred_sigma": h.y_var[0].clamp_min(0).sqrt().cpu().numpy(),
                  "innovation": h.innovation[0].cpu().numpy(), "nis": h.nis()[0].cpu().numpy()})
-    return Table(cols)
+    units = {"t_s": "s", **{f"q{i}": QUATERNION for i in range(1, 5)}, "rho_hat": "", "nis": "",
+             **{name: "deg" for name in cols if name.endswith("_deg")},
+             **{name: "mag" for name in cols if name.startswith(("mag_", "offset_")) or name == "innovation"}}
+    return set_units(Table(cols), units, {"time": ISO_UTC, "t_s": "seconds from the first sample"})
 
 
 def nis_summary(history: FilterHistory) -> dict:
@@ -243,7 +247,7 @@ def nis_summary(history: FilterHistory) -> dict:
 def bank_table(bank: BankResult) -> Table:
     """Every bank member, best first: rank, index, initial quaternion, log-likelihood (nats), posterior weight and,
     when the bank was pruned, whether it ran the whole light curve (a pruned member's log-likelihood covers the first
-    stretch only, its weight is 0)."""
+    stretch only, its weight is 0); every column with its astropy unit (all dimensionless)."""
     order = bank.order.cpu()
     q0 = bank.q0.cpu()[order].numpy()
     cols = {"rank": np.arange(1, order.numel() + 1), "member": order.numpy(),
@@ -251,4 +255,6 @@ def bank_table(bank: BankResult) -> Table:
             "log_likelihood": bank.log_likelihood.cpu()[order].numpy(), "weight": bank.weights.cpu()[order].numpy()}
     if bank.survivors is not None:
         cols["whole_curve"] = np.isin(order.numpy(), bank.survivors.cpu().numpy())
-    return Table(cols)
+    units = {"rank": "", "member": "", **{f"q0_{i}": QUATERNION for i in range(1, 5)}, "log_likelihood": "",
+             "weight": "", "whole_curve": ""}
+    return set_units(Table(cols), units, {"log_likelihood": "nats"})

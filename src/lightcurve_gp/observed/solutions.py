@@ -19,12 +19,18 @@ from astropy.table import Table
 
 from lightcurve_gp.inference.families import Families
 from lightcurve_gp.observed.lightcurve_file import write_table
+from lightcurve_gp.observed.table_units import set_units
 
 __all__ = ["SolutionsFileError", "solutions_table", "write_solutions", "read_solutions", "best_solution"]
 
 COLUMNS = ("rank", "weight", "log_likelihood", "log_evidence", "q_x", "q_y", "q_z", "q_w", "omega_x", "omega_y",
            "omega_z", "rho", "members", "sigma_att_x", "sigma_att_y", "sigma_att_z", "sigma_omega_x", "sigma_omega_y",
            "sigma_omega_z", "sigma_rho")
+
+#: every column's unit (:mod:`~lightcurve_gp.observed.table_units`): rates deg/s, the attitude's 1σ deg, the rest
+#: dimensionless (the log-likelihood and evidence in nats, said in their descriptions)
+UNITS = {**{c: "" for c in COLUMNS}, **{f"omega_{a}": "deg / s" for a in "xyz"},
+         **{f"sigma_att_{a}": "deg" for a in "xyz"}, **{f"sigma_omega_{a}": "deg / s" for a in "xyz"}}
 
 
 class SolutionsFileError(ValueError):
@@ -44,11 +50,7 @@ def solutions_table(fam: Families, meta: dict | None = None) -> Table:
             **{f"sigma_att_{a}": np.degrees(sd[:, i]) for i, a in enumerate("xyz")},
             **{f"sigma_omega_{a}": np.degrees(sd[:, 3 + i]) for i, a in enumerate("xyz")},
             "sigma_rho": rho * sd[:, 6]}
-    table = Table(cols)
-    for name in ("omega_x", "omega_y", "omega_z", "sigma_omega_x", "sigma_omega_y", "sigma_omega_z"):
-        table[name].unit = "deg / s"
-    for name in ("sigma_att_x", "sigma_att_y", "sigma_att_z"):
-        table[name].unit = "deg"
+    table = set_units(Table(cols), UNITS, {"log_likelihood": "nats", "log_evidence": "nats"})
     table.meta.update({"images": list(fam.images), **(meta or {})})
     return table
 

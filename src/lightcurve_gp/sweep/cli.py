@@ -26,9 +26,10 @@ from lightcurve_gp.sweep.tables import print_summary
 __all__ = ["build_parser", "main"]
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(prog: str = "lightcurve-gp sweep") -> argparse.ArgumentParser:
+    """The command's options; ``prog`` is how it was called (its usage line)."""
     parser = argparse.ArgumentParser(
-        prog="python -m lightcurve_gp.sweep",
+        prog=prog,
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Run the estimators (GPUKF, conventional UKF, matched-rho UKF, no-update baseline) over the "
                     "cartesian product of grid axes, every case with all seeds batched.",
@@ -129,6 +130,7 @@ def _kept(result: SweepResult, grid_keys: list[str], cases_folder: Path) -> str:
             f"command to resume")
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def main(argv: list[str] | None = None, *, prog: str = "lightcurve-gp sweep") -> int:
+    """Run the command on ``argv`` (default ``sys.argv[1:]``), its usage shown as ``prog``; returns the exit code."""
+    args = build_parser(prog).parse_args(argv)
     return run_command(lambda: _run(args), debug=args.debug)

@@ -13,8 +13,8 @@ from lightcurve_gp.evaluation.scoring import nees_band
 from lightcurve_gp.files import write_json_atomic, write_text_atomic
 from lightcurve_gp.sweep.grid import Case, value_text
 
-__all__ = ["SUMMARY_METRICS", "SUMMARY_COLUMNS", "table_rows", "summarize_rows", "write_sweep_tables",
-           "print_summary"]
+__all__ = ["SUMMARY_METRICS", "SUMMARY_COLUMNS", "TEXT_COLUMNS", "column_unit", "table_units", "table_rows",
+           "summarize_rows", "write_sweep_tables", "print_summary"]
 
 #: the metrics summarised by median and quartiles
 SUMMARY_METRICS = ("rmse_yaw_deg", "rmse_pitch_deg", "rmse_roll_deg", "lc_rmse_noisy", "lc_rmse_clean",
@@ -26,6 +26,45 @@ SUMMARY_COLUMNS = ("estimator", "seeds_ok", "seeds_failed",
                    *(f"{m}_{s}" for m in SUMMARY_METRICS for s in ("median", "q25", "q75")),
                    *(f"rmse_over_crb_{a}" for a in _AXES), "nees_mean", "nees_median", "share_nees_in_band",
                    "seconds_per_step")
+
+
+#: text columns of the tables (no unit); the grid columns are text too (their values as written in the grid)
+TEXT_COLUMNS = ("case_id", "estimator", "status", "error")
+#: the unit of a numeric column by the end of its name (first match), checked in this order
+_UNIT_SUFFIXES = (("_deg_s", "deg / s"), ("_deg", "deg"), ("seconds_per_step", "s"))
+_DIMENSIONLESS = ("seed", "symmetry", "seeds_ok", "seeds_failed", "nees_mean", "nees_median", "nees_full_mean",
+                  "nees_full_mean_mod_symmetry", "share_nees_in_band", "rmse_over_crb_yaw", "rmse_over_crb_pitch",
+                  "rmse_over_crb_roll")
+
+
+def column_unit(name: str) -> str:
+    """The astropy unit string of a numeric column of ``results.csv`` or ``summary.csv`` (``""``: dimensionless);
+    a summary column ``<metric>_{median,q25,q75}`` has its metric's. CSV has no place for units, so
+    ``summary.json`` lists them (:func:`write_sweep_tables`).
+
+    Raises:
+        ValueError: a column this function does not know (a new column must be given its unit here).
+    """
+    metric = name
+    if name not in _DIMENSIONLESS:
+        for statistic in ("_median", "_q25", "_q75"):
+            metric = metric.removesuffix(statistic)
+    if metric in _DIMENSIONLESS:
+        return ""
+    if metric.startswith("lc_rmse_"):
+        return "mag"
+    for suffix, unit in _UNIT_SUFFIXES:
+        if metric.endswith(suffix):
+            return unit
+    raise ValueError(f"column {name}: no unit known")
+
+
+def table_units(keys: Sequence[str]) -> dict[str, dict[str, str | None]]:
+    """Every column's unit of ``results.csv`` and ``summary.csv`` (``None``: text: ``keys``, the case id and the
+    grid columns, and :data:`TEXT_COLUMNS`), as ``summary.json`` lists them."""
+    def units(columns: Sequence[str]) -> dict[str, str | None]:
+        return {c: None if c in TEXT_COLUMNS or c in keys else column_unit(c) for c in columns}
+    return {"results.csv": units([*keys, *RESULT_COLUMNS]), "summary.csv": units([*keys, *SUMMARY_COLUMNS])}
 
 
 def table_rows(cases: Sequence[Case], records: dict[str, CaseRecord]) -> list[dict[str, Any]]:
@@ -75,10 +114,12 @@ def summarize_rows(rows: Sequence[dict[str, Any]], keys: Sequence[str]) -> list[
 
 def write_sweep_tables(folder: Path, sweep_id: str, keys: Sequence[str], rows: Sequence[dict[str, Any]],
                        summary: Sequence[dict[str, Any]], complete: bool, failed: Sequence[str]) -> None:
-    """``results.csv``, ``summary.csv`` and ``summary.json`` (NaN → null) of one sweep, atomically."""
+    """``results.csv``, ``summary.csv`` and ``summary.json`` (NaN → null; every CSV column's unit under ``units``,
+    :func:`table_units`) of one sweep, atomically."""
     write_text_atomic(csv_text(rows, [*keys, *RESULT_COLUMNS]), folder / "results.csv")
     write_text_atomic(csv_text(summary, [*keys, *SUMMARY_COLUMNS]), folder / "summary.csv")
     write_json_atomic({"sweep_id": sweep_id, "complete": complete, "failed_cases": list(failed),
+                       "units": table_units(keys),
                        "summary": [{k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in e.items()}
                                    for e in summary]}, folder / "summary.json")
 
