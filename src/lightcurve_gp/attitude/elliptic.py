@@ -85,57 +85,68 @@ def jacobi_sn_cn_dn(u: Tensor, ladder: LandenLadder) -> tuple[Tensor, Tensor, Te
     return sn, cn, dn, am
 
 
-def carlson_steps(x: Tensor, y: Tensor, z: Tensor, p: Tensor) -> int:
-    """The duplication steps Carlson's rule asks of the worst arguments of the batch for the dtype's precision:
-    the least ``N`` with ``4^(−N) Q < A_N``, ``Q = (ε/4)^(−1/6) max|A_0 − (x, y, z, p)|`` (Carlson 1995, for
-    ``R_J``; ``R_F``'s rule asks for no more)."""
+def carlson_steps(x: Tensor, y: Tensor, z: Tensor, p: Tensor) -> Tensor:
+    """The duplication steps Carlson's rule asks of each set of arguments (broadcast shape, int64) for the dtype's
+    precision: the least ``N`` with ``4^(−N) Q < A_N``, ``Q = (ε/4)^(−1/6) max|A_0 − (x, y, z, p)|`` (Carlson 1995,
+    for ``R_J``; ``R_F``'s rule asks for no more). A batch takes the most any of its elements asks."""
+    x, y, z, p = torch.broadcast_tensors(x, y, z, p)
     eps = torch.finfo(x.dtype).eps
     a0 = (x + y + z + 2.0 * p) / 5.0
     q = (0.25 * eps) ** (-1.0 / 6.0) * torch.stack([(a0 - v).abs() for v in (x, y, z, p)]).amax(0)
     a, n = a0, 0
-    while bool((q * 0.25 ** n >= a.abs()).any()):
+    steps = torch.zeros(x.shape, dtype=torch.int64, device=x.device)
+    while True:
+        pending = q * 0.25 ** n >= a.abs()
+        if not bool(pending.any()):
+            return steps
         if n == MAX_STEPS:
             raise ValueError(f"carlson_steps: no convergence in {MAX_STEPS} steps")
+        steps = steps + pending
         sx, sy, sz = torch.sqrt(x), torch.sqrt(y), torch.sqrt(z)
         lam = sx * sy + sx * sz + sy * sz
         x, y, z, p, a = (x + lam) / 4, (y + lam) / 4, (z + lam) / 4, (p + lam) / 4, (a + lam) / 4
         n += 1
-    return n
 
 
 def _atan_ratio(e: Tensor) -> Tensor:
-    """``R_C(1, 1 + e) = atan(√e)/√e`` for ``e ≥ 0`` (its series below 1e-3)."""
-    small = e < 1e-3
-    root = torch.sqrt(torch.where(small, torch.ones_like(e), e))
+    """``R_C(1, 1 + e) = atan(√e)/√e`` for ``e ≥ 0`` (its series below 1e-3; the series alone when every ``e`` is
+    that small, as after the first duplications, where ``e`` shrinks about 64-fold per step)."""
     series = 1.0 - e * (1.0 / 3.0 - e * (1.0 / 5.0 - e * (1.0 / 7.0 - e * (1.0 / 9.0 - e / 11.0))))
+    small = e < 1e-3
+    if bool(small.all()):
+        return series
+    root = torch.sqrt(torch.where(small, torch.ones_like(e), e))
     return torch.where(small, series, torch.atan(root) / root)
 
 
 def carlson_rf_rj(x: Tensor, y: Tensor, z: Tensor, p: Tensor, *, steps: int) -> tuple[Tensor, Tensor]:
     """``R_F(x, y, z)`` and ``R_J(x, y, z, p)`` (broadcast shapes) by ``steps`` duplications and the fifth-order
-    series; ``x, y, z ≥ 0`` with at most one zero, ``p ≥ max(x, y, z)``, ``p > 0`` (see :func:`carlson_steps`)."""
+    series; ``x, y, z ≥ 0`` with at most one zero, ``p ≥ max(x, y, z)``, ``p > 0`` (see :func:`carlson_steps`).
+
+    The duplication runs on the scaled arguments ``X_i = 4^i x_i`` (so ``X_{i+1} = X_i + Λ_i``, ``Λ_i = 4^i λ_i``):
+    the i-th ``R_C`` term ``4^(−i) R_C(1, 1 + e_i)/d_i`` is ``2^i R_C(1, 1 + δ/D_i²)/D_i`` with ``D_i = 2^(3i) d_i``."""
     x, y, z, p = torch.broadcast_tensors(x, y, z, p)
-    af0, aj0 = (x + y + z) / 3.0, (x + y + z + 2.0 * p) / 5.0
-    dx, dy, dz = aj0 - x, aj0 - y, aj0 - z
+    s3 = x + y + z
+    af0, aj0 = s3 / 3.0, (s3 + 2.0 * p) / 5.0
     fx, fy = af0 - x, af0 - y
+    dx, dy, dz = aj0 - x, aj0 - y, aj0 - z
     delta = (p - x) * (p - y) * (p - z)
     total = torch.zeros_like(x)
     for i in range(steps):
         sx, sy, sz, sp = torch.sqrt(x), torch.sqrt(y), torch.sqrt(z), torch.sqrt(p)
-        lam = sx * sy + sx * sz + sy * sz
+        lam = sx * (sy + sz) + sy * sz
         d = (sp + sx) * (sp + sy) * (sp + sz)
-        e = delta * (0.25 ** (3 * i)) / (d * d)
-        total = total + (0.25 ** i) * _atan_ratio(e) / d
-        x, y, z, p = (x + lam) * 0.25, (y + lam) * 0.25, (z + lam) * 0.25, (p + lam) * 0.25
-    scale = 0.25 ** steps
-    af, aj = (x + y + z) / 3.0, (x + y + z + 2.0 * p) / 5.0
+        total = total + (2.0 ** i) * _atan_ratio(delta / (d * d)) / d
+        x, y, z, p = x + lam, y + lam, z + lam, p + lam
+    s3 = x + y + z
+    af, aj = s3 / 3.0, (s3 + 2.0 * p) / 5.0  # 4^steps times the unscaled means
     # R_F
-    X, Y = fx * scale / af, fy * scale / af
+    X, Y = fx / af, fy / af
     Z = -(X + Y)
     e2, e3 = X * Y - Z * Z, X * Y * Z
-    rf = (1.0 - e2 / 10.0 + e3 / 14.0 + e2 * e2 / 24.0 - 3.0 * e2 * e3 / 44.0) / torch.sqrt(af)
+    rf = (2.0 ** steps) * (1.0 - e2 / 10.0 + e3 / 14.0 + e2 * e2 / 24.0 - 3.0 * e2 * e3 / 44.0) / torch.sqrt(af)
     # R_J
-    X, Y, Z = dx * scale / aj, dy * scale / aj, dz * scale / aj
+    X, Y, Z = dx / aj, dy / aj, dz / aj
     P = -(X + Y + Z) / 2.0
     xyz, p2 = X * Y * Z, P * P
     e2 = X * Y + X * Z + Y * Z - 3.0 * p2
@@ -144,7 +155,7 @@ def carlson_rf_rj(x: Tensor, y: Tensor, z: Tensor, p: Tensor, *, steps: int) -> 
     e5 = xyz * p2
     series = (1.0 - 3.0 * e2 / 14.0 + e3 / 6.0 + 9.0 * e2 * e2 / 88.0 - 3.0 * e4 / 22.0 - 9.0 * e2 * e3 / 52.0
               + 3.0 * e5 / 26.0)
-    rj = scale * series / (aj * torch.sqrt(aj)) + 6.0 * total
+    rj = (2.0 ** steps) * series / (aj * torch.sqrt(aj)) + 6.0 * total
     return rf, rj
 
 

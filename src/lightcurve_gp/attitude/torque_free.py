@@ -58,7 +58,7 @@ from lightcurve_gp.attitude.rotations import (
 __all__ = ["torque_free_motion", "principal_moments"]
 
 #: samples × rates evaluated together (keeps the temporaries in cache)
-CHUNK_ELEMENTS = 1 << 15
+CHUNK_ELEMENTS = 1 << 17
 
 
 def principal_moments(inertia, *, like: Tensor) -> Tensor:
@@ -135,8 +135,9 @@ def _body_angles(sn: Tensor, cn: Tensor, dn: Tensor, am: Tensor, c: dict) -> tup
     return psi, theta, torch.stack([w1, w2, w3], -1)
 
 
-def _triaxial_constants(omega0: Tensor, j: Tensor, order: list[int]) -> dict:
-    """Per-rate constants of the elliptic solution ``(...)`` (module docstring); ``omega0`` has no principal spin."""
+def _parameters(omega0: Tensor, j: Tensor, order: list[int]) -> dict:
+    """The mode, the permuted moments and rates and the elliptic parameters ``m, mc, n`` ``(...)`` of rates with no
+    principal spin (module docstring)."""
     lo, mid, hi = order
     mats, quats = _permutations(order, omega0.dtype, omega0.device)
     w_lo, w_mid, w_hi = omega0[..., lo], omega0[..., mid], omega0[..., hi]
@@ -150,20 +151,35 @@ def _triaxial_constants(omega0: Tensor, j: Tensor, order: list[int]) -> dict:
     q3 = i1 * d13 * w1 ** 2 + i2 * d23 * w2 ** 2
     dist = (i3 * d23 * w3 ** 2 - i1 * d12 * w1 ** 2).clamp_min(0.0)
     eps = torch.finfo(omega0.dtype).eps
-    mc = (d13 * dist / (d23 * q1)).clamp_min(eps * eps)
-    m = (d12 * q3 / (d23 * q1)).clamp(0.0, 1.0)
+    return dict(sam=sam, mats=mats, quats=quats, i1=i1, i2=i2, i3=i3, w1=w1, w2=w2, w3=w3, d12=d12, d13=d13,
+                d23=d23, q1=q1, q3=q3, mc=(d13 * dist / (d23 * q1)).clamp_min(eps * eps),
+                m=(d12 * q3 / (d23 * q1)).clamp(0.0, 1.0), n=-i3 * d12 / (i1 * d23))
+
+
+def _carlson_steps(prm: dict) -> Tensor:
+    """Duplication steps ``(...)`` the rates' integrals need (their complete ones are the worst case)."""
+    zero, one = torch.zeros_like(prm["m"]), torch.ones_like(prm["m"])
+    return carlson_steps(zero, prm["mc"], one, 1.0 - prm["n"])
+
+
+def _triaxial_constants(omega0: Tensor, j: Tensor, order: list[int]) -> dict:
+    """Per-rate constants of the elliptic solution ``(...)`` (module docstring); ``omega0`` has no principal spin."""
+    prm = _parameters(omega0, j, order)
+    sam, mats, quats, mc, m = prm["sam"], prm["mats"], prm["quats"], prm["mc"], prm["m"]
+    i1, i2, i3, w1, w2, w3 = (prm[k] for k in ("i1", "i2", "i3", "w1", "w2", "w3"))
+    d13, d23, q1, q3 = prm["d13"], prm["d23"], prm["q1"], prm["q3"]
     s3 = torch.where(w3 < 0, -1.0, 1.0).to(omega0.dtype)
     s2 = torch.where(sam, s3, -s3)
     a1, a2 = torch.sqrt(q3 / (i1 * d13)), torch.sqrt(q3 / (i2 * d23))
     c = dict(sam=sam, I1=i1, I2=i2, I3=i3, A1=a1, A2=a2, A3=torch.sqrt(q1 / (i3 * d13)),
-             lam=torch.sqrt(d23 * q1 / (i1 * i2 * i3)), s2=s2, s3=s3, n=-i3 * d12 / (i1 * d23),
+             lam=torch.sqrt(d23 * q1 / (i1 * i2 * i3)), s2=s2, s3=s3, n=prm["n"],
              alpha=i1 * a1, beta=i2 * a2, ladder=landen_ladder(m, mc))
     c["H"] = torch.sqrt((i1 * w1) ** 2 + (i2 * w2) ** 2 + (i3 * w3) ** 2)
     c["g"] = c["H"] * (i3 - i1) / (i3 * i1)
     c["P"] = torch.where(sam[..., None, None], mats[0], mats[1])
     p = torch.where(sam[..., None], quats[0], quats[1])
     zero, one = torch.zeros_like(m), torch.ones_like(m)
-    c["steps"] = carlson_steps(zero, mc, one, 1.0 - c["n"]) + 1
+    c["steps"] = int(_carlson_steps(prm).max())
     rf, rj = carlson_rf_rj(zero, mc, one, 1.0 - c["n"], steps=c["steps"])
     c["K"], c["Pi"] = rf, rf + (c["n"] / 3.0) * rj
     # the phase at t = 0: cn u0 = ω'_1/A_1, sn u0 = ω'_2/(s_2 A_2), am u0 = m0 π + φ_r with |φ_r| ≤ π/2
@@ -234,13 +250,15 @@ def torque_free_motion(omega0: Tensor, *, inertia, times: Tensor) -> tuple[Tenso
     flat = omega0.reshape(-1, 3)
     spin = _degenerate(flat)
     safe = torch.where(spin[:, None], torch.tensor([0.3, 0.5, 0.7], dtype=flat.dtype, device=flat.device), flat)
+    # rates grouped by the duplication steps they need, so that a few hard ones (near the separatrix, a large |n|)
+    # do not set every rate's cost
+    need = _carlson_steps(_parameters(safe, j, order))
     per = max(1, CHUNK_ELEMENTS // max(1, times.numel()))
-    deltas, omegas = [], []
-    for part in safe.split(per):
-        delta, omega = _triaxial(_triaxial_constants(part, j, order), times)
-        deltas.append(delta)
-        omegas.append(omega)
-    delta, omega = torch.cat(deltas), torch.cat(omegas)
+    delta = flat.new_empty(flat.shape[0], times.numel(), 4)
+    omega = flat.new_empty(flat.shape[0], times.numel(), 3)
+    for value in torch.unique(need).tolist():
+        for rows in torch.nonzero(need == value).squeeze(-1).split(per):
+            delta[rows], omega[rows] = _triaxial(_triaxial_constants(safe[rows], j, order), times)
     if bool(spin.any()):
         d_spin, w_spin = _spin(flat, times)
         delta = torch.where(spin[:, None, None], d_spin, delta)
