@@ -194,7 +194,7 @@ def test_float32_runs_close_to_float64():
     d64, w64 = torque_free_motion(w, inertia=J3, times=times)
     d32, w32 = torque_free_motion(w.float(), inertia=J3, times=times.float())
     assert d32.dtype == torch.float32 and w32.dtype == torch.float32
-    assert angle(d32.double(), d64) < 2e-3  # ~100 rad of turning at float32's 6e-8
+    assert angle(d32.double(), d64) < 5e-4  # ~100 rad of turning at float32's 6e-8: 4e-5 rad
     assert float((w32.double() - w64).abs().max()) < 1e-5
 
 

@@ -119,9 +119,11 @@ def _atan_ratio(e: Tensor) -> Tensor:
     return torch.where(small, series, torch.atan(root) / root)
 
 
-def carlson_rf_rj(x: Tensor, y: Tensor, z: Tensor, p: Tensor, *, steps: int) -> tuple[Tensor, Tensor]:
-    """``R_F(x, y, z)`` and ``R_J(x, y, z, p)`` (broadcast shapes) by ``steps`` duplications and the fifth-order
-    series; ``x, y, z ≥ 0`` with at most one zero, ``p ≥ max(x, y, z)``, ``p > 0`` (see :func:`carlson_steps`).
+def carlson_rf_rj(x: Tensor, y: Tensor, z: Tensor, p: Tensor, *, steps: int,
+                  with_rf: bool = True) -> tuple[Tensor | None, Tensor]:
+    """``R_F(x, y, z)`` (``None`` unless ``with_rf``) and ``R_J(x, y, z, p)`` (broadcast shapes) by ``steps``
+    duplications and the fifth-order series; ``x, y, z ≥ 0`` with at most one zero, ``p ≥ max(x, y, z)``, ``p > 0``
+    (see :func:`carlson_steps`).
 
     The duplication runs on the scaled arguments ``X_i = 4^i x_i`` (so ``X_{i+1} = X_i + Λ_i``, ``Λ_i = 4^i λ_i``):
     the i-th ``R_C`` term ``4^(−i) R_C(1, 1 + e_i)/d_i`` is ``2^i R_C(1, 1 + δ/D_i²)/D_i`` with ``D_i = 2^(3i) d_i``."""
@@ -140,11 +142,12 @@ def carlson_rf_rj(x: Tensor, y: Tensor, z: Tensor, p: Tensor, *, steps: int) -> 
         x, y, z, p = x + lam, y + lam, z + lam, p + lam
     s3 = x + y + z
     af, aj = s3 / 3.0, (s3 + 2.0 * p) / 5.0  # 4^steps times the unscaled means
-    # R_F
-    X, Y = fx / af, fy / af
-    Z = -(X + Y)
-    e2, e3 = X * Y - Z * Z, X * Y * Z
-    rf = (2.0 ** steps) * (1.0 - e2 / 10.0 + e3 / 14.0 + e2 * e2 / 24.0 - 3.0 * e2 * e3 / 44.0) / torch.sqrt(af)
+    rf = None
+    if with_rf:
+        X, Y = fx / af, fy / af
+        Z = -(X + Y)
+        e2, e3 = X * Y - Z * Z, X * Y * Z
+        rf = (2.0 ** steps) * (1.0 - e2 / 10.0 + e3 / 14.0 + e2 * e2 / 24.0 - 3.0 * e2 * e3 / 44.0) / torch.sqrt(af)
     # R_J
     X, Y, Z = dx / aj, dy / aj, dz / aj
     P = -(X + Y + Z) / 2.0
@@ -165,9 +168,11 @@ def legendre_f(sn: Tensor, cn: Tensor, dn2: Tensor, *, steps: int) -> Tensor:
     return sn * carlson_rf_rj(cn * cn, dn2, one, one, steps=steps)[0]
 
 
-def legendre_pi(n: Tensor, sn: Tensor, cn: Tensor, dn2: Tensor, *, steps: int) -> tuple[Tensor, Tensor]:
-    """``(F(φ, k), Π(n; φ, k))`` for ``|φ| ≤ π/2`` and ``n ≤ 0`` from ``sin φ, cos φ``, ``1 − m sin²φ`` (broadcast)."""
+def legendre_pi(n: Tensor, sn: Tensor, cn: Tensor, dn2: Tensor, *, steps: int,
+                f: Tensor | None = None) -> tuple[Tensor, Tensor]:
+    """``(F(φ, k), Π(n; φ, k))`` for ``|φ| ≤ π/2`` and ``n ≤ 0`` from ``sin φ, cos φ``, ``1 − m sin²φ`` (broadcast);
+    a known ``F`` (e.g. ``u`` itself when ``φ = am u``) saves the ``R_F`` series."""
     s2 = sn * sn
-    rf, rj = carlson_rf_rj(cn * cn, dn2, torch.ones_like(sn), 1.0 - n * s2, steps=steps)
-    f = sn * rf
+    rf, rj = carlson_rf_rj(cn * cn, dn2, torch.ones_like(sn), 1.0 - n * s2, steps=steps, with_rf=f is None)
+    f = sn * rf if f is None else f
     return f, f + (n / 3.0) * sn * s2 * rj

@@ -203,8 +203,9 @@ def _triaxial(c: dict, times: Tensor) -> tuple[Tensor, Tensor]:
     u = ex("u0") + ex("lam") * times
     two_k = 2.0 * ex("K")
     turns = torch.round(u / two_k)
-    sn, cn, dn, am = jacobi_sn_cn_dn(u - two_k * turns, c["ladder"])
-    _, pi_r = legendre_pi(ex("n"), sn, cn, dn * dn, steps=c["steps"])
+    r = u - two_k * turns
+    sn, cn, dn, am = jacobi_sn_cn_dn(r, c["ladder"])
+    _, pi_r = legendre_pi(ex("n"), sn, cn, dn * dn, steps=c["steps"], f=r)  # F(am r) = r
     par = 1.0 - 2.0 * torch.remainder(turns, 2.0)
     per = {k: (v.unsqueeze(-1) if isinstance(v, Tensor) and v.ndim == c["lam"].ndim else v) for k, v in c.items()}
     psi, theta, w_primed = _body_angles(par * sn, par * cn, dn, am + math.pi * turns, per)
