@@ -31,7 +31,7 @@ import torch
 from torch import Tensor
 
 __all__ = ["LandenLadder", "landen_ladder", "jacobi_amplitude", "jacobi_sn_cn_dn", "carlson_steps",
-           "carlson_rf_rj", "legendre_f", "legendre_pi", "MAX_STEPS"]
+           "carlson_rf_rj", "legendre_pi", "MAX_STEPS"]
 
 #: the most AGM rungs or duplication steps any parameter may need (far above what double precision asks for)
 MAX_STEPS = 60
@@ -160,12 +160,6 @@ def carlson_rf_rj(x: Tensor, y: Tensor, z: Tensor, p: Tensor, *, steps: int,
               + 3.0 * e5 / 26.0)
     rj = (2.0 ** steps) * series / (aj * torch.sqrt(aj)) + 6.0 * total
     return rf, rj
-
-
-def legendre_f(sn: Tensor, cn: Tensor, dn2: Tensor, *, steps: int) -> Tensor:
-    """``F(φ, k)`` for ``|φ| ≤ π/2`` from ``sin φ, cos φ`` and ``1 − m sin²φ`` (broadcast)."""
-    one = torch.ones_like(sn)
-    return sn * carlson_rf_rj(cn * cn, dn2, one, one, steps=steps)[0]
 
 
 def legendre_pi(n: Tensor, sn: Tensor, cn: Tensor, dn2: Tensor, *, steps: int,
