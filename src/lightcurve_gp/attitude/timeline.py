@@ -23,10 +23,14 @@ __all__ = ["spin_increments"]
 
 
 def spin_increments(t: Tensor, *, omega0: Tensor, inertia) -> Tensor:
-    """Increments ``δ_0 … δ_{T−1}`` ``(T, 4)`` (unit quaternions) between the sample times ``t (T+1,)`` (s, strictly
-    increasing) for the torque-free motion that has body rate ``omega0 (3,)`` (rad/s) at ``t_0`` (principal
-    moments ``inertia (3,)``, kg m²); module docstring."""
+    """Increments ``δ_0 … δ_{T−1}`` ``(T, 4)`` (unit quaternions, ``omega0``'s dtype) between the sample times
+    ``t (T+1,)`` (s, strictly increasing; float64 keeps a long file's late samples apart) for the torque-free motion
+    that has body rate ``omega0 (3,)`` (rad/s) at ``t_0`` (principal moments ``inertia (3,)``, kg m²); module
+    docstring."""
     if t.ndim != 1 or not bool((torch.diff(t) > 0).all()):
         raise ValueError("sample times must increase strictly")
-    delta, _ = torque_free_motion(omega0, inertia=inertia, times=t - t[0])
-    return quat_mul(delta[1:], quat_conj(delta[:-1]))
+    # in float64 whatever the run's dtype: an increment is the difference of two rotations that grow with t
+    t64 = t.to(torch.float64)
+    delta, _ = torque_free_motion(omega0.to(torch.float64), inertia=torch.as_tensor(inertia, dtype=torch.float64),
+                                  times=t64 - t64[0])
+    return quat_mul(delta[1:], quat_conj(delta[:-1])).to(omega0.dtype)

@@ -114,7 +114,7 @@ def check_light_curve(cfg, lc: LightCurve) -> None:
 def file_inputs(cfg, lc: LightCurve) -> tuple[Tensor, Tensor, Tensor | None]:
     """``(observations (T+1,), increments (T, 4), R (T+1,) or None)`` of a file in the config's dtype/device."""
     dtype, device = cfg.torch_dtype, torch.device(cfg.device)
-    t = torch.as_tensor(lc.t, dtype=dtype, device=device)
+    t = torch.as_tensor(lc.t, dtype=torch.float64, device=device)  # the increments are computed in float64
     omega0 = torch.deg2rad(torch.tensor(cfg.scenario.omega0_deg_s, dtype=dtype, device=device))
     inertia = torch.tensor(cfg.shape.inertia_kg_m2, dtype=dtype, device=device)
     increments = spin_increments(t, omega0=omega0, inertia=inertia)
