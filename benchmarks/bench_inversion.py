@@ -36,8 +36,8 @@ def problem(sigma: float = 0.05):
     q, _ = propagate(q0, w0, inertia, 1.0, 600)
     gen = torch.Generator().manual_seed(0)
     y = scene.magnitude(q, rho=0.5) + sigma * torch.randn(601, generator=gen, dtype=torch.float64)
-    prob = TrajectoryProblem(GroupRenderer(scene), torch.arange(601), y, torch.full_like(y, sigma), inertia, 1.0,
-                             q0[None])
+    prob = TrajectoryProblem(GroupRenderer(scene), torch.arange(601, dtype=torch.float64), y, torch.full_like(y, sigma),
+                             inertia, q0[None])
     group = ambiguity_group(scene, times_s=torch.arange(601.0), inertia=inertia, rate_known=False, probes=2)
     return prob, group
 

@@ -69,7 +69,7 @@ def seed_truth(seed: int) -> tuple[torch.Tensor, torch.Tensor, float]:
 
 
 def scenario(cfg, seed: int, sigma: float):
-    """The seed's light curve: ``(scene, times (K,), index (K,), y (K,), truth)``."""
+    """The seed's light curve: ``(scene, times (K,), y (K,), truth)``."""
     q0, w0, rho = seed_truth(seed)
     scene = Scene.from_config(cfg)
     n = int(round(cfg.scenario.duration_s / cfg.scenario.dt_s))
@@ -78,21 +78,20 @@ def scenario(cfg, seed: int, sigma: float):
         g = pass_geometry(cfg)
         scene = scene.with_geometry(g.sun, g.observer, g.range_m)
         times = g.times_s - g.times_s[0]
-    index = torch.round(times / cfg.scenario.dt_s).long()
+    index = torch.round(times / cfg.scenario.dt_s).long()  # the truth as the simulations make it: RK4 on dt_s
     q, _ = propagate(q0, w0, torch.tensor(cfg.shape.inertia_kg_m2, dtype=torch.float64), cfg.scenario.dt_s,
                      int(index[-1]))
     gen = torch.Generator().manual_seed(seed)
     y = scene.magnitude(q[index], rho=rho) + sigma * torch.randn(len(index), generator=gen, dtype=torch.float64)
-    return scene, times, index, y, (q0, w0, rho)
+    return scene, times, y, (q0, w0, rho)
 
 
 def run_seed(cfg, seed: int, sigma: float, args) -> dict:
     """One seed's row (module docstring)."""
-    scene, times, index, y, (q0, w0, rho) = scenario(cfg, seed, sigma)
+    scene, times, y, (q0, w0, rho) = scenario(cfg, seed, sigma)
     inertia = torch.tensor(cfg.shape.inertia_kg_m2, dtype=torch.float64)
-    problem = TrajectoryProblem(GroupRenderer(scene), index, y, torch.full_like(y, sigma), inertia,
-                                cfg.scenario.dt_s, q0[None])
-    group = ambiguity_group(scene, times_s=times, inertia=inertia, rate_known=False, dt_s=cfg.scenario.dt_s)
+    problem = TrajectoryProblem(GroupRenderer(scene), times, y, torch.full_like(y, sigma), inertia, q0[None])
+    group = ambiguity_group(scene, times_s=times, inertia=inertia, rate_known=False)
     start = time.perf_counter()
     settings = InversionSettings(starts=args.starts, attitudes=args.attitudes,
                                  keep=tuple(args.keep) if args.keep else InversionSettings.keep)

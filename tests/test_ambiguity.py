@@ -103,7 +103,11 @@ def test_a_moving_pass_breaks_the_inertial_images():
                             "body 180° y · inertial identity", "body 180° z · inertial identity")
 
 
-def test_bad_times_are_refused(fixed):
+def test_bad_times_are_refused_and_irregular_ones_taken(fixed):
     scene, _, inertia = fixed
-    with pytest.raises(ValueError, match="times_s: expected increasing sample times on the 1 s grid"):
-        ambiguity_group(scene, times_s=torch.tensor([0.0, 0.5, 2.0]), inertia=inertia, rate_known=True)
+    with pytest.raises(ValueError, match=r"times_s: expected strictly increasing sample times \(s\)"):
+        ambiguity_group(scene, times_s=torch.tensor([0.0, 2.0, 2.0]), inertia=inertia, rate_known=True)
+    irregular = ambiguity_group(scene, times_s=torch.tensor([3.0, 3.5, 5.0, 10.3, 33.1, 95.0]), inertia=inertia,
+                                rate_known=True)
+    assert irregular.labels == ambiguity_group(scene, times_s=torch.arange(93.0), inertia=inertia,
+                                               rate_known=True).labels

@@ -45,8 +45,8 @@ def _truth(scene, inertia, T, rate_deg_s=1.2, rho=0.4, sigma=0.0, seed=0):
 
 def _problem(scene, inertia, y, sigma, anchors):
     K = y.shape[0]
-    return TrajectoryProblem(GroupRenderer(scene), torch.arange(K), y, torch.full((K,), sigma, dtype=F64), inertia, 1.0,
-                             anchors)
+    return TrajectoryProblem(GroupRenderer(scene), torch.arange(K, dtype=F64), y, torch.full((K,), sigma, dtype=F64),
+                             inertia, anchors)
 
 
 def test_group_renderer_equals_the_scene_fixed_and_along_a_pass(setup):

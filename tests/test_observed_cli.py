@@ -43,7 +43,7 @@ def estimated(tmp_path, model_file, obs, *extra):
     return code, out / "estimates" / "tiny_robust" / f"light_curve_{obs.stem}"
 
 
-def test_round_trip_reproduces_the_in_memory_run_exactly(tmp_path, model_file):
+def test_round_trip_reproduces_the_in_memory_run(tmp_path, model_file):
     obs = simulated(tmp_path, "--no-mag-err")
     q_est0 = Table.read(tmp_path / "obs.truth.ecsv").meta["q_est0"]
     code, folder = estimated(tmp_path, model_file, obs, "--initial-attitude=" + ",".join(repr(v) for v in q_est0))
@@ -53,9 +53,11 @@ def test_round_trip_reproduces_the_in_memory_run_exactly(tmp_path, model_file):
     h = memory.results["gpukf"].history
     table = Table.read(folder / "attitude_history.ecsv")
     q_file = np.stack([table[f"q{i}"] for i in range(1, 5)], -1)
-    np.testing.assert_array_equal(q_file, h.q_est[0].numpy())
-    np.testing.assert_array_equal(table["mag_pred"][1:], h.y_pred[0, 1:].numpy())
-    np.testing.assert_array_equal(table["offset_mag"], h.offset[0].numpy())
+    # the file's increments are closed form, the simulation's RK4 steps of dt_s: they agree to RK4's error (~1e-11
+    # rad per step at this rate), which is all that separates the two runs
+    np.testing.assert_allclose(q_file, h.q_est[0].numpy(), rtol=0, atol=1e-8)
+    np.testing.assert_allclose(table["mag_pred"][1:], h.y_pred[0, 1:].numpy(), rtol=0, atol=1e-7)
+    np.testing.assert_allclose(table["offset_mag"], h.offset[0].numpy(), rtol=0, atol=1e-7)
     for name in ("light_curve.png", "attitude.png", "summary.json"):
         assert (folder / name).is_file()
     nis = json.loads((folder / "summary.json").read_text())["nis"]

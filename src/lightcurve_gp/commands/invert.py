@@ -1,8 +1,8 @@
 """``python -m lightcurve_gp.invert CONFIG --light-curve FILE``: attitude and spin from a light curve, no initial guess.
 
 The global inversion of :mod:`lightcurve_gp.inference.inversion` on a light-curve file (the config gives the shape,
-the surface's ``F0``, ``n_u``, ``n_v``, the inertia, the propagation step ``scenario.dt_s`` and, for a file
-without geometry, the fixed Sun and observer; ρ is estimated). Writes the new folder
+the surface's ``F0``, ``n_u``, ``n_v``, the inertia and, for a file without geometry, the fixed Sun and observer;
+ρ is estimated). Writes the new folder
 ``OUT/estimates/<name>/invert_<file stem>/`` (:func:`lightcurve_gp.commands.layout.invert_folder`, beside the
 estimates of the same file) atomically (an existing one is refused unless ``--force``):
 
@@ -10,8 +10,9 @@ estimates of the same file) atomically (an existing one is refused unless ``--fo
 * ``summary.json`` — the ambiguity group used, the periodogram's candidates, timings, the settings, provenance;
 * ``periodogram.png`` and ``light_curve.png`` (the observed magnitudes with each leading family's prediction).
 
-Sample times must lie on the ``scenario.dt_s`` grid (the propagation's step); ``mag_err`` gives each sample's 1σ,
-``--mag-err`` one value for a file without it. Errors are one line and exit code 2, as in every command; samples a
+Sample times may have any spacing and gaps (the propagation is closed form,
+:mod:`lightcurve_gp.attitude.torque_free`); ``mag_err`` gives each sample's 1σ, ``--mag-err`` one value for a file
+without it. Errors are one line and exit code 2, as in every command; samples a
 file's TLE and site say cannot have been observed are one warning line, or refused with ``--strict``.
 """
 
@@ -63,7 +64,7 @@ def build_parser(prog: str = "lightcurve-gp invert") -> argparse.ArgumentParser:
         prog=prog,
         description="Estimate the attitude and spin of an object from its light curve alone (no initial guess): "
                     "every family of solutions within a likelihood ratio of the best, weighted by evidence.")
-    parser.add_argument("config", help="YAML config: shape, surface (F0, n_u, n_v), inertia, dt, fixed geometry")
+    parser.add_argument("config", help="YAML config: shape, surface (F0, n_u, n_v), inertia, fixed geometry")
     parser.add_argument("--light-curve", type=Path, required=True, help="light-curve file (.ecsv, .csv, .fits)")
     parser.add_argument("--starts", type=int, default=10_000, help="local optimisations started (default 10000)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the Sobol' attitudes (default 0)")
@@ -100,12 +101,6 @@ def file_problem(cfg, lc: LightCurve, mag_err: float | None,
     its sample times (s from the first); a :class:`UserError` names what does not fit (with ``strict``, samples its
     TLE and site say cannot have been observed; without, they are a warning)."""
     dtype, device = cfg.torch_dtype, torch.device(cfg.device)
-    dt = float(cfg.scenario.dt_s)
-    steps = np.round(lc.t / dt)
-    if np.abs(lc.t - steps * dt).max() > 1e-6 * dt:
-        k = int(np.argmax(np.abs(lc.t - steps * dt)))
-        raise UserError(f"{lc.source}: time, sample {k + 1} ({lc.t[k]:.6g} s after the first) is not on the "
-                        f"scenario.dt_s = {dt:g} s grid the propagation uses; set scenario.dt_s to divide the steps")
     if lc.mag_err is None and mag_err is None:
         raise UserError(f"{lc.source}: no mag_err column; give the magnitudes' 1-sigma with --mag-err")
     try:
@@ -121,10 +116,10 @@ def file_problem(cfg, lc: LightCurve, mag_err: float | None,
     scene = scene.to(device=device, dtype=dtype)
     sigma = lc.mag_err if lc.mag_err is not None else np.full(lc.t.size, mag_err)
     tensor = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float64), dtype=dtype, device=device)  # noqa: E731
-    problem = TrajectoryProblem(GroupRenderer(scene), torch.as_tensor(steps.astype(np.int64), device=device),
-                                tensor(lc.mag), tensor(sigma), tensor(cfg.shape.inertia_kg_m2), dt,
-                                torch.zeros(0, 4, dtype=dtype, device=device))
-    return problem, scene, tensor(lc.t)
+    times = tensor(lc.t - lc.t[0])
+    problem = TrajectoryProblem(GroupRenderer(scene), times, tensor(lc.mag), tensor(sigma),
+                                tensor(cfg.shape.inertia_kg_m2), torch.zeros(0, 4, dtype=dtype, device=device))
+    return problem, scene, times
 
 
 def _predictions(problem: TrajectoryProblem, fam: Families, top: int = 5) -> np.ndarray:
@@ -180,7 +175,7 @@ def _run(args: argparse.Namespace) -> int:
     warn(flat_light_curve(lc, noise_std=args.mag_err if args.mag_err is not None else float(np.median(lc.mag_err))))
     show = progress_enabled(args.no_progress)
     say = (lambda message: tqdm.write(message, file=sys.stderr)) if show else None
-    group = ambiguity_group(scene, times_s=t, inertia=problem.inertia, rate_known=False, dt_s=problem.dt)
+    group = ambiguity_group(scene, times_s=t, inertia=problem.inertia, rate_known=False)
     try:
         inv = invert(problem, group, settings=settings, progress=say)
     except ValueError as exc:  # the periodogram's one-line errors (e.g. a rate range that excludes it)

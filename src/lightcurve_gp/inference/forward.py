@@ -1,8 +1,8 @@
 """The inversion's forward model: light curves of many trajectories ``(q_0, ω_0, ρ)`` and their exact Jacobians.
 
 Kinematics. With ω the body rate, ``q̇ = ½ [ω; 0] ⊗ q`` gives ``q(t) = Δ(t; ω_0) ⊗ q_0`` where ``Δ`` solves the same
-equations from the identity (RK4 on the ``dt`` grid, :func:`lightcurve_gp.attitude.dynamics.quaternion_increments`)
-and depends on ``ω_0`` and the inertia only: every attitude that shares a rate shares one propagation.
+equations from the identity (in closed form at every sample time, :mod:`lightcurve_gp.attitude.torque_free`) and
+depends on ``ω_0`` and the inertia only: every attitude that shares a rate shares one propagation.
 
 Photometry. The facets are merged into groups of equal normal and material (:meth:`Facets.grouped`; 6 for the
 box-wing) and the flux is split as ``f = ρ D(q) + S(q)`` (diffuse at ρ = 1 and specular, Ashikhmin–Shirley with
@@ -33,8 +33,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from lightcurve_gp.attitude.dynamics import rk4_rate_stages
 from lightcurve_gp.attitude.rotations import attitude_matrix, quat_conj, quat_mul
+from lightcurve_gp.attitude.torque_free import torque_free_motion
 from lightcurve_gp.photometry.brdf import DIFFUSE_SCALE, exp_floor
 from lightcurve_gp.photometry.render import SUN_MAGNITUDE, Scene
 
@@ -180,68 +180,24 @@ def _cross(a: Tensor, b: Tensor) -> Tensor:
     return torch.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
-def _product(a: Tensor, b: Tensor) -> Tensor:
-    """The toolkit's product ``a ⊗ b`` (``rotations.quat_mul``) of quaternions stored along the first dimension
-    ``(4, ...)``, written out component by component (no cross-product call, no concatenation)."""
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return torch.stack([aw * bx + bw * ax - (ay * bz - az * by), aw * by + bw * ay - (az * bx - ax * bz),
-                        aw * bz + bw * az - (ax * by - ay * bx), aw * bw - ax * bx - ay * by - az * bz])
-
-
-def _pure_times(w: Tensor, p: Tensor) -> Tensor:
-    """``[w; 0] ⊗ p`` (the toolkit's product) with ``w (3, ...)`` and ``p (4, ...)`` stored components first."""
-    wx, wy, wz = w
-    px, py, pz, pw = p
-    return torch.stack([pw * wx - (wy * pz - wz * py), pw * wy - (wz * px - wx * pz), pw * wz - (wx * py - wy * px),
-                        -(wx * px + wy * py + wz * pz)])
-
-
-def _rk4_step(w: Tensor, c: Tensor, dt: float) -> tuple[Tensor, Tensor]:
-    """One RK4 step of the torque-free rates ``w (3, ...)`` (``ω̇_i = c_i ω_j ω_k``, diagonal inertia) and the
-    kinematic increment ``δ (4, ...)`` with ``RK4(q) = δ ⊗ q`` — the arithmetic of
-    :func:`lightcurve_gp.attitude.dynamics.quaternion_increments`, written out components first."""
-    rate = lambda v: c * torch.stack([v[1] * v[2], v[2] * v[0], v[0] * v[1]])  # noqa: E731
-    (_, w2, w3, w4), w_next = rk4_rate_stages(w, rate, dt)
-    one = torch.zeros_like(w[:1]).expand(4, *w.shape[1:]).clone()
-    one[3] = 1.0
-    pure1 = torch.cat([w, torch.zeros_like(w[:1])])
-    t2 = _pure_times(w2, one + (0.25 * dt) * pure1)
-    t3 = _pure_times(w3, one + (0.25 * dt) * t2)
-    t4 = _pure_times(w4, one + (0.5 * dt) * t3)
-    return one + (dt / 12.0) * (pure1 + 2.0 * t2 + 2.0 * t3 + t4), w_next
-
-
-def propagate_rates(omega0: Tensor, *, inertia: Tensor, dt: float, index: Tensor) -> Tensor:
-    """``Δ(t_k; ω_0)`` ``(..., K, 4)`` at the grid steps ``index (K,)`` (increasing, from 0) for rates ``ω_0 (..., 3)``
-    (rad/s) and principal moments ``inertia (3,)``: RK4 on the ``dt`` grid as
-    :func:`~lightcurve_gp.attitude.dynamics.propagate` (the same increments, normalised at every step), with the
-    components first so that every operation reads contiguous rows."""
+def propagate_rates(omega0: Tensor, *, inertia: Tensor, times: Tensor) -> Tensor:
+    """``Δ(t_k; ω_0)`` ``(..., K, 4)`` at the sample times ``times (K,)`` (s from the epoch of ``ω_0``, any spacing)
+    for rates ``ω_0 (..., 3)`` (rad/s) and principal moments ``inertia (3,)``: the closed-form torque-free motion
+    (:func:`~lightcurve_gp.attitude.torque_free.torque_free_motion`), every sample at once, no time steps."""
     j = torch.as_tensor(inertia, dtype=omega0.dtype, device=omega0.device)
     if j.shape != (3,):
         raise ValueError(f"inertia: the inversion needs the three principal moments (3,), got {tuple(j.shape)}")
-    c = ((j.roll(-1) - j.roll(-2)) / j).reshape(3, *([1] * (omega0.ndim - 1)))
-    w = omega0.movedim(-1, 0).contiguous()
-    q = torch.zeros(4, *omega0.shape[:-1], dtype=omega0.dtype, device=omega0.device)
-    q[3] = 1.0
-    out = [q]
-    for _ in range(int(index[-1])):
-        delta, w = _rk4_step(w, c, dt)
-        q = _product(delta, q)
-        q = q / torch.sqrt((q * q).sum(0, keepdim=True))
-        out.append(q)
-    picked = torch.stack([out[i] for i in index.tolist()])  # (K, 4, ...)
-    return picked.movedim(0, -1).movedim(0, -1)
+    return torque_free_motion(omega0, inertia=j, times=times)[0]
 
 
-def rate_sensitivity(omega0: Tensor, *, inertia: Tensor, dt: float, index: Tensor,
+def rate_sensitivity(omega0: Tensor, *, inertia: Tensor, times: Tensor,
                      step: float = 1e-7) -> tuple[Tensor, Tensor]:
     """``Δ (..., K, 4)`` and ``Φ (..., K, 3, 3)`` with ``Δ(t; ω_0 + δω) ⊗ Δ(t; ω_0)⁻¹ ≈ exp(Φ(t) δω)`` (body-side
     rotation per rad/s), from one batched propagation of ``ω_0`` and its three forward-shifted copies (``step``
     rad/s)."""
     shifts = torch.cat([torch.zeros(1, 3, dtype=omega0.dtype, device=omega0.device),
                         step * torch.eye(3, dtype=omega0.dtype, device=omega0.device)])  # (4, 3)
-    deltas = propagate_rates(omega0.unsqueeze(-2) + shifts, inertia=inertia, dt=dt, index=index)  # (..., 4, K, 4)
+    deltas = propagate_rates(omega0.unsqueeze(-2) + shifts, inertia=inertia, times=times)  # (..., 4, K, 4)
     base = deltas[..., 0, :, :]
     rel = quat_mul(deltas[..., 1:, :, :], quat_conj(base).unsqueeze(-3))  # (..., 3, K, 4)
     rel = torch.where(rel[..., 3:] < 0, -rel, rel)

@@ -177,7 +177,7 @@ def _arc_samples(problem: TrajectoryProblem, arc_s: float) -> int:
     """Samples of ``problem`` within the first ``arc_s`` seconds (all of them for 0)."""
     if arc_s <= 0:
         return problem.samples
-    return max(8, int((problem.index.to(torch.float64) * problem.dt <= arc_s).sum()))
+    return max(8, int((problem.times <= arc_s).sum()))
 
 
 def invert(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: InversionSettings = InversionSettings(),
@@ -186,7 +186,7 @@ def invert(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: Inver
     (rad/s) replaces the rates of :func:`rate_starts` (e.g. a known spin)."""
     say = progress or (lambda message: None)
     seconds, tick = {}, time.perf_counter()
-    t_s = (problem.index.to(torch.float64) * problem.dt).cpu().numpy()
+    t_s = problem.times.cpu().numpy()
     pg = periodogram(t_s, problem.y.cpu().numpy(), problem.sigma.cpu().numpy(),
                      rate_range_deg_s=settings.rate_range_deg_s, nterms=settings.nterms)
     n_rates = max(1, settings.starts * settings.screen_factor // settings.attitudes)

@@ -67,25 +67,25 @@ class TrajectoryProblem:
     """A light curve and its forward model.
 
     Attributes:
-        renderer: the facet groups under the light curve's geometry (per sample: one row per sample of ``index``).
-        index: the samples' steps on the ``dt`` grid ``(K,)`` (int64, the first 0).
+        renderer: the facet groups under the light curve's geometry (per sample: one row per sample of ``times``).
+        times: the sample times ``(K,)`` (s from the first sample, the epoch of ``q_0`` and ``ω_0``; increasing, any
+            spacing: the propagation is closed form).
         y: magnitudes ``(K,)``; sigma: their 1σ ``(K,)`` (mag).
-        inertia: principal moments ``(3,)`` (kg m²); dt: the propagation step (s).
+        inertia: principal moments ``(3,)`` (kg m²).
         anchors: the rows' reference attitudes ``q_ref (A, 4)``.
     """
 
     renderer: GroupRenderer
-    index: Tensor
+    times: Tensor
     y: Tensor
     sigma: Tensor
     inertia: Tensor
-    dt: float
     anchors: Tensor
 
     def arc(self, n: int) -> "TrajectoryProblem":
         """The same problem on its first ``n`` samples."""
-        n = min(int(n), self.index.shape[0])
-        return replace(self, renderer=self.renderer.restrict(slice(0, n)), index=self.index[:n], y=self.y[:n],
+        n = min(int(n), self.times.shape[0])
+        return replace(self, renderer=self.renderer.restrict(slice(0, n)), times=self.times[:n], y=self.y[:n],
                        sigma=self.sigma[:n])
 
     def with_anchors(self, anchors: Tensor) -> "TrajectoryProblem":
@@ -109,13 +109,13 @@ class TrajectoryProblem:
 
     def residual(self, x: Tensor, rows: Tensor) -> Tensor:
         """Whitened residuals ``(A, K)`` of states ``x (A, 7)``."""
-        delta = propagate_rates(x[:, 3:6], inertia=self.inertia, dt=self.dt, index=self.index)  # (A, K, 4)
+        delta = propagate_rates(x[:, 3:6], inertia=self.inertia, times=self.times)  # (A, K, 4)
         q = quat_mul(delta, self.initial_attitudes(x, rows).unsqueeze(-2))
         return self._residual(self.renderer(q), x[:, 6])[0]
 
     def linearize(self, x: Tensor, rows: Tensor) -> tuple[Tensor, Tensor]:
         """Residuals ``(A, K)`` and their Jacobian ``∂r/∂x`` ``(A, K, 7)`` (module docstring)."""
-        delta, phi = rate_sensitivity(x[:, 3:6], inertia=self.inertia, dt=self.dt, index=self.index)
+        delta, phi = rate_sensitivity(x[:, 3:6], inertia=self.inertia, times=self.times)
         q = quat_mul(delta, self.initial_attitudes(x, rows).unsqueeze(-2))
         phot = self.renderer(q, gradient=True)
         r, rho_d, f = self._residual(phot, x[:, 6])
@@ -132,7 +132,7 @@ class TrajectoryProblem:
     def grid_cost(self, omega: Tensor, q0: Tensor, *, chunk: int = 1 << 18) -> tuple[Tensor, Tensor]:
         """Costs ``½ Σ r²`` ``(R, A)`` and profiled ``β`` ``(R, A)`` of every rate ``omega (R, 3)`` with every initial
         attitude ``q0 (A, 4)``: ``R`` propagations and ``R·A`` light curves (module docstring of :mod:`.forward`)."""
-        delta = propagate_rates(omega, inertia=self.inertia, dt=self.dt, index=self.index)  # (R, K, 4)
+        delta = propagate_rates(omega, inertia=self.inertia, times=self.times)  # (R, K, 4)
         K, A = delta.shape[1], q0.shape[0]
         per = max(1, chunk // (K * A))
         weight = self.sigma ** -2
@@ -150,4 +150,4 @@ class TrajectoryProblem:
 
     @property
     def samples(self) -> int:
-        return int(self.index.shape[0])
+        return int(self.times.shape[0])

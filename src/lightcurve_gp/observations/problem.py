@@ -111,8 +111,8 @@ def problem_from_observations(obs: Observations, *, q_est0: Tensor, sigma0: floa
     q0 = quat_normalize(torch.as_tensor(q_est0).to(dtype=dtype, device=device)).reshape(1, 4)
     w0 = torch.as_tensor(omega0).to(dtype=dtype, device=device).reshape(1, 3)
     t = moved.t.to(dtype=dtype)
-    increments = spin_increments(t, omega0=w0[0], inertia=torch.as_tensor(inertia, dtype=dtype, device=device),
-                                 max_step=1.0).unsqueeze(0)
+    increments = spin_increments(t, omega0=w0[0],
+                                 inertia=torch.as_tensor(inertia, dtype=dtype, device=device)).unsqueeze(0)
     return Problem(obs=moved, q_est0=q0, sigma0=torch.full((1,), float(sigma0), dtype=dtype, device=device),
                    omega_est0=w0, increments_assumed=increments, R=moved.sigma ** 2, surface=None,
                    geometry=pass_geometry_of(obs))

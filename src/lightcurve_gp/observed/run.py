@@ -31,7 +31,7 @@ from torch import Tensor
 
 from lightcurve_gp.attitude.metrics import chi2_band
 from lightcurve_gp.attitude.rotations import quat_normalize, quat_to_euler321
-from lightcurve_gp.attitude.timeline import spin_increments, sub_steps
+from lightcurve_gp.attitude.timeline import spin_increments
 from lightcurve_gp.config.load import ConfigError
 from lightcurve_gp.config.schema import GeometryConfig, SiteConfig
 from lightcurve_gp.filters.bank import BankResult, bank_attitudes, run_bank
@@ -43,13 +43,9 @@ from lightcurve_gp.observed.table_units import ISO_UTC, QUATERNION, set_units
 from lightcurve_gp.passes.geometry import PassGeometry, orbit_pass
 from lightcurve_gp.passes.visibility import site_visibility
 
-__all__ = ["ObservedRun", "FileGeometryError", "MAX_SUB_STEPS", "file_geometry", "check_model_takes_geometry",
+__all__ = ["ObservedRun", "FileGeometryError", "file_geometry", "check_model_takes_geometry",
            "check_light_curve", "file_inputs", "estimate_light_curve", "euler321_jacobian", "history_table",
            "nis_summary", "bank_table"]
-
-#: the most sub-steps of ``scenario.dt_s`` the known-spin propagation may take through a file's gaps, beyond one per
-#: sample interval (a gap is integrated step by step: 0.7-2.6 ms per sub-step on one shared core)
-MAX_SUB_STEPS = 100_000
 
 
 class FileGeometryError(ValueError):
@@ -123,9 +119,8 @@ def check_model_takes_geometry(model, lc: LightCurve) -> None:
 
 def check_light_curve(cfg, lc: LightCurve) -> None:
     """Refuse, before anything runs, a light curve the filter of ``cfg`` cannot use: fewer samples than one to
-    start from plus one scalar update per unknown of its state, or gaps the known-spin propagation would need more
-    than :data:`MAX_SUB_STEPS` sub-steps of ``scenario.dt_s`` for, beyond one per interval
-    (:class:`LightCurveFileError`)."""
+    start from plus one scalar update per unknown of its state (:class:`LightCurveFileError`). Gaps of any length
+    are fine: the known-spin increments are closed form (:mod:`lightcurve_gp.attitude.timeline`)."""
     unknowns = {"attitude": 3, "body rate": 3 * int(cfg.filter.estimate_omega),
                 "magnitude offset": int(cfg.filter.estimate_offset)}
     dim = sum(unknowns.values())
@@ -135,22 +130,15 @@ def check_light_curve(cfg, lc: LightCurve) -> None:
             f"{lc.source}: {n} sample{'s' if n != 1 else ''}; the filter needs at least {dim + 1}: the first sets the "
             f"start and each later one is one scalar update of a state with {dim} unknowns "
             f"({', '.join(k for k, v in unknowns.items() if v)})")
-    dt = float(cfg.scenario.dt_s)
-    extra = int(sub_steps(torch.as_tensor(lc.t, dtype=torch.float64), dt)[0].sum()) - (n - 1)
-    if extra > MAX_SUB_STEPS:
-        raise LightCurveFileError(
-            f"{lc.source}: the file spans {lc.t[-1] / 86400:.1f} days; the known-spin propagation through its gaps "
-            f"takes {extra} sub-steps of scenario.dt_s = {dt:g} s, more than {MAX_SUB_STEPS}; give a shorter light "
-            f"curve or a longer scenario.dt_s")
 
 
 def file_inputs(cfg, lc: LightCurve) -> tuple[Tensor, Tensor, Tensor | None]:
     """``(observations (T+1,), increments (T, 4), R (T+1,) or None)`` of a file in the config's dtype/device."""
     dtype, device = cfg.torch_dtype, torch.device(cfg.device)
-    t = torch.as_tensor(lc.t, dtype=dtype, device=device)
+    t = torch.as_tensor(lc.t, dtype=torch.float64, device=device)  # the increments are computed in float64
     omega0 = torch.deg2rad(torch.tensor(cfg.scenario.omega0_deg_s, dtype=dtype, device=device))
     inertia = torch.tensor(cfg.shape.inertia_kg_m2, dtype=dtype, device=device)
-    increments = spin_increments(t, omega0=omega0, inertia=inertia, max_step=float(cfg.scenario.dt_s))
+    increments = spin_increments(t, omega0=omega0, inertia=inertia)
     y = torch.as_tensor(lc.mag, dtype=dtype, device=device)
     R = None if lc.mag_err is None else torch.as_tensor(lc.mag_err, dtype=dtype, device=device) ** 2
     return y, increments, R

@@ -34,9 +34,9 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from lightcurve_gp.attitude.dynamics import propagate
 from lightcurve_gp.attitude.rotations import attitude_matrix, matrix_to_quat, quat_mul
 from lightcurve_gp.attitude.sampling import random_attitudes
+from lightcurve_gp.attitude.torque_free import torque_free_motion
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.photometry.symmetry import cube_rotations, symmetry_rotations
 
@@ -124,25 +124,23 @@ def _body_label(rotation: Tensor) -> str:
     return "rows [" + "; ".join(rows) + "]"
 
 
-def _probe_curves(scene: Scene, q0: Tensor, omega0: Tensor, *, inertia: Tensor, dt_s: float,
-                  index: Tensor) -> Tensor:
-    """Magnitudes ``(..., T)`` of the trajectories from ``(q0, ω0)`` ``(..., 4)``, ``(..., 3)`` propagated on the
-    ``dt_s`` grid and sampled at the grid steps ``index (T,)``."""
-    q, _ = propagate(q0, omega0, inertia, dt_s, int(index[-1]))
-    return scene.magnitude(q[..., index, :])
+def _probe_curves(scene: Scene, q0: Tensor, omega0: Tensor, *, inertia: Tensor, times: Tensor) -> Tensor:
+    """Magnitudes ``(..., T)`` of the trajectories from ``(q0, ω0)`` ``(..., 4)``, ``(..., 3)`` at ``times (T,)``
+    (s from the first sample; the closed-form torque-free motion)."""
+    delta, _ = torque_free_motion(omega0, inertia=inertia, times=times)
+    return scene.magnitude(quat_mul(delta, q0.unsqueeze(-2)))
 
 
-def ambiguity_group(scene: Scene, *, times_s: Tensor, inertia, rate_known: bool, dt_s: float = 1.0,
-                    probes: int = 4, probe_rate_deg_s: float = 2.0, seed: int = 0, tol_mag: float = 1e-9,
+def ambiguity_group(scene: Scene, *, times_s: Tensor, inertia, rate_known: bool, probes: int = 4,
+                    probe_rate_deg_s: float = 2.0, seed: int = 0, tol_mag: float = 1e-9,
                     body_candidates: Tensor | None = None) -> AmbiguityGroup:
     """Derive the exact ambiguity group of a scenario (module docstring).
 
     Args:
         scene: the renderer with the scenario's geometry (fixed, or per sample with ``T`` samples).
-        times_s: sample times ``(T,)`` (s) from the first, on the ``dt_s`` grid.
-        inertia: principal moments ``(3,)`` or a ``(3, 3)`` matrix (kg m²).
+        times_s: sample times ``(T,)`` (s, increasing, any spacing; taken from the first).
+        inertia: principal moments ``(3,)`` (kg m²).
         rate_known: whether the body rate is known (the image keeps ``ω_0``) or estimated (it becomes ``R ω_0``).
-        dt_s: the propagation step (s).
         probes: random probe trajectories (uniform attitude, rate of ``probe_rate_deg_s`` about a uniform axis).
         seed: of the probes.
         tol_mag: the largest magnitude difference (mag) an image may show at any sample of any probe.
@@ -152,12 +150,10 @@ def ambiguity_group(scene: Scene, *, times_s: Tensor, inertia, rate_known: bool,
         The images whose light curves agree with every probe's, the identity first.
     """
     times_s = torch.as_tensor(times_s, dtype=torch.float64)
-    index = torch.round(times_s / dt_s).long()
-    if times_s.ndim != 1 or not len(times_s) or bool((index[1:] <= index[:-1]).any()) or \
-            float((times_s - index * dt_s).abs().max()) > 1e-6 * dt_s:
-        raise ValueError(f"times_s: expected increasing sample times on the {dt_s:g} s grid, got {times_s.tolist()}")
-    index = index - index[0]
+    if times_s.ndim != 1 or not len(times_s) or bool((times_s[1:] <= times_s[:-1]).any()):
+        raise ValueError(f"times_s: expected strictly increasing sample times (s), got {times_s.tolist()}")
     dtype, device = scene.facets.normals.dtype, scene.facets.normals.device
+    times = (times_s - times_s[0]).to(dtype=dtype, device=device)
     inertia = torch.as_tensor(inertia, dtype=dtype, device=device)
     sun, observer = (scene.sun[0], scene.observer[0]) if scene.per_sample else (scene.sun, scene.observer)
     turns = inertial_turns(sun, observer)
@@ -166,13 +162,13 @@ def ambiguity_group(scene: Scene, *, times_s: Tensor, inertia, rate_known: bool,
     axes = torch.randn(probes, 3, generator=gen, dtype=torch.float64)
     omega0 = (torch.deg2rad(torch.tensor(probe_rate_deg_s)) * axes / axes.norm(dim=-1, keepdim=True)).to(sun)
     q0 = random_attitudes(probes, seed=seed, dtype=dtype, device=device)
-    reference = _probe_curves(scene, q0, omega0, inertia=inertia, dt_s=dt_s, index=index)  # (P, T)
+    reference = _probe_curves(scene, q0, omega0, inertia=inertia, times=times)  # (P, T)
     q_body, q_inertial = matrix_to_quat(bodies), matrix_to_quat(turns)
     nb, ni = len(bodies), len(turns)
     q_img = quat_mul(quat_mul(q_body[:, None, None], q0), q_inertial[None, :, None])  # (B, I, P, 4)
     w_img = omega0.expand(nb, ni, -1, 3) if rate_known else \
         (bodies[:, None, None] @ omega0.unsqueeze(-1)).squeeze(-1).expand(nb, ni, -1, 3)
-    curves = _probe_curves(scene, q_img, w_img, inertia=inertia, dt_s=dt_s, index=index)  # (B, I, P, T)
+    curves = _probe_curves(scene, q_img, w_img, inertia=inertia, times=times)  # (B, I, P, T)
     same_nan = (torch.isnan(curves) == torch.isnan(reference)).flatten(-2).all(-1)
     diff = (curves - reference).nan_to_num(0.0).abs().flatten(-2).amax(-1)
     keep = same_nan & (diff <= tol_mag)  # (B, I)
@@ -191,9 +187,9 @@ def ambiguity_group(scene: Scene, *, times_s: Tensor, inertia, rate_known: bool,
 def config_ambiguity_group(cfg, *, scene: Scene, times_s: Tensor) -> AmbiguityGroup:
     """:func:`ambiguity_group` of a config's object seen through ``scene`` (fixed, or per sample along a pass) at the
     sample times ``times_s (T,)`` (s): the facet model's body symmetries as candidates, ``shape.inertia_kg_m2``,
-    ``scenario.dt_s``, the rate known unless ``filter.estimate_omega``; derived in float64 on the CPU whatever the
+    the rate known unless ``filter.estimate_omega``; derived in float64 on the CPU whatever the
     run's dtype and device (a float32 render cannot show 1e-9 mag)."""
     scene = scene.to(device="cpu", dtype=torch.float64)
     return ambiguity_group(scene, times_s=times_s.detach().to(device="cpu", dtype=torch.float64),
                            inertia=cfg.shape.inertia_kg_m2, rate_known=not cfg.filter.estimate_omega,
-                           dt_s=cfg.scenario.dt_s, body_candidates=symmetry_rotations(scene.facets))
+                           body_candidates=symmetry_rotations(scene.facets))
