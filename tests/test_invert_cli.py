@@ -87,17 +87,17 @@ def test_bad_files_are_one_line_errors(tmp_path, capsys):
 
 
 def test_irregular_times_and_gaps_are_taken_as_they_are(observed):
-    from lightcurve_gp.commands.invert import file_problem
+    from lightcurve_gp.observed.inversion_run import trajectory_problem
     from lightcurve_gp.observed.lightcurve_file import read_light_curve
+    from lightcurve_gp.observed.observations_file import light_curve_observations
 
     _, obs = observed
     lc = read_light_curve(obs)
     lc.t = lc.t.copy()
     lc.t[10:] += 0.37  # off the scenario.dt_s grid
     lc.t[100:] += 5000.0  # and a gap of 5000 s
-    problem, _, times = file_problem(load_config(CONFIG, SHORT[1::2]), lc, None)
-    np.testing.assert_array_equal(times.numpy(), lc.t - lc.t[0])
-    assert torch.equal(problem.times, times)
+    problem, _ = trajectory_problem(load_config(CONFIG, SHORT[1::2]), light_curve_observations(lc))
+    np.testing.assert_array_equal(problem.times.numpy(), lc.t - lc.t[0])
     x = torch.tensor([[0.1, -0.2, 0.3, 0.02, -0.01, 0.015, math.log(0.5)]], dtype=torch.float64)
     problem = problem.with_anchors(torch.tensor([[0.0, 0.0, 0.0, 1.0]], dtype=torch.float64))
     r = problem.residual(x, torch.tensor([0]))

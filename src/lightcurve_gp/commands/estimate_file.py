@@ -68,7 +68,7 @@ from lightcurve_gp.observed.run import (
     estimate_light_curve,
     file_geometry,
 )
-from lightcurve_gp.observed.solutions import SolutionsFileError, best_solution, read_solutions
+from lightcurve_gp.observed.solutions import SolutionsFileError, best_solution, rate_sigma, read_solutions
 from lightcurve_gp.observed.verdict import ambiguity_images
 
 __all__ = ["BANK_DEFAULTS", "FILE_DEFAULT", "FILE_ESTIMATORS", "add_file_arguments", "check_options", "file_estimators",
@@ -189,15 +189,18 @@ def _check_bank(args: argparse.Namespace) -> None:
 
 
 def _from_solutions(args: argparse.Namespace, cfg):
-    """The config with the best family's body rate and that family's attitude ``(4,)`` (module docstring)."""
+    """The config with the best family's body rate, that family's attitude ``(4,)`` and its rate's 1σ ``(3,)``
+    (rad/s, ``None`` when the file has none) (module docstring)."""
     if args.initial_attitude is not None:
         raise UserError("--solutions: give --initial-attitude or --solutions, not both")
     try:
-        q, w, _ = best_solution(read_solutions(args.solutions))
+        table = read_solutions(args.solutions)
+        q, w, _ = best_solution(table)
     except SolutionsFileError as exc:
         raise UserError(str(exc)) from None
     rate = [math.degrees(float(v)) for v in w]
-    return dataclasses.replace(cfg, scenario=dataclasses.replace(cfg.scenario, omega0_deg_s=rate)), q
+    return dataclasses.replace(cfg, scenario=dataclasses.replace(cfg.scenario, omega0_deg_s=rate)), q, \
+        rate_sigma(table)
 
 
 def _folder(args: argparse.Namespace, cfg) -> Path:
@@ -218,8 +221,9 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
     if args.mag_err is not None and not args.mag_err > 0:
         raise UserError(f"--mag-err: {args.mag_err:g} must be > 0 mag")
     q0 = None if args.initial_attitude is None else parse_quaternion(args.initial_attitude)
+    omega_sigma = None
     if getattr(args, "solutions", None) is not None:
-        cfg, q0 = _from_solutions(args, cfg)
+        cfg, q0, omega_sigma = _from_solutions(args, cfg)
     if q0 is None:
         raise UserError("--initial-attitude: the whole-arc MAP needs a start: give --initial-attitude, or "
                         "--solutions from python -m lightcurve_gp.invert (which needs none)")
@@ -242,7 +246,8 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
                         estimators=names, **model_info)
     omega0 = torch.deg2rad(torch.tensor(cfg.scenario.omega0_deg_s, dtype=torch.float64))
     sigma0 = math.radians(cfg.filter.p0_deg)
-    run = run_interruptible(lambda: estimate_arc(cfg, obs, q0=q0, sigma0=sigma0, omega0=omega0),
+    run = run_interruptible(lambda: estimate_arc(cfg, obs, q0=q0, sigma0=sigma0, omega0=omega0,
+                                                 omega_sigma=omega_sigma),
                             status="running the surface-state filter, then the whole-arc MAP",
                             progress=progress_enabled(args.no_progress))
     others = {}
@@ -280,7 +285,7 @@ def _run_gpukf(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
     """The GPUKF on one file, from a start or from the global-start bank."""
     q0 = _check_arguments(args)
     if getattr(args, "solutions", None) is not None:
-        cfg, q0 = _from_solutions(args, cfg)
+        cfg, q0, _ = _from_solutions(args, cfg)
     lc = read_light_curve(args.light_curve[0])
     args.light_curve = args.light_curve[0]
     check_light_curve(cfg, lc)

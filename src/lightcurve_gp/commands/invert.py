@@ -1,13 +1,16 @@
-"""``python -m lightcurve_gp.invert CONFIG --light-curve FILE``: attitude and spin from a light curve, no initial guess.
+"""``python -m lightcurve_gp.invert CONFIG --light-curve FILE [FILE ...]``: attitude and spin from light curves alone.
 
-The global inversion of :mod:`lightcurve_gp.inference.inversion` on a light-curve file (the config gives the shape,
-the surface's ``F0``, ``n_u``, ``n_v``, the inertia and, for a file without geometry, the fixed Sun and observer;
-ρ is estimated). Writes the new folder
+The global inversion of :mod:`lightcurve_gp.inference.inversion` on light-curve files of one object
+(:mod:`lightcurve_gp.observed.inversion_run`: several light curves sharing one spin state, each with its own geometry
+and, with ``--relative``, its own unknown zero point; the config gives the shape, the surface's ``F0``, ``n_u``,
+``n_v``, the inertia and, for files without geometry, the fixed Sun and observer; ρ is estimated), then the whole-arc
+MAP with the surface unknown from each of the ``--polish`` leading families. Writes the new folder
 ``OUT/estimates/<name>/invert_<file stem>/`` (:func:`lightcurve_gp.commands.layout.invert_folder`, beside the
 estimates of the same file) atomically (an existing one is refused unless ``--force``):
 
 * ``solutions.ecsv`` — one row per family, ranked by weight (:mod:`lightcurve_gp.observed.solutions`);
-* ``summary.json`` — the ambiguity group used, the periodogram's candidates, timings, the settings, provenance;
+* ``summary.json`` — the ambiguity group used, the periodogram's candidates, the polished families' fits (χ², p-value,
+  verdict, surface), timings, the settings, provenance;
 * ``periodogram.png`` and ``light_curve.png`` (the observed magnitudes with each leading family's prediction).
 
 Sample times may have any spacing and gaps (the propagation is closed form,
@@ -44,18 +47,18 @@ from lightcurve_gp.commands.layout import invert_folder
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.evaluation.plots import save_figure
 from lightcurve_gp.files import RunFolder, write_json_atomic
-from lightcurve_gp.inference.families import Families, families
-from lightcurve_gp.inference.forward import GroupRenderer
-from lightcurve_gp.inference.inversion import Inversion, InversionSettings, invert
+from lightcurve_gp.inference.families import Families
+from lightcurve_gp.inference.inversion import Inversion, InversionSettings
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
+from lightcurve_gp.observed.arc_run import arc_summary
 from lightcurve_gp.observed.information import flat_light_curve
-from lightcurve_gp.observed.lightcurve_file import LightCurve, read_light_curve
-from lightcurve_gp.observed.run import FileGeometryError, file_geometry
+from lightcurve_gp.observed.inversion_run import InversionRun, invert_observations, trajectory_problem
+from lightcurve_gp.observed.lightcurve_file import read_light_curve
+from lightcurve_gp.observed.observations_file import read_observations
+from lightcurve_gp.observed.run import FileGeometryError
 from lightcurve_gp.observed.solutions import solutions_table, write_solutions
-from lightcurve_gp.photometry.ambiguity import ambiguity_group
-from lightcurve_gp.photometry.render import Scene
 
-__all__ = ["build_parser", "file_problem", "main"]
+__all__ = ["build_parser", "main"]
 
 
 def build_parser(prog: str = "lightcurve-gp invert") -> argparse.ArgumentParser:
@@ -65,7 +68,13 @@ def build_parser(prog: str = "lightcurve-gp invert") -> argparse.ArgumentParser:
         description="Estimate the attitude and spin of an object from its light curve alone (no initial guess): "
                     "every family of solutions within a likelihood ratio of the best, weighted by evidence.")
     parser.add_argument("config", help="YAML config: shape, surface (F0, n_u, n_v), inertia, fixed geometry")
-    parser.add_argument("--light-curve", type=Path, required=True, help="light-curve file (.ecsv, .csv, .fits)")
+    parser.add_argument("--light-curve", type=Path, nargs="+", required=True, metavar="FILE",
+                        help="light-curve files of one object (.ecsv, .csv, .fits; any sample times; each its own "
+                             "light curve sharing one spin state)")
+    parser.add_argument("--relative", action="store_true",
+                        help="the files' zero points are unknown (relative photometry): one offset per file fitted")
+    parser.add_argument("--polish", type=int, default=3,
+                        help="leading families polished by the whole-arc MAP with the surface unknown (default 3)")
     parser.add_argument("--starts", type=int, default=10_000, help="local optimisations started (default 10000)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the Sobol' attitudes (default 0)")
     parser.add_argument("--out", type=Path, default=Path("runs"),
@@ -90,36 +99,11 @@ def _settings(args: argparse.Namespace) -> InversionSettings:
         raise UserError(f"--rate-min/--rate-max: need 0 < min < max, got {args.rate_min:g} and {args.rate_max:g}")
     if args.mag_err is not None and not args.mag_err > 0:
         raise UserError(f"--mag-err: {args.mag_err:g} must be > 0 mag")
+    if args.polish < 0:
+        raise UserError(f"--polish: {args.polish} must be >= 0")
     if not args.max_log_ratio >= 0:
         raise UserError(f"--max-log-ratio: {args.max_log_ratio:g} must be >= 0")
     return InversionSettings(starts=args.starts, seed=args.seed, rate_range_deg_s=(args.rate_min, args.rate_max))
-
-
-def file_problem(cfg, lc: LightCurve, mag_err: float | None,
-                 strict: bool = False) -> tuple[TrajectoryProblem, Scene, torch.Tensor]:
-    """The file as a :class:`~lightcurve_gp.inference.trajectory.TrajectoryProblem` (no anchors yet), its scene and
-    its sample times (s from the first); a :class:`UserError` names what does not fit (with ``strict``, samples its
-    TLE and site say cannot have been observed; without, they are a warning)."""
-    dtype, device = cfg.torch_dtype, torch.device(cfg.device)
-    if lc.mag_err is None and mag_err is None:
-        raise UserError(f"{lc.source}: no mag_err column; give the magnitudes' 1-sigma with --mag-err")
-    try:
-        geometry = file_geometry(lc, strict=strict, warn=warn)
-    except FileGeometryError as exc:
-        raise UserError(str(exc)) from None
-    scene = Scene.from_config(cfg) if cfg.geometry.kind == "fixed" or geometry is not None else None
-    if scene is None:
-        raise UserError(f"{lc.source}: the config's geometry is a pass (geometry.kind: orbit) but the file gives no "
-                        "per-sample geometry or TLE and site")
-    if geometry is not None:
-        scene = scene.with_geometry(geometry.sun, geometry.observer, geometry.range_m)
-    scene = scene.to(device=device, dtype=dtype)
-    sigma = lc.mag_err if lc.mag_err is not None else np.full(lc.t.size, mag_err)
-    tensor = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float64), dtype=dtype, device=device)  # noqa: E731
-    times = tensor(lc.t - lc.t[0])
-    problem = TrajectoryProblem(GroupRenderer(scene), times, tensor(lc.mag), tensor(sigma),
-                                tensor(cfg.shape.inertia_kg_m2), torch.zeros(0, 4, dtype=dtype, device=device))
-    return problem, scene, times
 
 
 def _predictions(problem: TrajectoryProblem, fam: Families, top: int = 5) -> np.ndarray:
@@ -153,46 +137,74 @@ def _figures(folder: Path, t: np.ndarray, problem: TrajectoryProblem, inv: Inver
     save_figure(fig, folder / "light_curve.png")
 
 
-def _summary(inv: Inversion, fam: Families, group, settings: InversionSettings, record: dict) -> dict:
-    return {"families": len(fam), "converged_solutions": int(inv.q0.shape[0]), "images": list(group.labels),
-            "ambiguity_images": group.as_dict(), "top_weight": float(fam.weight[0]),
+def _polished(run: InversionRun) -> list[dict]:
+    """Each polished family's fit: the whole-arc MAP's χ², p-value, verdict and surface."""
+    out = []
+    for k, arc in enumerate(run.polished):
+        fit = arc_summary(arc, {})
+        out.append({"family": k + 1, "verdict": fit["verdict"], **fit["fit"], "surface": fit["surface"],
+                    "zero_points_mag": fit["zero_points_mag"], "seconds": arc.seconds})
+    return out
+
+
+def _summary(run: InversionRun, settings: InversionSettings, record: dict) -> dict:
+    inv, fam, group = run.inversion, run.families, run.group
+    return {"families": len(fam), "polished": _polished(run), "converged_solutions": int(inv.q0.shape[0]),
+            "images": list(group.labels), "ambiguity_images": group.as_dict(), "top_weight": float(fam.weight[0]),
             "rate_candidates_deg_s": [float(r) for r in inv.periodogram.rates_deg_s],
             "periodogram_detection": inv.periodogram.detection,
-            "screened_rates": int(inv.rate_grid.shape[0]), "seconds": inv.seconds,
+            "screened_rates": int(inv.rate_grid.shape[0]), "seconds": {**inv.seconds, "polish": run.seconds},
             "settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(settings).items()},
             "run": record}
+
+
+def _folder(args: argparse.Namespace, cfg) -> Path:
+    first = Path(args.light_curve[0])
+    more = len(args.light_curve) - 1
+    return invert_folder(args.out, cfg.name, first if not more else first.with_name(f"{first.stem}_and_{more}_more"))
 
 
 def _run(args: argparse.Namespace) -> int:
     apply_threads(args.threads)
     cfg = load_config(args.config, args.overrides)
     settings = _settings(args)
-    lc = read_light_curve(args.light_curve)
-    problem, scene, t = file_problem(cfg, lc, args.mag_err, args.strict)
+    try:
+        obs = read_observations(args.light_curve, mag_err=args.mag_err, relative=args.relative, strict=args.strict,
+                                warn=warn)
+        trajectory_problem(cfg, obs)  # the geometry checked before anything runs
+    except (FileGeometryError, ValueError) as exc:
+        raise UserError(str(exc)) from None
     check_output_root(args.out)
-    folder = invert_folder(args.out, cfg.name, args.light_curve)
+    folder = _folder(args, cfg)
     check_new_folder(folder, args.force)
-    warn(flat_light_curve(lc, noise_std=args.mag_err if args.mag_err is not None else float(np.median(lc.mag_err))))
+    for path in args.light_curve:
+        lc = read_light_curve(path)
+        noise = args.mag_err if args.mag_err is not None or lc.mag_err is None else float(np.median(lc.mag_err))
+        warn(flat_light_curve(lc, noise_std=noise))
     show = progress_enabled(args.no_progress)
     say = (lambda message: tqdm.write(message, file=sys.stderr)) if show else None
-    group = ambiguity_group(scene, times_s=t, inertia=problem.inertia, rate_known=False)
+    source = obs.curves[0].source + (f" and {len(obs.curves) - 1} more" if len(obs.curves) > 1 else "")
     try:
-        inv = invert(problem, group, settings=settings, progress=say)
+        run = invert_observations(cfg, obs, settings=settings, max_log_ratio=args.max_log_ratio,
+                                  polish=args.polish, progress=say)
     except ValueError as exc:  # the periodogram's one-line errors (e.g. a rate range that excludes it)
-        raise UserError(f"{lc.source}: {exc}") from None
-    fam = families(group, q0=inv.q0, omega0=inv.omega0, log_rho=inv.log_rho, cost=inv.cost,
-                   covariance=inv.covariance, sigma=problem.sigma, rate_max_rad_s=math.radians(args.rate_max),
-                   max_log_ratio=args.max_log_ratio)
-    record = provenance(cfg, config_file=str(args.config), light_curve=str(args.light_curve))
-    table = solutions_table(fam, {"light_curve": lc.source, "config": cfg.name})
+        raise UserError(f"{source}: {exc}") from None
+    fam, inv = run.families, run.inversion
+    record = provenance(cfg, config_file=str(args.config), light_curves=[str(p) for p in args.light_curve],
+                        relative=args.relative)
+    table = solutions_table(fam, {"light_curve": source, "config": cfg.name})
     with RunFolder(folder, force=args.force) as tmp:
         write_solutions(table, tmp / "solutions.ecsv")
-        write_json_atomic(_summary(inv, fam, group, settings, record), tmp / "summary.json")
-        _figures(tmp, t.cpu().numpy(), problem, inv, fam)
+        write_json_atomic(_summary(run, settings, record), tmp / "summary.json")
+        _figures(tmp, run.problem.times.cpu().numpy(), run.problem, inv, fam)
     best = table[0]
-    print(f"{lc.source}: {len(fam)} families within {args.max_log_ratio:g} nats (modulo {len(group)} exact images); "
+    print(f"{source}: {obs.describe()}")
+    print(f"{len(fam)} families within {args.max_log_ratio:g} nats (modulo {len(run.group)} exact images); "
           f"best weight {float(best['weight']):.3f}, rate {math.hypot(*(float(best[f'omega_{a}']) for a in 'xyz')):.4g}"
-          f" deg/s, rho {float(best['rho']):.3g}; {sum(inv.seconds.values()):.1f} s")
+          f" deg/s, rho {float(best['rho']):.3g}; {sum(inv.seconds.values()) + run.seconds:.1f} s")
+    for k, arc in enumerate(run.polished):
+        print(f"family {k + 1} polished by the whole-arc MAP (surface unknown): chi2/dof {arc.chi2 / arc.dof:.2f}, "
+              f"p = {arc.p_value:.3g}, {arc.verdict.replace('_', ' ')}")
     print(f"written: {folder}")
     return 0
 

@@ -21,6 +21,7 @@ from torch import Tensor
 
 from lightcurve_gp.attitude.rotations import attitude_matrix, quat_mul, rotvec_to_quat
 from lightcurve_gp.inference.forward import M_PER_LN, GroupRenderer, propagate_rates, rate_sensitivity
+from lightcurve_gp.inference.zero_points import profile_zero_points
 from lightcurve_gp.photometry.render import SUN_MAGNITUDE
 
 __all__ = ["INVALID_RESIDUAL", "TrajectoryProblem", "left_jacobian", "profile_log_rho"]
@@ -73,6 +74,9 @@ class TrajectoryProblem:
         y: magnitudes ``(K,)``; sigma: their 1σ ``(K,)`` (mag).
         inertia: principal moments ``(3,)`` (kg m²).
         anchors: the rows' reference attitudes ``q_ref (A, 4)``.
+        zero_points: ``(K, C)`` indicator of the samples of each light curve whose zero point is unknown (relative
+            photometry), or ``None``: each such curve's offset is profiled out of the residuals and the Jacobian
+            (:mod:`.zero_points`), so the state stays ``[θ, ω_0, β]`` (β then sets the other curves' level).
     """
 
     renderer: GroupRenderer
@@ -81,12 +85,13 @@ class TrajectoryProblem:
     sigma: Tensor
     inertia: Tensor
     anchors: Tensor
+    zero_points: Tensor | None = None
 
     def arc(self, n: int) -> "TrajectoryProblem":
         """The same problem on its first ``n`` samples."""
         n = min(int(n), self.times.shape[0])
         return replace(self, renderer=self.renderer.restrict(slice(0, n)), times=self.times[:n], y=self.y[:n],
-                       sigma=self.sigma[:n])
+                       sigma=self.sigma[:n], zero_points=None if self.zero_points is None else self.zero_points[:n])
 
     def with_anchors(self, anchors: Tensor) -> "TrajectoryProblem":
         return replace(self, anchors=anchors)
@@ -98,10 +103,26 @@ class TrajectoryProblem:
     def _residual(self, phot, beta: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         rho_d = torch.exp(beta).unsqueeze(-1) * phot.D
         f = rho_d + phot.S
-        m = self.renderer.magnitude(f)
+        return self._whitened(self.renderer.magnitude(f)), rho_d, f
+
+    def _whitened(self, m: Tensor, jacobian: Tensor | None = None) -> Tensor | tuple[Tensor, Tensor]:
+        """``(ỹ − m)/σ`` with the relative curves' offsets profiled out (and ``jacobian`` projected with it), then
+        :data:`INVALID_RESIDUAL` where ``m`` is not finite."""
         r = (self.y - m) / self.sigma
+        if self.zero_points is not None:
+            r, _, jacobian = profile_zero_points(r, 1.0 / self.sigma, self.zero_points, jacobian=jacobian)
         r = torch.where(torch.isfinite(m), r, torch.full_like(r, INVALID_RESIDUAL))
-        return r, rho_d, f
+        return r if jacobian is None else (r, jacobian)
+
+    def offsets(self, x: Tensor, rows: Tensor) -> Tensor | None:
+        """The relative light curves' fitted magnitude offsets ``(A, C)`` (added to the prediction) of states
+        ``x (A, 7)``, or ``None`` without relative curves."""
+        if self.zero_points is None:
+            return None
+        delta = propagate_rates(x[:, 3:6], inertia=self.inertia, times=self.times)
+        phot = self.renderer(quat_mul(delta, self.initial_attitudes(x, rows).unsqueeze(-2)))
+        m = self.renderer.magnitude(torch.exp(x[:, 6]).unsqueeze(-1) * phot.D + phot.S)
+        return profile_zero_points((self.y - m) / self.sigma, 1.0 / self.sigma, self.zero_points)[1]
 
     def __call__(self, x: Tensor, rows: Tensor) -> Tensor:
         """:meth:`residual`: the problem is the solver's residual function (with ``jacobian="provided"``)."""
@@ -118,8 +139,10 @@ class TrajectoryProblem:
         delta, phi = rate_sensitivity(x[:, 3:6], inertia=self.inertia, times=self.times)
         q = quat_mul(delta, self.initial_attitudes(x, rows).unsqueeze(-2))
         phot = self.renderer(q, gradient=True)
-        r, rho_d, f = self._residual(phot, x[:, 6])
-        ok = torch.isfinite(self.renderer.magnitude(f))
+        rho_d = torch.exp(x[:, 6]).unsqueeze(-1) * phot.D
+        f = rho_d + phot.S
+        m = self.renderer.magnitude(f)
+        ok = torch.isfinite(m)
         scale = torch.where(ok, M_PER_LN / (f.clamp_min(1e-300) * self.sigma), 0.0)  # ∂r/∂f · f/… : r = (y − m)/σ
         grad = (torch.exp(x[:, 6])[:, None, None] * phot.dD + phot.dS) * scale.unsqueeze(-1)  # ∂r/∂δ_k (A, K, 3)
         rot = attitude_matrix(delta)  # (A, K, 3, 3)
@@ -127,7 +150,7 @@ class TrajectoryProblem:
         j_theta = torch.einsum("akj,ajl->akl", j_theta, left_jacobian(x[:, :3]))
         j_omega = torch.einsum("aki,akij->akj", grad, phi)
         j_beta = (rho_d * scale).unsqueeze(-1)
-        return r, torch.cat([j_theta, j_omega, j_beta], -1)
+        return self._whitened(m, torch.cat([j_theta, j_omega, j_beta], -1))
 
     def grid_cost(self, omega: Tensor, q0: Tensor, *, chunk: int = 1 << 18) -> tuple[Tensor, Tensor]:
         """Costs ``½ Σ r²`` ``(R, A)`` and profiled ``β`` ``(R, A)`` of every rate ``omega (R, 3)`` with every initial
@@ -142,8 +165,7 @@ class TrajectoryProblem:
             phot = self.renderer(q)
             beta = profile_log_rho(phot.D, phot.S, y=self.y, weight=weight, log_r2=self.renderer.log_r2)
             rho_d = torch.exp(beta).unsqueeze(-1) * phot.D
-            m = self.renderer.magnitude(rho_d + phot.S)
-            res = torch.where(torch.isfinite(m), (self.y - m) / self.sigma, INVALID_RESIDUAL)
+            res = self._whitened(self.renderer.magnitude(rho_d + phot.S))
             costs.append(0.5 * res.square().sum(-1))
             betas.append(beta)
         return torch.cat(costs), torch.cat(betas)

@@ -18,7 +18,7 @@ carries more than ``1 − UNIQUE_WEIGHT`` of the evidence.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -33,6 +33,7 @@ from lightcurve_gp.evaluation.registry import arc_estimate, map_solution
 from lightcurve_gp.evaluation.scoring import Estimate
 from lightcurve_gp.inference.arc import ArcSolution
 from lightcurve_gp.inference.arc_search import arc_setup
+from lightcurve_gp.inference.forward import rate_sensitivity
 from lightcurve_gp.observation.surface_state import surface_from_state
 from lightcurve_gp.observations.observations import Observations
 from lightcurve_gp.observations.problem import Problem, problem_from_observations
@@ -118,9 +119,16 @@ def file_scene(cfg: Config, obs: Observations) -> Scene:
     return scene.to(device=torch.device(cfg.device), dtype=cfg.torch_dtype)
 
 
-def estimate_arc(cfg: Config, obs: Observations, *, q0: Tensor, sigma0: float, omega0: Tensor) -> ArcRun:
+def estimate_arc(cfg: Config, obs: Observations, *, q0: Tensor, sigma0: float, omega0: Tensor,
+                 omega_sigma: Tensor | None = None) -> ArcRun:
     """The recommended estimator on ``obs`` (module docstring): from the attitude ``q0 (4,)`` at the first sample
-    with 1σ ``sigma0`` (rad) per axis, the body rate ``omega0 (3,)`` (rad/s) known, the search of ``cfg.map``."""
+    with 1σ ``sigma0`` (rad) per axis, the body rate ``omega0 (3,)`` (rad/s) known, the search of ``cfg.map``.
+
+    ``omega_sigma (3,)`` (rad/s): the rate is an estimate with this 1σ per axis (an inversion's): the MAP still takes
+    it as known, and the attitude covariance of every sample gets the rate's share added,
+    ``P_k + Φ_k diag(σ_ω²) Φ_kᵀ`` with ``Φ_k`` the attitude's sensitivity to the initial rate
+    (:func:`lightcurve_gp.inference.forward.rate_sensitivity`): an error in the rate turns into an attitude error
+    that grows along the arc, which a covariance of the attitude alone would not admit."""
     start = time.perf_counter()
     problem = problem_from_observations(obs, q_est0=q0, sigma0=sigma0, omega0=omega0,
                                         inertia=cfg.shape.inertia_kg_m2, dtype=cfg.torch_dtype,
@@ -139,7 +147,14 @@ def estimate_arc(cfg: Config, obs: Observations, *, q0: Tensor, sigma0: float, o
     used = setup.problem.weight[0] > 0
     value = float(r[0][used].square().sum())
     dof = max(1, int(used.sum()) - STATE_SIZE - (0 if offsets is None else offsets.shape[-1]))
-    return ArcRun(problem=problem, solution=solution, estimate=arc_estimate(problem, solution), fitted=fitted,
+    estimate = arc_estimate(problem, solution)
+    if omega_sigma is not None:
+        w0 = problem.omega_est0[0]
+        _, phi = rate_sensitivity(w0, inertia=torch.as_tensor(cfg.shape.inertia_kg_m2, dtype=w0.dtype),
+                                  times=problem.times.to(w0.dtype))  # (N, 3, 3)
+        share = phi @ torch.diag_embed(omega_sigma.to(w0).square()) @ phi.mT
+        estimate = replace(estimate, P=estimate.P + share.unsqueeze(0))
+    return ArcRun(problem=problem, solution=solution, estimate=estimate, fitted=fitted,
                   offsets=None if offsets is None else offsets[0], used=used, chi2=value, dof=dof,
                   p_value=float(chi2.sf(value, dof)), seconds=time.perf_counter() - start)
 

@@ -21,7 +21,7 @@ from lightcurve_gp.inference.families import Families
 from lightcurve_gp.observed.lightcurve_file import write_table
 from lightcurve_gp.observed.table_units import set_units
 
-__all__ = ["SolutionsFileError", "solutions_table", "write_solutions", "read_solutions", "best_solution"]
+__all__ = ["SolutionsFileError", "solutions_table", "write_solutions", "read_solutions", "best_solution", "rate_sigma"]
 
 COLUMNS = ("rank", "weight", "log_likelihood", "log_evidence", "q_x", "q_y", "q_z", "q_w", "omega_x", "omega_y",
            "omega_z", "rho", "members", "sigma_att_x", "sigma_att_y", "sigma_att_z", "sigma_omega_x", "sigma_omega_y",
@@ -88,6 +88,15 @@ def read_solutions(path: str | Path) -> Table:
         raise SolutionsFileError(f"{path}: column weight: the weights sum to {float(np.sum(table['weight'])):.6g}, "
                                  "not 1")
     return table
+
+
+def rate_sigma(table: Table, rank: int = 1) -> torch.Tensor | None:
+    """The 1σ ``(3,)`` (rad/s) of the body rate of the family of ``rank`` (``None`` when the file has no
+    ``sigma_omega_*`` columns)."""
+    if not all(f"sigma_omega_{a}" in table.colnames for a in "xyz"):
+        return None
+    row = table[int(np.flatnonzero(np.asarray(table["rank"]) == rank)[0])]
+    return torch.tensor([math.radians(float(row[f"sigma_omega_{a}"])) for a in "xyz"], dtype=torch.float64)
 
 
 def best_solution(table: Table, rank: int = 1) -> tuple[torch.Tensor, torch.Tensor, float]:
