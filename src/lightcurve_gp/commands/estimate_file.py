@@ -4,8 +4,10 @@ Files of one object (:mod:`lightcurve_gp.observed.observations_file`: any sample
 file its own light curve with its own geometry; ``--relative``: their zero points are unknown) become one
 :class:`~lightcurve_gp.observations.Observations`, and by default the recommended estimator runs on it
 (:mod:`lightcurve_gp.observed.arc_run`: the surface-state filter, then the whole-arc MAP of attitude and surface,
-the shape known, ω known), from ``--initial-attitude`` (with ``filter.p0_deg`` its 1σ) or from the best family of an
-inversion's ``--solutions`` (its attitude and body rate). It writes the new folder
+the shape known, ω known), from ``--initial-attitude`` (with ``filter.p0_deg`` its 1σ and the config's rate), from
+the best family of an inversion's ``--solutions`` (its attitude, body rate and the rate's 1σ), or, given neither,
+from the global inversion run here (:mod:`lightcurve_gp.observed.inversion_run`: the three leading families each
+polished by the MAP, the best fit kept, the families written to ``solutions.ecsv``). It writes the new folder
 ``OUT/estimates/<name>/light_curve_<stem>/`` atomically (an existing one is refused unless ``--force``):
 ``attitude_history.ecsv`` (every sample's attitude with its 1σ over the whole arc, the fit and its residuals,
 astropy units), ``summary.json`` (the verdict, χ² against its distribution with its p-value, surface, zero points,
@@ -29,9 +31,11 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import sys
 from pathlib import Path
 
 import torch
+from tqdm.auto import tqdm
 
 from lightcurve_gp.commands.common import (
     STRICT_HELP,
@@ -47,6 +51,7 @@ from lightcurve_gp.commands.common import (
 from lightcurve_gp.commands.layout import light_curve_folder
 from lightcurve_gp.evaluation.registry import ESTIMATORS, RunContext
 from lightcurve_gp.files import RunFolder, write_json_atomic
+from lightcurve_gp.inference.inversion import InversionSettings
 from lightcurve_gp.observed.arc_run import (
     arc_history_table,
     arc_report,
@@ -57,6 +62,7 @@ from lightcurve_gp.observed.arc_run import (
     file_scene,
 )
 from lightcurve_gp.observed.information import flat_light_curve
+from lightcurve_gp.observed.inversion_run import invert_observations
 from lightcurve_gp.observed.lightcurve_file import read_light_curve, write_table
 from lightcurve_gp.observed.observations_file import read_observations
 from lightcurve_gp.observed.plots import attitude_with_uncertainty, fit_with_residuals, light_curve_band
@@ -68,7 +74,14 @@ from lightcurve_gp.observed.run import (
     estimate_light_curve,
     file_geometry,
 )
-from lightcurve_gp.observed.solutions import SolutionsFileError, best_solution, rate_sigma, read_solutions
+from lightcurve_gp.observed.solutions import (
+    SolutionsFileError,
+    best_solution,
+    rate_sigma,
+    read_solutions,
+    solutions_table,
+    write_solutions,
+)
 from lightcurve_gp.observed.verdict import ambiguity_images
 
 __all__ = ["BANK_DEFAULTS", "FILE_DEFAULT", "FILE_ESTIMATORS", "add_file_arguments", "check_options", "file_estimators",
@@ -224,9 +237,6 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
     omega_sigma = None
     if getattr(args, "solutions", None) is not None:
         cfg, q0, omega_sigma = _from_solutions(args, cfg)
-    if q0 is None:
-        raise UserError("--initial-attitude: the whole-arc MAP needs a start: give --initial-attitude, or "
-                        "--solutions from python -m lightcurve_gp.invert (which needs none)")
     mag_err = args.mag_err if args.mag_err is not None else math.sqrt(cfg.filter.measurement_noise)
     try:
         obs = read_observations(args.light_curve, mag_err=mag_err, relative=args.relative, strict=args.strict,
@@ -246,27 +256,51 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
                         estimators=names, **model_info)
     omega0 = torch.deg2rad(torch.tensor(cfg.scenario.omega0_deg_s, dtype=torch.float64))
     sigma0 = math.radians(cfg.filter.p0_deg)
-    run = run_interruptible(lambda: estimate_arc(cfg, obs, q0=q0, sigma0=sigma0, omega0=omega0,
-                                                 omega_sigma=omega_sigma),
-                            status="running the surface-state filter, then the whole-arc MAP",
-                            progress=progress_enabled(args.no_progress))
+    show = progress_enabled(args.no_progress)
+    inversion = None
+    if q0 is None:  # no start: the global inversion, then the MAP from its leading families
+        say = (lambda message: tqdm.write(message, file=sys.stderr)) if show else None
+        try:
+            inversion = run_interruptible(lambda: invert_observations(cfg, obs, settings=InversionSettings(),
+                                                                      progress=say),
+                                          status="the global inversion (no start given)", progress=show)
+        except ValueError as exc:
+            raise UserError(f"{obs.curves[0].source}: {exc}") from None
+        run = min(inversion.polished, key=lambda arc: arc.chi2)
+    else:
+        run = run_interruptible(lambda: estimate_arc(cfg, obs, q0=q0, sigma0=sigma0, omega0=omega0,
+                                                     omega_sigma=omega_sigma),
+                                status="running the surface-state filter, then the whole-arc MAP", progress=show)
     others = {}
     for name in (n for n in names if n != "map"):
         context = RunContext(cfg, run.problem, scene, model)
         others[name] = run_interruptible(lambda n=name: ESTIMATORS[n].run(context), status=f"running {name}",
                                          progress=progress_enabled(args.no_progress))
     summary = arc_summary(run, record)
+    if inversion is not None:
+        summary["start"] = {"from": "the global inversion (no start given)", "families": len(inversion.families),
+                            "polished": len(inversion.polished),
+                            "chosen_family": 1 + inversion.polished.index(run),
+                            "weights": [float(w) for w in inversion.families.weight[:len(inversion.polished)]]}
     with RunFolder(folder, force=args.force) as tmp:
         history = arc_history_table(run)
         write_table(history, tmp / "attitude_history.ecsv", fmt="ascii.ecsv")
         for name, estimate in others.items():
             write_table(estimate_table(run.problem, estimate), tmp / f"attitude_history_{name}.ecsv",
                         fmt="ascii.ecsv")
+        if inversion is not None:
+            write_solutions(solutions_table(inversion.families, {"light_curve": obs.curves[0].source,
+                                                                 "config": cfg.name}), tmp / "solutions.ecsv")
         write_json_atomic(summary, tmp / "summary.json")
         title = f"{Path(args.light_curve[0]).name}{' …' if len(args.light_curve) > 1 else ''}: whole-arc MAP " \
                 f"({summary['verdict'].replace('_', ' ')})"
         fit_with_residuals(history, tmp / "light_curve.png", title=title)
         attitude_with_uncertainty(history, tmp / "attitude.png", title=title)
+    if inversion is not None:
+        chosen = summary["start"]["chosen_family"]
+        print(f"start: the global inversion's family {chosen} of {len(inversion.families)} (weight "
+              f"{summary['start']['weights'][chosen - 1]:.3f}), the best fit of the {len(inversion.polished)} "
+              f"polished; the families are in solutions.ecsv")
     print("\n".join(arc_report(run)))
     print(f"written: {folder}")
     return 0
