@@ -1,0 +1,77 @@
+"""Carry an inversion of the first light curve across a long gap to every light curve of the object.
+
+An inversion grows its arcs from the first sample (:mod:`.inversion`), so the passes after a gap of an hour or a day
+enter only its last stage, where the rate must already be right to a fraction of a turn over the gap: a rate known to
+``σ_ω`` from the first pass leaves ``σ_ω T`` radians of phase at time ``T``, and the last stage's local search cannot
+cross the wrong turns. :func:`bridge` searches that rate explicitly: around each of the first pass's best solutions
+it screens a grid of rates within ``±span`` standard deviations per axis, spaced so that no two neighbours differ by
+more than ``phase_rad`` of turn at the last sample (:func:`rate_offsets`), on every sample (the attitude at the first
+sample held, ρ profiled), and polishes the best few by Levenberg–Marquardt on every sample. Its solutions join the
+direct inversion's before the families are formed.
+
+Tensors: states ``x = [θ, ω_0, ln ρ]`` ``(M, 7)`` as in :mod:`.trajectory`; rates rad/s; times s.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from lightcurve_gp.inference.solver import LeastSquaresOptions, batch_least_squares
+from lightcurve_gp.inference.trajectory import TrajectoryProblem
+
+__all__ = ["first_pass_samples", "rate_offsets", "bridge"]
+
+
+def first_pass_samples(times: Tensor, *, gap_s: float = 600.0) -> int:
+    """The samples before the first gap longer than ``gap_s`` (all of them when there is none)."""
+    steps = torch.diff(times)
+    gaps = torch.nonzero(steps > gap_s).flatten()
+    return int(gaps[0]) + 1 if gaps.numel() else int(times.shape[0])
+
+
+def rate_offsets(sigma: Tensor, *, span_s: float, span: float = 3.0, phase_rad: float = 0.3,
+                 max_points: int = 20_000) -> Tensor:
+    """Rate offsets ``(R, 3)`` (rad/s): a grid over ``±span σ_i`` per axis (``sigma (3,)``, rad/s) with steps of
+    ``phase_rad / span_s`` (coarsened evenly until at most ``max_points``), the zero offset included."""
+    step = phase_rad / max(span_s, 1e-9)
+    counts = torch.ceil(span * sigma.clamp_min(0) / step).long()
+    while int(torch.prod(2 * counts + 1)) > max_points:
+        step *= 1.25
+        counts = torch.ceil(span * sigma.clamp_min(0) / step).long()
+    axes = [torch.arange(-int(n), int(n) + 1, dtype=sigma.dtype, device=sigma.device) * step for n in counts]
+    return torch.stack(torch.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+
+
+def bridge(problem: TrajectoryProblem, *, anchors: Tensor, x: Tensor, covariance: Tensor, keep: int = 4,
+           iterations: int = 15) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """The first pass's solutions (``anchors (M, 4)``, states ``x (M, 7)`` with ``θ = 0``, their Laplace covariances
+    ``(M, 7, 7)`` on the first pass) carried to every sample of ``problem`` (module docstring): ``(anchors, x, cost,
+    covariance)`` of the ``M·keep`` polished solutions, each re-anchored (``θ = 0``), with their Laplace
+    covariances on every sample."""
+    span_s = float(problem.times[-1] - problem.times[0])
+    starts, rows = [], []
+    for m in range(x.shape[0]):
+        sigma = torch.diagonal(covariance[m, 3:6, 3:6]).clamp_min(0).sqrt()
+        sigma = torch.where(torch.isfinite(sigma), sigma, torch.zeros_like(sigma))
+        rates = x[m, 3:6] + rate_offsets(sigma, span_s=span_s)
+        cost, beta = problem.grid_cost(rates, anchors[m:m + 1])  # (R, 1)
+        best = torch.topk(cost[:, 0], min(keep, cost.shape[0]), largest=False).indices
+        starts.append(torch.cat([torch.zeros(best.numel(), 3, dtype=x.dtype, device=x.device), rates[best],
+                                 beta[best, 0].unsqueeze(-1)], -1))
+        rows.append(torch.full((best.numel(),), m, dtype=torch.long, device=x.device))
+    x0, row = torch.cat(starts), torch.cat(rows)
+    tolerance = torch.tensor([1e-7] * 3 + [1e-10] * 3 + [1e-6], dtype=x.dtype, device=x.device)
+    options = LeastSquaresOptions(method="levenberg_marquardt", iterations=iterations, jacobian="provided",
+                                  tolerance=tolerance)
+    local = problem.with_anchors(anchors[row])
+    result = batch_least_squares(local, x0, options=options)
+    q0 = local.initial_attitudes(result.x, torch.arange(x0.shape[0], device=x.device))
+    out = torch.cat([torch.zeros_like(result.x[:, :3]), result.x[:, 3:]], -1)
+    final = batch_least_squares(problem.with_anchors(q0), out,
+                                options=LeastSquaresOptions(method="levenberg_marquardt", iterations=0,
+                                                            jacobian="provided", covariance="solution"))
+    cost = torch.where(torch.isfinite(final.cost), final.cost, torch.full_like(final.cost, math.inf))
+    return q0, out, cost, final.covariance
