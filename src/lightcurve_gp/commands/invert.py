@@ -10,6 +10,9 @@ estimates of the same file) atomically (an existing one is refused unless ``--fo
 * ``summary.json`` — the ambiguity group used, the periodogram's candidates, timings, the settings, provenance;
 * ``periodogram.png`` and ``light_curve.png`` (the observed magnitudes with each leading family's prediction).
 
+A config with a ``convex:`` section runs the convex inversion of :mod:`lightcurve_gp.commands.invert_convex`
+instead (pole, period and convex shape from relative light curves of a DAMIT file; its own outputs).
+
 Sample times must lie on the ``scenario.dt_s`` grid (the propagation's step); ``mag_err`` gives each sample's 1σ,
 ``--mag-err`` one value for a file without it. Errors are one line and exit code 2, as in every command.
 """
@@ -25,6 +28,7 @@ import torch
 from matplotlib.figure import Figure
 from tqdm.auto import tqdm
 
+from lightcurve_gp.commands import invert_convex
 from lightcurve_gp.commands.common import (
     UserError,
     add_common_arguments,
@@ -162,6 +166,8 @@ def _summary(inv: Inversion, fam: Families, group, settings: InversionSettings, 
 def _run(args: argparse.Namespace) -> int:
     apply_threads(args.threads)
     cfg = load_config(args.config, args.overrides)
+    if cfg.convex is not None:  # a convex: section: pole, period and convex shape (commands/invert_convex.py)
+        return invert_convex.run(cfg, args)
     settings = _settings(args)
     lc = read_light_curve(args.light_curve)
     problem, scene, t = file_problem(cfg, lc, args.mag_err)
