@@ -34,8 +34,8 @@ from lightcurve_gp.inference.solver import GaussianPrior, LeastSquaresOptions, b
 from lightcurve_gp.observations.observations import Observations
 from lightcurve_gp.photometry.convex import Scattering, body_vectors, facet_brightness, phase_angle
 
-__all__ = ["ConvexData", "AreaFit", "Polished", "convex_data", "design", "fit_areas", "relative_residuals",
-           "polish"]
+__all__ = ["ConvexData", "AreaFit", "Polished", "PolishResidual", "convex_data", "design", "fit_areas",
+           "relative_residuals", "polish"]
 
 
 @dataclass(frozen=True)
@@ -167,7 +167,7 @@ def fit_areas(G: Tensor, data: ConvexData, normals: Tensor, *, closure: float = 
     quad = (a * (M * a[:, None, :]).sum(-1)).sum(-1)
     good = ca > 0
     # the best scale of the feasible a: rss = min_s (s² aᵀMa − 2 s cᵀa + …) normalised, i.e. aᵀMa / (cᵀa)²
-    rss = torch.where(good, quad / ca.clamp_min(1e-300) ** 2, torch.full_like(ca, math.inf))
+    rss = torch.where(good, quad.clamp_min(0.0) / ca.clamp_min(1e-300) ** 2, torch.full_like(ca, math.inf))
     areas = a / torch.where(good, ca, torch.ones_like(ca))[:, None]
     return AreaFit(areas=areas, rss=rss, rms=torch.sqrt(rss / len(data)))
 
@@ -201,7 +201,7 @@ class Polished:
     iterations: Tensor
 
 
-class _PolishResidual:
+class PolishResidual:
     """Whitened residuals of :func:`polish` and their Jacobian (analytic in the log areas, central differences in
     the spin); ``x = (λ, β, x_P, log a)``."""
 
@@ -286,7 +286,7 @@ def polish(data: ConvexData, normals: Tensor, scattering: Scattering, *, lam: Te
     x0 = torch.cat([lam[:, None], beta[:, None], torch.zeros_like(lam)[:, None], log_a], -1)
     precision = torch.cat([torch.zeros(3, dtype=x0.dtype, device=x0.device),
                            torch.full((log_a.shape[1],), area_prior_std ** -2, dtype=x0.dtype, device=x0.device)])
-    residual = _PolishResidual(data, normals, scattering, p0, sigma, closure)
+    residual = PolishResidual(data, normals, scattering, p0, sigma, closure)
     options = LeastSquaresOptions(iterations=iterations, jacobian="provided", tolerance=1e-8,
                                   covariance="solution")
     result = batch_least_squares(residual, x0, prior=GaussianPrior.independent(x0, precision), options=options)
