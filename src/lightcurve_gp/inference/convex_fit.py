@@ -149,16 +149,24 @@ def fit_areas(G: Tensor, data: ConvexData, normals: Tensor, *, closure: float = 
     M, c = M.to(torch.float64), c.to(torch.float64)
     B, K = c.shape
     eye = torch.eye(K, dtype=M.dtype, device=M.device)
-    jitter = 1e-10 * torch.diagonal(M, dim1=1, dim2=2).mean(-1)[:, None, None] * eye
+    jitter = 1e-9 * torch.diagonal(M, dim1=1, dim2=2).mean(-1)[:, None, None] * eye
     free = torch.ones(B, K, dtype=torch.bool, device=M.device)
     a = torch.zeros(B, K, dtype=M.dtype, device=M.device)
     steps = torch.tensor([1.0, 0.5, 0.25, 0.125, 1 / 16, 1 / 64, 0.0], dtype=M.dtype, device=M.device)
     for _ in range(iterations):
         both = free[:, :, None] & free[:, None, :]
         system = torch.where(both, M, torch.zeros_like(M)) + torch.where(free[:, None, :], 0.0, 1.0) * eye + jitter
-        L, _ = torch.linalg.cholesky_ex(system)
+        L, info = torch.linalg.cholesky_ex(system)
+        if bool((info > 0).any()):                   # rounding made a near-singular system indefinite: more jitter
+            L, _ = torch.linalg.cholesky_ex(system + 1e3 * jitter)
         x = torch.nan_to_num(torch.cholesky_solve(torch.where(free, c, 0.0)[..., None], L)[..., 0], nan=0.0)
         trial = (a[:, None, :] + steps[None, :, None] * (x - a)[:, None, :]).clamp_min(0.0)   # (B, T, K)
+        # and the exact minimiser on the feasible segment from a to the clipped Newton point
+        d = trial[:, 0] - a
+        curvature = (d * (M * d[:, None, :]).sum(-1)).sum(-1)
+        slope = (d * ((M * a[:, None, :]).sum(-1) - c)).sum(-1)
+        t_star = (-slope / curvature.clamp_min(1e-300)).clamp(0.0, 1.0)
+        trial = torch.cat([trial, (a + t_star[:, None] * d)[:, None, :]], 1)
         value = (trial * (trial @ M)).sum(-1) - 2.0 * (trial * c[:, None, :]).sum(-1)       # M symmetric
         a = trial[torch.arange(B, device=M.device), value.argmin(-1)]
         grad = (M * a[:, None, :]).sum(-1) - c

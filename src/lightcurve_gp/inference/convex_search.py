@@ -10,11 +10,11 @@ Stages (each timed in :attr:`ConvexSearch.seconds`):
    area fit (:func:`~lightcurve_gp.inference.convex_fit.fit_areas`) on few normals and every ``subsample``-th
    sample, in float32. The rotation phase at the epoch is not scanned: a rotation about the body's ``z`` axis
    carries the Gaussian image with it, so the areas absorb it (convexinv fixes it too).
-3. ``fine`` — the ``top_periods`` best periods of the coarse stage × a fine pole grid, on every sample and more
-   normals.
-4. ``polish`` — the ``starts`` best (pole, period) of the fine stage that are more than ``separation_deg`` apart in
-   pole (or differ in period), polished by Levenberg–Marquardt (:func:`~lightcurve_gp.inference.convex_fit.polish`)
-   on the polish normals.
+3. ``fine`` — the best periods of the coarse stage (``top_periods`` shared equally by the seeds' windows, so a
+   seed and its double both go on) × a fine pole grid, on every sample and more normals.
+4. ``polish`` — the ``starts`` best (pole, period) of the fine stage (shared equally by the seeds' windows, rounded
+   up) that are more than ``separation_deg`` apart in pole (or differ in period), polished by
+   Levenberg–Marquardt (:func:`~lightcurve_gp.inference.convex_fit.polish`) on the polish normals.
 5. families — polished solutions merged when their poles are within ``separation_deg`` and their periods within
    the resolution; each family's log-likelihood ratio to the best is ``N_eff (rss / rss_best − 1) / 2``: the noise
    variance is the best fit's residual variance (the format gives no 1σ) and, since the residuals of a model
@@ -59,14 +59,14 @@ class ConvexSettings:
     harmonics: int = 2
     period_candidates: int = 1
     window: float = 0.25
-    step: float = 0.5
-    coarse_poles: int = 48
+    step: float = 0.25
+    coarse_poles: int = 32
     coarse_normals: int = 32
     subsample: int = 2
     top_periods: int = 6
     fine_poles: int = 200
     fine_normals: int = 60
-    starts: int = 5
+    starts: int = 6
     separation_deg: float = 20.0
     polish_normals: int = 120
     polish_iterations: int = 60
@@ -194,6 +194,7 @@ def effective_samples(r: Tensor, curve: Tensor) -> tuple[float, float]:
 def _families(p: Polished, data: ConvexData, normals: Tensor, settings: ConvexSettings,
               resolution_h: float) -> tuple[ConvexFamilies, float, float]:
     rss = (p.rms ** 2 * len(data)).numpy()
+    rss = np.where(np.isfinite(rss), rss, np.inf)                       # a polish that failed ranks last
     lam, beta = np.degrees(p.lam.numpy()), np.degrees(p.beta.numpy())
     period = p.period_s.numpy() / HOUR_S
     order = np.argsort(rss)
@@ -204,7 +205,7 @@ def _families(p: Polished, data: ConvexData, normals: Tensor, settings: ConvexSe
                            period_s=p.period_s[b:b + 1], areas=p.areas[b:b + 1])[0]
     rho, n_eff = effective_samples(r, data.curve)
     ratio = 0.5 * n_eff * (rss[keep] / rss[b] - 1.0)
-    keep = [k for k, q in zip(keep, ratio) if q <= settings.max_log_ratio]
+    keep = [k for k, q in zip(keep, ratio) if q <= settings.max_log_ratio or k == b]
     ratio = ratio[: len(keep)]
     weight = np.exp(-ratio)
     fam = ConvexFamilies(lam_deg=lam[keep], beta_deg=beta[keep], period_h=period[keep],
@@ -240,8 +241,10 @@ def convex_search(data: ConvexData, settings: ConvexSettings = ConvexSettings(),
         f"({seconds['periodogram']:.1f} s)")
 
     start = time.perf_counter()
-    periods = np.concatenate([period_grid(p, settings.window * p * p / pg.longest_group_h, data.span_s,
-                                          settings.step) for p in seeds])
+    windows = [period_grid(p, settings.window * p * p / pg.longest_group_h, data.span_s, settings.step)
+               for p in seeds]
+    window_of = np.concatenate([np.full(w.size, k) for k, w in enumerate(windows)])
+    periods = np.concatenate(windows)
     lam_c, beta_c = pole_grid(settings.coarse_poles)
     coarse_normals = fibonacci_normals(settings.coarse_normals)
     sub = _subsample(data, settings.subsample)
@@ -250,7 +253,11 @@ def convex_search(data: ConvexData, settings: ConvexSettings = ConvexSettings(),
     rms = _screen(sub, coarse_normals, settings, lam_c.repeat(P), beta_c.repeat(P), per, torch.float32)
     rms = rms.reshape(P, C)
     best_per_period = rms.min(-1).values.numpy()
-    top = np.argsort(best_per_period)[: settings.top_periods]
+    # the best periods of each seed's window (a body fits at half its period too, sometimes better on few normals)
+    per_window = max(1, settings.top_periods // len(windows))
+    top = np.concatenate([np.nonzero(window_of == k)[0][np.argsort(best_per_period[window_of == k])[:per_window]]
+                          for k in range(len(windows))])
+    top = top[np.argsort(best_per_period[top])]
     seconds["coarse"] = time.perf_counter() - start
     say(f"coarse: {P} periods x {C} poles ({seconds['coarse']:.1f} s); best periods "
         f"{', '.join(f'{periods[i]:.6f}' for i in top[:3])} h")
@@ -266,8 +273,11 @@ def convex_search(data: ConvexData, settings: ConvexSettings = ConvexSettings(),
     seconds["fine"] = time.perf_counter() - start
     order = np.argsort(rms_f)
     step_h = settings.step * fine_periods.max() ** 2 / (data.span_s / HOUR_S)
-    picks = _distinct(order, lam_all.numpy(), beta_all.numpy(), per.numpy() / HOUR_S, settings.starts,
-                      settings.separation_deg, 0.5 * step_h)
+    cand_window = np.repeat(window_of[top], F)
+    per_start = math.ceil(settings.starts / len(windows))              # every seed's window gets its starts
+    picks = sorted((k for w in range(len(windows)) for k in _distinct(
+        order[cand_window[order] == w], lam_all.numpy(), beta_all.numpy(), per.numpy() / HOUR_S, per_start,
+        settings.separation_deg, 0.5 * step_h)), key=lambda k: rms_f[k])
     say(f"fine: {top.size} periods x {F} poles ({seconds['fine']:.1f} s); best rms {rms_f[order[0]]:.4f}")
 
     start = time.perf_counter()
