@@ -183,7 +183,10 @@ def main(argv: list[str] | None = None) -> int:
     any_ok = sum(r["any_ok"] for r in rows)
     # a miss the data decide against: the polish from the truth fits better than the search's best by > 1 %
     search_miss = sum((not r["best_ok"]) and r["truth_rms"] < 0.99 * r["rms"] for r in rows)
-    summary = {"objects": len(rows), "best_ok": ok, "any_family_ok": any_ok, "search_misses": search_miss,
+    period_ok = sum(r["period_error_h"] < r["resolution_h"] for r in rows)
+    pole_ok = sum(r["pole_error_deg"] < 5.0 for r in rows)
+    summary = {"objects": len(rows), "best_ok": ok, "any_family_ok": any_ok, "period_ok": period_ok,
+               "pole_ok": pole_ok, "search_misses": search_miss,
                "median_seconds": float(np.median([r["seconds"] for r in rows])),
                "median_pole_error_deg": float(np.median([r["pole_error_deg"] for r in rows]))}
     (args.out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")

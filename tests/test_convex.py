@@ -183,7 +183,8 @@ def test_polish_returns_to_the_truth_from_a_nearby_start():
 def test_polish_jacobian_matches_central_differences():
     data, normals, _, _ = _box_problem(2)
     res = PolishResidual(data, normals[:20], Scattering(), torch.tensor([7.0 * 3600, 5.5 * 3600], dtype=F64),
-                         0.01, 0.1)
+                         0.01, 0.1, smoothness=0.5)
+    assert res.diff.shape[0] >= 60 and bool((res.diff.sum(-1) == 0).all())  # ≥ 20·6/2 neighbour differences
     g = torch.Generator().manual_seed(3)
     x = torch.cat([torch.tensor([[4.0, -0.3, 0.2], [1.0, 0.5, -0.1]], dtype=F64),
                    0.3 * torch.randn(2, 20, generator=g, dtype=F64)], -1)
@@ -216,8 +217,15 @@ def test_period_grid_steps_and_effective_samples():
     df = np.diff(1.0 / grid)
     assert np.allclose(df, 0.5 / (1000 * 24.0)) and grid.min() <= 5.99 and grid.max() >= 6.01
     curve = torch.zeros(1000, dtype=torch.int64)
-    rho, n_eff = effective_samples(torch.ones(1000, dtype=F64), curve)
-    assert rho == pytest.approx(0.99) and n_eff == pytest.approx(1000 * 0.01 / 1.99)
+    rho, n_eff = effective_samples(torch.ones(1000, dtype=F64), curve)           # ρ_k = 1 − k/N, summed to lag 50
+    assert rho == pytest.approx(0.999) and n_eff == pytest.approx(1000 / (1 + 2 * sum(1 - k / 1000
+                                                                                      for k in range(1, 51))))
+    ar = torch.zeros(20000, dtype=F64)                                          # AR(1), ρ = 0.6: τ = 1.6/0.4
+    noise = torch.randn(20000, generator=torch.Generator().manual_seed(0), dtype=F64)
+    for i in range(1, 20000):
+        ar[i] = 0.6 * ar[i - 1] + noise[i]
+    rho, n_eff = effective_samples(ar, torch.zeros(20000, dtype=torch.int64))
+    assert rho == pytest.approx(0.6, abs=0.02) and n_eff == pytest.approx(20000 / 4.0, rel=0.15)
     rho, n_eff = effective_samples(torch.tensor([1.0, -1.0] * 500, dtype=F64), curve)
     assert rho == 0.0 and n_eff == 1000
     assert isinstance(_box_problem()[0], ConvexData)

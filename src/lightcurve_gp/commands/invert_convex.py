@@ -162,9 +162,14 @@ def run(cfg, args: argparse.Namespace) -> int:
         write_json_atomic(summary, tmp / "summary.json")
         _figures(tmp, data, search, settings)
     fam = search.families
-    print(f"{path.name}: {len(data)} samples in {data.curves} light curves; {len(fam)} pole/period "
-          f"famil{'y' if len(fam) == 1 else 'ies'} within {settings.max_log_ratio:g} nats")
+    count = int(fam.within_ratio.sum())
+    print(f"{path.name}: {len(data)} samples in {data.curves} light curves; {count} pole/period "
+          f"famil{'y' if count == 1 else 'ies'} within {settings.max_log_ratio:g} nats")
     for k in range(len(fam)):
+        if not fam.within_ratio[k]:
+            print(f"  beyond the ratio, the mirror pole: ({fam.lam_deg[k]:.1f}°, {fam.beta_deg[k]:+.1f}°), "
+                  f"P = {fam.period_h[k]:.8f} h, rms {fam.rms[k]:.4f}, {fam.log_ratio[k]:.1f} nats below the best")
+            continue
         print(f"  family {k + 1}: pole (λ, β) = ({fam.lam_deg[k]:.1f}°, {fam.beta_deg[k]:+.1f}°), "
               f"P = {fam.period_h[k]:.8f} ± {fam.period_sigma_h[k]:.1e} h, rms {fam.rms[k]:.4f}, "
               f"{fam.log_ratio[k]:.1f} nats below the best, weight {fam.weight[k]:.3f}")

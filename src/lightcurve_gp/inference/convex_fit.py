@@ -214,9 +214,17 @@ class PolishResidual:
     the spin); ``x = (λ, β, x_P, log a)``."""
 
     def __init__(self, data: ConvexData, normals: Tensor, scattering: Scattering, period0_s: Tensor,
-                 sigma: float, closure: float) -> None:
+                 sigma: float, closure: float, smoothness: float = 0.0, neighbours: int = 6) -> None:
         self.data, self.normals, self.scattering, self.p0 = data, normals, scattering, period0_s
         self.sigma, self.weight = sigma, math.sqrt(closure * len(data))
+        # smoothness: smoothness · (log a_i − log a_j) for each normal and its nearest neighbours (whitened rows)
+        K = normals.shape[0]
+        near = torch.topk(normals @ normals.T, min(neighbours + 1, K), dim=-1).indices[:, 1:]
+        pairs = {(min(i, j), max(i, j)) for i in range(K) for j in near[i].tolist()}
+        diff = torch.zeros(len(pairs) if smoothness > 0 else 0, K, dtype=normals.dtype, device=normals.device)
+        for row, (i, j) in enumerate(sorted(pairs) if smoothness > 0 else []):
+            diff[row, i], diff[row, j] = smoothness, -smoothness
+        self.diff = diff
 
     def spin(self, x: Tensor, rows: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         period = 1.0 / (1.0 / self.p0[rows] - x[:, 2] / (2 * math.pi * self.data.span_s))
@@ -227,7 +235,7 @@ class PolishResidual:
         mean = self.data.curve_mean(L)[:, self.data.curve]
         r = (self.data.y - L / mean) / self.sigma
         closing = self.weight * (a @ self.normals) / a.sum(-1, keepdim=True)
-        return torch.cat([r, closing], -1), mean
+        return torch.cat([r, closing, torch.log(a) @ self.diff.T], -1), mean
 
     def _design(self, x: Tensor, rows: Tensor) -> Tensor:
         lam, beta, period = self.spin(x, rows)
@@ -268,24 +276,26 @@ class PolishResidual:
         ratio = (L / mean)[..., None]
         dL_mean = self.data.curve_mean(dL.transpose(1, 2)).transpose(1, 2)[:, self.data.curve]
         spin_jac = -(dL - ratio * dL_mean) / mean[..., None] / self.sigma
-        spin_jac = torch.cat([spin_jac, torch.zeros(A, 3, 3, dtype=x.dtype, device=x.device)], 1)
+        spin_jac = torch.cat([spin_jac, torch.zeros(A, 3 + self.diff.shape[0], 3, dtype=x.dtype, device=x.device)], 1)
         # ∂(L_i / L̄_c)/∂log a_k = a_k (G_ik − (L_i / L̄_c) Ḡ_ck) / L̄_c, Ḡ_ck the curve mean of G_·k
         Gbar = self.data.curve_mean(G.transpose(1, 2)).transpose(1, 2)[:, self.data.curve]  # (A, N, K)
         dratio = (G - ratio * Gbar) * a[:, None, :] / mean[..., None]
         s = a.sum(-1, keepdim=True)
         centroid = (a @ self.normals) / s                                                   # (A, 3)
         dclose = self.weight * a[:, None, :] * (self.normals.T[None] - centroid[..., None]) / s[..., None]
-        area_jac = torch.cat([-dratio / self.sigma, dclose], 1)
+        area_jac = torch.cat([-dratio / self.sigma, dclose, self.diff.expand(A, *self.diff.shape)], 1)
         return r, torch.cat([spin_jac, area_jac], -1)
 
 
 def polish(data: ConvexData, normals: Tensor, scattering: Scattering, *, lam: Tensor, beta: Tensor,
            period_s: Tensor, areas: Tensor, closure: float = 0.1, iterations: int = 30, sigma: float = 0.01,
-           area_prior_std: float = 3.0) -> Polished:
+           area_prior_std: float = 3.0, smoothness: float = 0.0) -> Polished:
     """Levenberg–Marquardt on ``(λ, β, P, log a)`` of ``B`` starts at once (module docstring).
 
     The residuals are whitened by ``sigma`` (relative intensity); a weak Gaussian prior of standard deviation
-    ``area_prior_std`` on each log area about its start keeps areas that no sample sees determined. The period is
+    ``area_prior_std`` on each log area about its start keeps areas that no sample sees determined;
+    ``smoothness`` > 0 adds ``smoothness · (log a_i − log a_j)`` for every normal and its six nearest (whitened
+    rows: a Laplacian-like prior that makes the Gaussian image smooth, as a low-degree expansion does). The period is
     scaled to a phase change over the data's span, ``x_P = 2π span (1/P₀ − 1/P)`` (rad), so every coordinate is
     O(1); the areas start at ``max(a, 1e-3 max a)`` (a zero area cannot leave zero in log space)."""
     p0 = period_s.to(torch.float64)
@@ -294,7 +304,7 @@ def polish(data: ConvexData, normals: Tensor, scattering: Scattering, *, lam: Te
     x0 = torch.cat([lam[:, None], beta[:, None], torch.zeros_like(lam)[:, None], log_a], -1)
     precision = torch.cat([torch.zeros(3, dtype=x0.dtype, device=x0.device),
                            torch.full((log_a.shape[1],), area_prior_std ** -2, dtype=x0.dtype, device=x0.device)])
-    residual = PolishResidual(data, normals, scattering, p0, sigma, closure)
+    residual = PolishResidual(data, normals, scattering, p0, sigma, closure, smoothness)
     options = LeastSquaresOptions(iterations=iterations, jacobian="provided", tolerance=1e-8,
                                   covariance="solution")
     result = batch_least_squares(residual, x0, prior=GaussianPrior.independent(x0, precision), options=options)

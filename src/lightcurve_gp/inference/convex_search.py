@@ -18,9 +18,10 @@ Stages (each timed in :attr:`ConvexSearch.seconds`):
 5. families — polished solutions merged when their poles are within ``separation_deg`` and their periods within
    the resolution; each family's log-likelihood ratio to the best is ``N_eff (rss / rss_best − 1) / 2``: the noise
    variance is the best fit's residual variance (the format gives no 1σ) and, since the residuals of a model
-   that is not exact are correlated along a light curve, ``N_eff = N (1 − ρ)/(1 + ρ)`` with ``ρ`` their lag-1
-   correlation within curves (:func:`effective_samples`; ``ρ = 0`` gives the plain ratio). Those within
-   ``max_log_ratio`` nats are kept, weighted by ``exp(−ratio)``.
+   that is not exact are correlated along a light curve, ``N_eff = N / τ`` with ``τ`` their integrated
+   autocorrelation time within curves (:func:`effective_samples`; uncorrelated residuals give the plain ratio).
+   Those within ``max_log_ratio`` nats are kept, weighted by ``exp(−ratio)``; the best solution at the best's
+   mirror pole (λ + 180°, β) is reported too, flagged, when it lies beyond.
 """
 
 from __future__ import annotations
@@ -59,10 +60,10 @@ class ConvexSettings:
     harmonics: int = 2
     period_candidates: int = 1
     window: float = 0.25
-    step: float = 0.25
-    coarse_poles: int = 32
+    step: float = 0.125
+    coarse_poles: int = 24
     coarse_normals: int = 32
-    subsample: int = 2
+    subsample: int = 3
     top_periods: int = 6
     fine_poles: int = 200
     fine_normals: int = 60
@@ -71,6 +72,7 @@ class ConvexSettings:
     polish_normals: int = 120
     polish_iterations: int = 60
     closure: float = 0.1
+    smoothness: float = 0.0
     area_iterations: int = 10
     max_log_ratio: float = 10.0
     chunk: int = 128
@@ -92,12 +94,14 @@ def period_grid(center_h: float, half_width_h: float, span_s: float, step: float
 
 @dataclass(frozen=True)
 class ConvexFamilies:
-    """Pole/period families within the likelihood ratio, best first (``F`` of them).
+    """Pole/period families within the likelihood ratio, best first (``F`` of them), and the best solution at the
+    mirror pole of the best (λ + 180°, β) when it lies beyond the ratio (last, weight 0, ``within_ratio`` false).
 
     Attributes:
         lam_deg, beta_deg: pole (deg) ``(F,)``; period_h: sidereal period ``(F,)`` (h); period_sigma_h: its 1σ.
         rms: convexinv's rms (relative intensity) ``(F,)``; log_ratio: nats below the best ``(F,)``;
-        weight: ``exp(−log_ratio)`` normalised ``(F,)``; areas: ``(F, K)`` (relative, summing to 1).
+        weight: ``exp(−log_ratio)`` normalised over the families within the ratio ``(F,)``; areas: ``(F, K)``
+        (relative, summing to 1); within_ratio: ``(F,)`` bool.
     """
 
     lam_deg: np.ndarray
@@ -108,6 +112,7 @@ class ConvexFamilies:
     log_ratio: np.ndarray
     weight: np.ndarray
     areas: np.ndarray
+    within_ratio: np.ndarray
 
     def __len__(self) -> int:
         return int(self.lam_deg.size)
@@ -182,13 +187,22 @@ def _distinct(order: np.ndarray, lam: np.ndarray, beta: np.ndarray, period: np.n
     return taken
 
 
-def effective_samples(r: Tensor, curve: Tensor) -> tuple[float, float]:
-    """The lag-1 autocorrelation ``ρ`` of residuals ``r`` ``(N,)`` within light curves (samples in time order)
-    and the effective number of independent samples ``N (1 − ρ) / (1 + ρ)`` (an AR(1) model's; ``ρ ≥ 0``)."""
-    same = curve[1:] == curve[:-1]
-    rho = float(((r[1:] * r[:-1])[same]).sum() / (r * r).sum().clamp_min(1e-300))
-    rho = min(max(rho, 0.0), 0.99)
-    return rho, r.numel() * (1 - rho) / (1 + rho)
+def effective_samples(r: Tensor, curve: Tensor, *, max_lag: int = 50) -> tuple[float, float]:
+    """The lag-1 autocorrelation ``ρ_1`` of residuals ``r`` ``(N,)`` within light curves (samples in time order)
+    and the effective number of independent samples ``N / τ``, ``τ = 1 + 2 Σ_k ρ_k`` the integrated
+    autocorrelation time summed over lags until the first ``ρ_k ≤ 0`` (Geyer's initial positive sequence; at most
+    ``max_lag``). For AR(1) residuals ``τ = (1 + ρ)/(1 − ρ)``."""
+    power = (r * r).sum().clamp_min(1e-300)
+    tau, rho1 = 1.0, 0.0
+    for k in range(1, min(max_lag, r.numel() - 1) + 1):
+        same = curve[k:] == curve[:-k]
+        rho = float(((r[k:] * r[:-k])[same]).sum() / power)
+        if k == 1:
+            rho1 = max(rho, 0.0)
+        if rho <= 0:
+            break
+        tau += 2 * rho
+    return rho1, r.numel() / tau
 
 
 def _families(p: Polished, data: ConvexData, normals: Tensor, settings: ConvexSettings,
@@ -204,13 +218,20 @@ def _families(p: Polished, data: ConvexData, normals: Tensor, settings: ConvexSe
     r = relative_residuals(data, normals, settings.scattering, lam=p.lam[b:b + 1], beta=p.beta[b:b + 1],
                            period_s=p.period_s[b:b + 1], areas=p.areas[b:b + 1])[0]
     rho, n_eff = effective_samples(r, data.curve)
-    ratio = 0.5 * n_eff * (rss[keep] / rss[b] - 1.0)
-    keep = [k for k, q in zip(keep, ratio) if q <= settings.max_log_ratio or k == b]
-    ratio = ratio[: len(keep)]
-    weight = np.exp(-ratio)
-    fam = ConvexFamilies(lam_deg=lam[keep], beta_deg=beta[keep], period_h=period[keep],
-                         period_sigma_h=p.period_sigma_s.numpy()[keep] / HOUR_S, rms=p.rms.numpy()[keep],
-                         log_ratio=ratio, weight=weight / weight.sum(), areas=p.areas.numpy()[keep])
+    ratio_all = 0.5 * n_eff * (rss[keep] / rss[b] - 1.0)
+    within = [k for k, q in zip(keep, ratio_all) if q <= settings.max_log_ratio or k == b]
+    # the best solution at the mirror pole (λ + 180°, β) of the best is reported even beyond the ratio
+    v = pole_vector(torch.as_tensor(np.radians(lam)), torch.as_tensor(np.radians(beta))).numpy()
+    mirror = pole_vector(torch.as_tensor(math.radians(lam[b] + 180.0)), torch.as_tensor(math.radians(beta[b])))
+    near = [k for k in keep if v[k] @ mirror.numpy() > math.cos(math.radians(settings.separation_deg))]
+    extra = [near[0]] if near and near[0] not in within else []
+    rows = within + extra
+    ratio = ratio_all[[keep.index(k) for k in rows]]
+    weight = np.where(np.arange(len(rows)) < len(within), np.exp(-ratio), 0.0)
+    fam = ConvexFamilies(lam_deg=lam[rows], beta_deg=beta[rows], period_h=period[rows],
+                         period_sigma_h=p.period_sigma_s.numpy()[rows] / HOUR_S, rms=p.rms.numpy()[rows],
+                         log_ratio=ratio, weight=weight / weight.sum(), areas=p.areas.numpy()[rows],
+                         within_ratio=np.arange(len(rows)) < len(within))
     return fam, rho, n_eff
 
 
@@ -286,7 +307,8 @@ def convex_search(data: ConvexData, settings: ConvexSettings = ConvexSettings(),
     G = design(data, normals, settings.scattering, lam=lam_all[idx], beta=beta_all[idx], period_s=per[idx])
     init = fit_areas(G, data, normals, closure=settings.closure, iterations=3 * settings.area_iterations)
     polished = polish(data, normals, settings.scattering, lam=lam_all[idx], beta=beta_all[idx], period_s=per[idx],
-                      areas=init.areas, closure=settings.closure, iterations=settings.polish_iterations)
+                      areas=init.areas, closure=settings.closure, iterations=settings.polish_iterations,
+                      smoothness=settings.smoothness)
     seconds["polish"] = time.perf_counter() - start
     fam, rho, n_eff = _families(polished, data, normals, settings, step_h)
     deg = lambda x: math.degrees(float(x))  # noqa: E731

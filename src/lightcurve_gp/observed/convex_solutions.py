@@ -4,8 +4,10 @@
 ``solutions.ecsv`` — one row per family, best first: ``rank``, ``pole_lambda_deg``, ``pole_beta_deg`` (ecliptic
 J2000, deg), ``period_h`` and ``period_sigma_h`` (sidereal period and its Laplace 1σ, h), ``rms`` (convexinv's: the
 relative-intensity residuals, each curve normalised by its mean), ``chi2_per_sample`` (with the 1σ the
-observations carry, converted to relative intensity), ``log_ratio`` (nats below the best) and ``weight`` (the rows
-sum to 1); astropy units on the columns. Metadata: ``light_curve``, ``config``, ``samples``, ``light_curves``,
+observations carry, converted to relative intensity), ``log_ratio`` (nats below the best), ``weight`` (the rows
+sum to 1) and ``within_ratio`` (false for the one extra row: the best solution at the best family's mirror pole
+λ + 180° when it lies beyond the likelihood ratio; weight 0); astropy units on the columns. Metadata:
+``light_curve``, ``config``, ``samples``, ``light_curves``,
 ``effective_samples``, ``residual_correlation``.
 
 ``areas.ecsv`` — one row per facet normal: ``n_x, n_y, n_z`` (body frame: ``z`` the spin axis) and ``area_1``,
@@ -45,6 +47,7 @@ def convex_solutions_table(search: ConvexSearch, *, sigma_mag: float, samples: i
     table["chi2_per_sample"] = (fam.rms / sigma_rel) ** 2
     table["log_ratio"] = fam.log_ratio
     table["weight"] = fam.weight
+    table["within_ratio"] = fam.within_ratio
     table["period_h"].info.format = ".9f"
     table.meta.update({"samples": samples, "light_curves": light_curves, "sigma_mag": sigma_mag,
                        "effective_samples": round(float(search.effective_samples), 1),
