@@ -61,20 +61,28 @@ def settings_from_config(cfg, max_log_ratio: float) -> ConvexSettings:
 
 def _figures(folder: Path, data: ConvexData, search: ConvexSearch, settings: ConvexSettings) -> None:
     pg = search.periodogram
-    fig = Figure(figsize=(8.0, 5.5), layout="constrained")
-    top, bottom = fig.subplots(2, 1)
+    order = np.argsort(search.coarse_periods_h)
+    periods, rms = search.coarse_periods_h[order], search.coarse_rms[order]
+    windows = np.split(np.arange(periods.size), np.nonzero(np.diff(periods) > 0.01 * periods[1:])[0] + 1)
+    fig = Figure(figsize=(9.0, 6.0), layout="constrained")
+    grid = fig.add_gridspec(2, len(windows))
+    top = fig.add_subplot(grid[0, :])
     top.plot(pg.period_h, pg.chi2, color="black", lw=0.6)
     for p in pg.minima_h[:1]:
         top.axvline(p, color="tab:red", lw=0.8, ls=":")
     top.set_xscale("log")
     top.set_xlabel("period [h] (red: the deepest minimum)")
     top.set_ylabel("χ² of per-apparition\nFourier series")
-    order = np.argsort(search.coarse_periods_h)
-    bottom.plot(search.coarse_periods_h[order], search.coarse_rms[order], ".", color="black", ms=3)
-    for p in search.families.period_h:
-        bottom.axvline(p, color="tab:red", lw=0.8, ls=":")
-    bottom.set_xlabel("period [h] (the scanned windows; red: the families)")
-    bottom.set_ylabel("coarse screen:\nbest rms over poles")
+    for k, idx in enumerate(windows):
+        ax = fig.add_subplot(grid[1, k])
+        ax.plot(periods[idx], rms[idx], ".-", color="black", ms=2, lw=0.4)
+        for q in search.families.period_h:
+            if periods[idx[0]] <= q <= periods[idx[-1]]:
+                ax.axvline(q, color="tab:red", lw=0.8, ls=":")
+        ax.set_xlabel(f"period [h], window {k + 1} (red: families)")
+        ax.ticklabel_format(axis="x", useOffset=True)
+        if k == 0:
+            ax.set_ylabel("coarse screen:\nbest rms over poles")
     save_figure(fig, folder / "periodogram.png")
 
     fam = search.families
