@@ -133,10 +133,9 @@ def score(truth: dict, fam, span_s: float) -> dict:
             "best_period_h": float(fam.period_h[0])}
 
 
-def truth_rms(data, truth: dict, normals: torch.Tensor) -> float:
+def truth_rms(data, truth: dict, normals: torch.Tensor, settings: ConvexSettings) -> float:
     """The rms of the polish started at the true pole and period (and at its mirror; the lower): what the data
     allow at the truth, against which the search's best rms tells a search miss from data that do not decide."""
-    settings = ConvexSettings()
     best = math.inf
     for lam in (truth["lam_deg"], truth["lam_deg"] + 180.0):
         spin = dict(lam=torch.tensor([math.radians(lam)], dtype=torch.float64),
@@ -144,7 +143,7 @@ def truth_rms(data, truth: dict, normals: torch.Tensor) -> float:
                     period_s=torch.tensor([truth["period_h"] * 3600.0], dtype=torch.float64))
         init = fit_areas(design(data, normals, settings.scattering, **spin), data, normals, iterations=30)
         p = polish(data, normals, settings.scattering, **spin, areas=init.areas,
-                   iterations=settings.polish_iterations)
+                   iterations=settings.polish_iterations, smoothness=settings.smoothness)
         if math.isfinite(float(p.rms[0])):
             best = min(best, float(p.rms[0]))
     return best
@@ -156,8 +155,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=1000, help="first seed (held out: never used for tuning)")
     parser.add_argument("--out", type=Path, default=Path("experiments/results/convex_synthetic"))
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--setting", action="append", default=[], metavar="NAME=NUMBER",
+                        help="a ConvexSettings field other than its default (repeatable), e.g. polish_normals=60")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
+    settings = ConvexSettings(**{k: (int(v) if v.lstrip("-").isdigit() else float(v))
+                                 for k, v in (item.split("=", 1) for item in args.setting)})
     args.out.mkdir(parents=True, exist_ok=True)
     rows_path = args.out / "rows.jsonl"
     done = {json.loads(line)["seed"] for line in rows_path.read_text().splitlines()} if rows_path.exists() else set()
@@ -167,10 +170,10 @@ def main(argv: list[str] | None = None) -> int:
         obs, truth = random_observations(np.random.default_rng(seed), seed)
         data = convex_data(obs)
         start = time.perf_counter()
-        search = convex_search(data, ConvexSettings())
+        search = convex_search(data, settings)
         seconds = time.perf_counter() - start
         row = {**truth, **score(truth, search.families, data.span_s), "seconds": seconds,
-               "stage_seconds": search.seconds, "truth_rms": truth_rms(data, truth, search.normals)}
+               "stage_seconds": search.seconds, "truth_rms": truth_rms(data, truth, search.normals, settings)}
         with open(rows_path, "a") as fh:
             fh.write(json.dumps(row) + "\n")
         print(f"seed {seed}: {truth['curves']} curves, {truth['samples']} samples, noise {truth['noise_mag']:.3f}, "
