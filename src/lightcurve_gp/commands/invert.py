@@ -17,6 +17,9 @@ Sample times may have any spacing and gaps (the propagation is closed form,
 :mod:`lightcurve_gp.attitude.torque_free`); ``mag_err`` gives each sample's 1σ, ``--mag-err`` one value for a file
 without it. Errors are one line and exit code 2, as in every command; samples a
 file's TLE and site say cannot have been observed are one warning line, or refused with ``--strict``.
+
+A config with a ``convex:`` section runs the convex inversion of :mod:`lightcurve_gp.commands.invert_convex`
+instead (pole, period and convex shape from relative light curves of a DAMIT file; its own outputs).
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ import torch
 from matplotlib.figure import Figure
 from tqdm.auto import tqdm
 
+from lightcurve_gp.commands import invert_convex
 from lightcurve_gp.commands.common import (
     STRICT_HELP,
     UserError,
@@ -167,6 +171,8 @@ def _folder(args: argparse.Namespace, cfg) -> Path:
 def _run(args: argparse.Namespace) -> int:
     apply_threads(args.threads)
     cfg = load_config(args.config, args.overrides)
+    if cfg.convex is not None:  # a convex: section: pole, period and convex shape (commands/invert_convex.py)
+        return invert_convex.run(cfg, args)
     settings = _settings(args)
     try:
         obs = read_observations(args.light_curve, mag_err=args.mag_err, relative=args.relative, strict=args.strict,

@@ -25,7 +25,7 @@ import torch
 __all__ = ["ConfigError", "Config", "GeometryConfig", "OrbitElementsConfig", "SiteConfig", "ShapeConfig",
            "SurfaceConfig", "DataConfig", "TrainingSurfacesConfig", "SpinRangeConfig", "ModelConfig",
            "ExactModelConfig", "SparseModelConfig", "TruthSurfaceConfig", "ScenarioConfig", "FilterConfig",
-           "MapConfig", "EvaluationConfig", "MODEL_KIND_SECTIONS"]
+           "MapConfig", "EvaluationConfig", "ConvexConfig", "MODEL_KIND_SECTIONS"]
 
 
 class ConfigError(ValueError):
@@ -405,6 +405,34 @@ class EvaluationConfig:
 
 
 @dataclass(kw_only=True)
+class ConvexConfig:
+    """Convex inversion (``python -m lightcurve_gp.invert`` with this section set runs
+    :mod:`lightcurve_gp.commands.invert_convex`): pole, period and a convex shape from relative light curves with
+    per-sample Sun and observer directions (e.g. a DAMIT file); the other sections are then not used."""
+
+    lambert: float = _spec(0.1, lo=0.0, doc="c of the Lommel-Seeliger + c Lambert law")
+    phase_amplitude: float = _spec(0.5, doc="a of the phase function a exp(-alpha/d) + k alpha + 1")
+    phase_width_rad: float = _spec(0.1, lo=0.0, lo_open=True, doc="d of the phase function (rad)")
+    phase_slope: float = _spec(-0.5, doc="k of the phase function (per rad)")
+    period_range_h: list[float] = _spec([2.0, 20.0], lo=0.0, lo_open=True, length=2,
+                                        doc="shortest and longest period searched (h)")
+    harmonics: int = _spec(2, lo=1, hi=8, doc="Fourier harmonics of the periodogram per apparition")
+    window: float = _spec(0.25, lo=0.0, lo_open=True, doc="half-width of each period scan in periodogram peak widths")
+    step: float = _spec(0.125, lo=0.0, lo_open=True, hi=1.0, doc="period step as a fraction of P^2/T (T the span)")
+    coarse_poles: int = _spec(24, lo=4, doc="poles of the coarse screen (Fibonacci grid)")
+    coarse_normals: int = _spec(32, lo=6, doc="facet normals of the coarse screen")
+    subsample: int = _spec(3, lo=1, doc="the coarse screen uses every n-th sample of each light curve")
+    top_periods: int = _spec(6, lo=1, doc="periods of the coarse screen passed to the fine one")
+    poles: int = _spec(200, lo=4, doc="poles of the fine screen (Fibonacci grid)")
+    screen_normals: int = _spec(60, lo=6, doc="facet normals of the fine screen")
+    starts: int = _spec(6, lo=1, doc="(pole, period) starts polished by Levenberg-Marquardt")
+    normals: int = _spec(120, lo=6, doc="facet normals of the polished shape")
+    polish_iterations: int = _spec(60, lo=1, doc="Levenberg-Marquardt iterations of the polish")
+    closure: float = _spec(0.1, lo=0.0, doc="weight of |sum a_k n_k|^2 (the Gaussian image closes)")
+    separation_deg: float = _spec(20.0, lo=0.0, lo_open=True, hi=180.0, doc="poles closer are one family")
+
+
+@dataclass(kw_only=True)
 class Config:
     """The whole experiment; see ``configs/boxwing.yaml`` for the paper's values."""
 
@@ -420,6 +448,8 @@ class Config:
     filter: FilterConfig
     evaluation: EvaluationConfig
     map: MapConfig = field(default_factory=MapConfig, metadata=_hash_rule(omit_default=True))
+    convex: ConvexConfig | None = _spec(None, omit_default=True,
+                                        doc="convex inversion settings; set: invert runs the convex search")
 
     @property
     def torch_dtype(self) -> torch.dtype:

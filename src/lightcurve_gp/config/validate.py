@@ -192,6 +192,9 @@ def _cross_check(cfg: Config) -> None:
     lo_phase, hi_phase = cfg.data.phase_angle_deg
     if not lo_phase < hi_phase:
         raise ConfigError(f"data.phase_angle_deg: low {lo_phase:g} must be below high {hi_phase:g}")
+    if cfg.convex is not None and not cfg.convex.period_range_h[0] < cfg.convex.period_range_h[1]:
+        lo_p, hi_p = cfg.convex.period_range_h
+        raise ConfigError(f"convex.period_range_h: shortest {lo_p:g} must be below longest {hi_p:g}")
 
 
 

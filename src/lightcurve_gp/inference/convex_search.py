@@ -1,0 +1,324 @@
+"""Convex inversion with no pole and no period given: periodogram, batched screen, polish, families.
+
+Stages (each timed in :attr:`ConvexSearch.seconds`):
+
+1. ``periodogram`` — :func:`~lightcurve_gp.inference.convex_periodogram.multiterm_periodogram` over the period
+   range; its ``period_candidates`` deepest distinct minima seed the scan.
+2. ``coarse`` — around each seed, periods ``± window · P²/T_g`` (``T_g`` the longest apparition: the
+   periodogram's peak width) at the step ``step · P²/T`` (``T`` the data's span: one rotation more or less over
+   the span changes the phase by ``2π / (1/step)``) × a coarse Fibonacci grid of poles, screened by the linear
+   area fit (:func:`~lightcurve_gp.inference.convex_fit.fit_areas`) on few normals and every ``subsample``-th
+   sample, in float32. The rotation phase at the epoch is not scanned: a rotation about the body's ``z`` axis
+   carries the Gaussian image with it, so the areas absorb it (convexinv fixes it too).
+3. ``fine`` — the best periods of the coarse stage (``top_periods`` shared equally by the seeds' windows, so a
+   seed and its double both go on) × a fine pole grid, on every sample and more normals.
+4. ``polish`` — the ``starts`` best (pole, period) of the fine stage (shared equally by the seeds' windows, rounded
+   up) that are more than ``separation_deg`` apart in pole (or differ in period), polished by
+   Levenberg–Marquardt (:func:`~lightcurve_gp.inference.convex_fit.polish`) on the polish normals.
+5. families — polished solutions merged when their poles are within ``separation_deg`` and their periods within
+   the resolution; each family's log-likelihood ratio to the best is ``N_eff (rss / rss_best − 1) / 2``: the noise
+   variance is the best fit's residual variance (the format gives no 1σ) and, since the residuals of a model
+   that is not exact are correlated along a light curve, ``N_eff = N / τ`` with ``τ`` their integrated
+   autocorrelation time within curves (:func:`effective_samples`; uncorrelated residuals give the plain ratio).
+   Those within ``max_log_ratio`` nats are kept, weighted by ``exp(−ratio)``; the best solution at the best's
+   mirror pole (λ + 180°, β) is reported too, flagged, when it lies beyond.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from lightcurve_gp.inference.convex_fit import (
+    ConvexData,
+    Polished,
+    design,
+    fit_areas,
+    polish,
+    relative_residuals,
+)
+from lightcurve_gp.inference.convex_periodogram import ConvexPeriodogram, multiterm_periodogram
+from lightcurve_gp.photometry.convex import Scattering, fibonacci_normals, pole_angles, pole_vector
+
+__all__ = ["ConvexSettings", "ConvexFamilies", "ConvexSearch", "convex_search", "effective_samples", "period_grid",
+           "pole_grid"]
+
+HOUR_S = 3600.0
+
+
+@dataclass(frozen=True)
+class ConvexSettings:
+    """What :func:`convex_search` does (module docstring); periods in hours, angles in degrees."""
+
+    scattering: Scattering = field(default_factory=Scattering)
+    period_range_h: tuple[float, float] = (2.0, 20.0)
+    harmonics: int = 2
+    period_candidates: int = 1
+    window: float = 0.25
+    step: float = 0.125
+    coarse_poles: int = 24
+    coarse_normals: int = 32
+    subsample: int = 3
+    top_periods: int = 6
+    fine_poles: int = 200
+    fine_normals: int = 60
+    starts: int = 6
+    separation_deg: float = 20.0
+    polish_normals: int = 120
+    polish_iterations: int = 60
+    closure: float = 0.1
+    smoothness: float = 0.0
+    area_iterations: int = 10
+    max_log_ratio: float = 10.0
+    chunk: int = 128
+
+
+def pole_grid(n: int, *, dtype: torch.dtype = torch.float64) -> tuple[Tensor, Tensor]:
+    """``n`` poles nearly uniform on the sphere: ecliptic longitudes and latitudes (rad) ``(n,)``."""
+    return pole_angles(fibonacci_normals(n, dtype=dtype))
+
+
+def period_grid(center_h: float, half_width_h: float, span_s: float, step: float) -> np.ndarray:
+    """Periods (h) ``center ± half_width`` at the step ``step · P² / T`` (``T`` = ``span_s``), uniform in
+    frequency (one rotation count apart every ``1/step`` points)."""
+    span_h = span_s / HOUR_S
+    f0, df = 1.0 / center_h, step / span_h
+    half = max(1, int(math.ceil(half_width_h / center_h ** 2 / df)))
+    return 1.0 / (f0 + df * np.arange(-half, half + 1))
+
+
+@dataclass(frozen=True)
+class ConvexFamilies:
+    """Pole/period families within the likelihood ratio, best first (``F`` of them), and the best solution at the
+    mirror pole of the best (λ + 180°, β) when it lies beyond the ratio (last, weight 0, ``within_ratio`` false).
+
+    Attributes:
+        lam_deg, beta_deg: pole (deg) ``(F,)``; period_h: sidereal period ``(F,)`` (h); period_sigma_h: its 1σ.
+        rms: convexinv's rms (relative intensity) ``(F,)``; log_ratio: nats below the best ``(F,)``;
+        weight: ``exp(−log_ratio)`` normalised over the families within the ratio ``(F,)``; areas: ``(F, K)``
+        (relative, summing to 1); within_ratio: ``(F,)`` bool.
+    """
+
+    lam_deg: np.ndarray
+    beta_deg: np.ndarray
+    period_h: np.ndarray
+    period_sigma_h: np.ndarray
+    rms: np.ndarray
+    log_ratio: np.ndarray
+    weight: np.ndarray
+    areas: np.ndarray
+    within_ratio: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.lam_deg.size)
+
+
+@dataclass(frozen=True)
+class ConvexSearch:
+    """What :func:`convex_search` found.
+
+    Attributes:
+        periodogram: the seed's periodogram.
+        families: the families (best first).
+        normals: the polish normals ``(K, 3)`` (body frame) the areas belong to.
+        screened: candidates screened per stage.
+        seconds: wall time per stage (s).
+        coarse_periods_h, coarse_rms: the coarse stage's periods and their best rms over poles (the scan's
+            profile, for the figure).
+        residual_correlation, effective_samples: the best fit's residual lag-1 correlation within curves and the
+            effective number of independent samples the likelihood ratios use.
+    """
+
+    periodogram: ConvexPeriodogram
+    families: ConvexFamilies
+    normals: Tensor
+    screened: dict
+    seconds: dict
+    coarse_periods_h: np.ndarray
+    coarse_rms: np.ndarray
+    residual_correlation: float
+    effective_samples: float
+
+
+def _screen(data: ConvexData, normals: Tensor, settings: ConvexSettings, lam: Tensor, beta: Tensor,
+            period_s: Tensor, dtype: torch.dtype) -> Tensor:
+    """Screen rms ``(B,)`` of ``B`` spin states, in chunks."""
+    out = []
+    for s in range(0, lam.shape[0], settings.chunk):
+        sl = slice(s, s + settings.chunk)
+        G = design(data, normals, settings.scattering, lam=lam[sl], beta=beta[sl], period_s=period_s[sl],
+                   dtype=dtype)
+        out.append(fit_areas(G, data, normals, closure=settings.closure,
+                             iterations=settings.area_iterations).rms)
+    return torch.cat(out)
+
+
+def _subsample(data: ConvexData, every: int) -> ConvexData:
+    if every <= 1:
+        return data
+    keep = torch.zeros(len(data), dtype=torch.bool)
+    for c in range(data.curves):                      # every `every`-th sample of each curve, its first included
+        idx = torch.nonzero(data.curve == c).flatten()
+        keep[idx[::every]] = True
+    idx = torch.nonzero(keep).flatten()
+    curve = data.curve[idx]
+    return ConvexData(t_s=data.t_s[idx], sun=data.sun[idx], observer=data.observer[idx], alpha=data.alpha[idx],
+                      y=data.y[idx], curve=curve, curves=data.curves,
+                      counts=torch.bincount(curve, minlength=data.curves), span_s=data.span_s)
+
+
+def _distinct(order: np.ndarray, lam: np.ndarray, beta: np.ndarray, period: np.ndarray, count: int,
+              separation_deg: float, period_tol_h: float) -> list[int]:
+    """The first ``count`` indices of ``order`` whose (pole, period) is not within ``separation_deg`` and
+    ``period_tol_h`` of one already taken."""
+    taken: list[int] = []
+    v = pole_vector(torch.as_tensor(lam), torch.as_tensor(beta)).numpy()
+    cos_sep = math.cos(math.radians(separation_deg))
+    for i in order:
+        if all(v[i] @ v[j] < cos_sep or abs(period[i] - period[j]) > period_tol_h for j in taken):
+            taken.append(int(i))
+        if len(taken) == count:
+            break
+    return taken
+
+
+def effective_samples(r: Tensor, curve: Tensor, *, max_lag: int = 50) -> tuple[float, float]:
+    """The lag-1 autocorrelation ``ρ_1`` of residuals ``r`` ``(N,)`` within light curves (samples in time order)
+    and the effective number of independent samples ``N / τ``, ``τ = 1 + 2 Σ_k ρ_k`` the integrated
+    autocorrelation time summed over lags until the first ``ρ_k ≤ 0`` (Geyer's initial positive sequence; at most
+    ``max_lag``). For AR(1) residuals ``τ = (1 + ρ)/(1 − ρ)``."""
+    power = (r * r).sum().clamp_min(1e-300)
+    tau, rho1 = 1.0, 0.0
+    for k in range(1, min(max_lag, r.numel() - 1) + 1):
+        same = curve[k:] == curve[:-k]
+        rho = float(((r[k:] * r[:-k])[same]).sum() / power)
+        if k == 1:
+            rho1 = max(rho, 0.0)
+        if rho <= 0:
+            break
+        tau += 2 * rho
+    return rho1, r.numel() / tau
+
+
+def _families(p: Polished, data: ConvexData, normals: Tensor, settings: ConvexSettings,
+              resolution_h: float) -> tuple[ConvexFamilies, float, float]:
+    rss = (p.rms ** 2 * len(data)).numpy()
+    rss = np.where(np.isfinite(rss), rss, np.inf)                       # a polish that failed ranks last
+    lam, beta = np.degrees(p.lam.numpy()), np.degrees(p.beta.numpy())
+    period = p.period_s.numpy() / HOUR_S
+    order = np.argsort(rss)
+    keep = _distinct(order, np.radians(lam), np.radians(beta), period, order.size, settings.separation_deg,
+                     resolution_h)
+    b = keep[0]
+    r = relative_residuals(data, normals, settings.scattering, lam=p.lam[b:b + 1], beta=p.beta[b:b + 1],
+                           period_s=p.period_s[b:b + 1], areas=p.areas[b:b + 1])[0]
+    rho, n_eff = effective_samples(r, data.curve)
+    ratio_all = 0.5 * n_eff * (rss[keep] / rss[b] - 1.0)
+    within = [k for k, q in zip(keep, ratio_all) if q <= settings.max_log_ratio or k == b]
+    # the best solution at the mirror pole (λ + 180°, β) of the best is reported even beyond the ratio
+    v = pole_vector(torch.as_tensor(np.radians(lam)), torch.as_tensor(np.radians(beta))).numpy()
+    mirror = pole_vector(torch.as_tensor(math.radians(lam[b] + 180.0)), torch.as_tensor(math.radians(beta[b])))
+    near = [k for k in keep if v[k] @ mirror.numpy() > math.cos(math.radians(settings.separation_deg))]
+    extra = [near[0]] if near and near[0] not in within else []
+    rows = within + extra
+    ratio = ratio_all[[keep.index(k) for k in rows]]
+    weight = np.where(np.arange(len(rows)) < len(within), np.exp(-ratio), 0.0)
+    fam = ConvexFamilies(lam_deg=lam[rows], beta_deg=beta[rows], period_h=period[rows],
+                         period_sigma_h=p.period_sigma_s.numpy()[rows] / HOUR_S, rms=p.rms.numpy()[rows],
+                         log_ratio=ratio, weight=weight / weight.sum(), areas=p.areas.numpy()[rows],
+                         within_ratio=np.arange(len(rows)) < len(within))
+    return fam, rho, n_eff
+
+
+def convex_search(data: ConvexData, settings: ConvexSettings = ConvexSettings(), *,
+                  progress=None) -> ConvexSearch:
+    """Pole, period and convex shape from relative light curves, nothing given (module docstring).
+
+    Args:
+        data: the prepared observations (:func:`~lightcurve_gp.inference.convex_fit.convex_data`).
+        settings: the stages' sizes.
+        progress: ``progress(message)`` after each stage, or ``None``.
+    """
+    say = progress or (lambda message: None)
+    seconds: dict[str, float] = {}
+    start = time.perf_counter()
+    pg = multiterm_periodogram(data.t_s, data.y, data.curve, data.curves, period_range_h=settings.period_range_h,
+                               harmonics=settings.harmonics, minima=16)
+    seeds: list[float] = []
+    minima: list[float] = []
+    for p in pg.minima_h:                            # the deepest distinct minima, each with its double
+        if all(abs(p - q) > pg.peak_width_h for q in minima):
+            minima.append(float(p))
+            seeds += [float(p)] + ([2.0 * float(p)] if 2.0 * p <= settings.period_range_h[1] else [])
+        if len(minima) == settings.period_candidates:
+            break
+    seconds["periodogram"] = time.perf_counter() - start
+    say(f"periodogram: {pg.period_h.size} periods, seeds {', '.join(f'{p:.5f}' for p in seeds)} h "
+        f"({seconds['periodogram']:.1f} s)")
+
+    start = time.perf_counter()
+    windows = [period_grid(p, settings.window * p * p / pg.longest_group_h, data.span_s, settings.step)
+               for p in seeds]
+    window_of = np.concatenate([np.full(w.size, k) for k, w in enumerate(windows)])
+    periods = np.concatenate(windows)
+    lam_c, beta_c = pole_grid(settings.coarse_poles)
+    coarse_normals = fibonacci_normals(settings.coarse_normals)
+    sub = _subsample(data, settings.subsample)
+    P, C = periods.size, lam_c.numel()
+    per = torch.as_tensor(periods * HOUR_S, dtype=torch.float64).repeat_interleave(C)
+    rms = _screen(sub, coarse_normals, settings, lam_c.repeat(P), beta_c.repeat(P), per, torch.float32)
+    rms = rms.reshape(P, C)
+    best_per_period = rms.min(-1).values.numpy()
+    # the best periods of each seed's window (a body fits at half its period too, sometimes better on few normals)
+    per_window = max(1, settings.top_periods // len(windows))
+    top = np.concatenate([np.nonzero(window_of == k)[0][np.argsort(best_per_period[window_of == k])[:per_window]]
+                          for k in range(len(windows))])
+    top = top[np.argsort(best_per_period[top])]
+    seconds["coarse"] = time.perf_counter() - start
+    say(f"coarse: {P} periods x {C} poles ({seconds['coarse']:.1f} s); best periods "
+        f"{', '.join(f'{periods[i]:.6f}' for i in top[:3])} h")
+
+    start = time.perf_counter()
+    lam_f, beta_f = pole_grid(settings.fine_poles)
+    fine_normals = fibonacci_normals(settings.fine_normals)
+    F = lam_f.numel()
+    fine_periods = periods[top]
+    per = torch.as_tensor(fine_periods * HOUR_S, dtype=torch.float64).repeat_interleave(F)
+    lam_all, beta_all = lam_f.repeat(top.size), beta_f.repeat(top.size)
+    rms_f = _screen(data, fine_normals, settings, lam_all, beta_all, per, torch.float32).numpy()
+    seconds["fine"] = time.perf_counter() - start
+    order = np.argsort(rms_f)
+    step_h = settings.step * fine_periods.max() ** 2 / (data.span_s / HOUR_S)
+    cand_window = np.repeat(window_of[top], F)
+    per_start = math.ceil(settings.starts / len(windows))              # every seed's window gets its starts
+    picks = sorted((k for w in range(len(windows)) for k in _distinct(
+        order[cand_window[order] == w], lam_all.numpy(), beta_all.numpy(), per.numpy() / HOUR_S, per_start,
+        settings.separation_deg, 0.5 * step_h)), key=lambda k: rms_f[k])
+    say(f"fine: {top.size} periods x {F} poles ({seconds['fine']:.1f} s); best rms {rms_f[order[0]]:.4f}")
+
+    start = time.perf_counter()
+    normals = fibonacci_normals(settings.polish_normals)
+    idx = torch.as_tensor(picks)
+    G = design(data, normals, settings.scattering, lam=lam_all[idx], beta=beta_all[idx], period_s=per[idx])
+    init = fit_areas(G, data, normals, closure=settings.closure, iterations=3 * settings.area_iterations)
+    polished = polish(data, normals, settings.scattering, lam=lam_all[idx], beta=beta_all[idx], period_s=per[idx],
+                      areas=init.areas, closure=settings.closure, iterations=settings.polish_iterations,
+                      smoothness=settings.smoothness)
+    seconds["polish"] = time.perf_counter() - start
+    fam, rho, n_eff = _families(polished, data, normals, settings, step_h)
+    deg = lambda x: math.degrees(float(x))  # noqa: E731
+    for i, k in enumerate(picks):
+        say(f"  start {i + 1}: ({deg(lam_all[k]):.1f}, {deg(beta_all[k]):.1f}, {float(per[k]) / HOUR_S:.6f} h) "
+            f"screen rms {rms_f[k]:.4f} -> ({deg(polished.lam[i]):.1f}, {deg(polished.beta[i]):.1f}, "
+            f"{float(polished.period_s[i]) / HOUR_S:.8f} h) rms {float(polished.rms[i]):.5f}")
+    say(f"polish: {len(picks)} starts ({seconds['polish']:.1f} s); {len(fam)} families (residual lag-1 correlation "
+        f"{rho:.2f}: {n_eff:.0f} effective samples)")
+    return ConvexSearch(periodogram=pg, families=fam, normals=normals, residual_correlation=rho,
+                        effective_samples=n_eff,
+                        screened={"coarse": P * C, "fine": int(per.numel()), "polish": len(picks)},
+                        seconds=seconds, coarse_periods_h=periods, coarse_rms=best_per_period)
