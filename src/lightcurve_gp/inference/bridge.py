@@ -32,8 +32,8 @@ def first_pass_samples(times: Tensor, *, gap_s: float = 600.0) -> int:
     return int(gaps[0]) + 1 if gaps.numel() else int(times.shape[0])
 
 
-def rate_offsets(sigma: Tensor, *, span_s: float, span: float = 3.0, phase_rad: float = 0.3,
-                 max_points: int = 20_000) -> Tensor:
+def rate_offsets(sigma: Tensor, *, span_s: float, span: float = 3.0, phase_rad: float = 0.5,
+                 max_points: int = 4096) -> Tensor:
     """Rate offsets ``(R, 3)`` (rad/s): a grid over ``±span σ_i`` per axis (``sigma (3,)``, rad/s) with steps of
     ``phase_rad / span_s`` (coarsened evenly until at most ``max_points``), the zero offset included."""
     step = phase_rad / max(span_s, 1e-9)
