@@ -37,7 +37,7 @@ from lightcurve_gp.photometry.render import Scene
 __all__ = ["InversionRun", "BRIDGED", "trajectory_problem", "invert_observations"]
 
 #: the first pass's distinct solutions carried across a long gap (:mod:`lightcurve_gp.inference.bridge`)
-BRIDGED = 4
+BRIDGED = 8
 
 
 @dataclass
