@@ -6,13 +6,18 @@ without geometry, the fixed Sun and observer; ρ is estimated). Writes the new f
 ``OUT/estimates/<name>/invert_<file stem>/`` (:func:`lightcurve_gp.commands.layout.invert_folder`, beside the
 estimates of the same file) atomically (an existing one is refused unless ``--force``):
 
-* ``solutions.ecsv`` — one row per family, ranked by weight (:mod:`lightcurve_gp.observed.solutions`);
-* ``summary.json`` — the ambiguity group used, the periodogram's candidates, timings, the settings, provenance;
+* ``solutions.ecsv`` — one row per family, ranked by weight (:mod:`lightcurve_gp.observed.solutions`), the
+  verdict in its metadata;
+* ``summary.json`` — the verdict (``unique``, ``ambiguous`` or ``no_fit``: :mod:`lightcurve_gp.inference.answer`)
+  and the best fit's χ² test, the ambiguity group used, the periodogram's candidates, timings, the settings,
+  provenance;
 * ``periodogram.png`` and ``light_curve.png`` (the observed magnitudes with each leading family's prediction).
 
-Sample times must lie on the ``scenario.dt_s`` grid (the propagation's step); ``mag_err`` gives each sample's 1σ,
-``--mag-err`` one value for a file without it. Errors are one line and exit code 2, as in every command; samples a
-file's TLE and site say cannot have been observed are one warning line, or refused with ``--strict``.
+The verdict is printed in words; a light curve that nothing fits (after one widened search) is said so, exit
+code 0. Sample times must lie on the ``scenario.dt_s`` grid (the propagation's step); ``mag_err`` gives each
+sample's 1σ, ``--mag-err`` one value for a file without it. Errors are one line and exit code 2, as in every
+command; samples a file's TLE and site say cannot have been observed are one warning line, or refused with
+``--strict``.
 """
 
 from __future__ import annotations
@@ -42,9 +47,10 @@ from lightcurve_gp.commands.layout import invert_folder
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.evaluation.plots import save_figure
 from lightcurve_gp.files import RunFolder, write_json_atomic
-from lightcurve_gp.inference.families import Families, families
+from lightcurve_gp.inference.answer import Answer, answer
+from lightcurve_gp.inference.families import Families
 from lightcurve_gp.inference.forward import GroupRenderer
-from lightcurve_gp.inference.inversion import Inversion, InversionSettings, invert
+from lightcurve_gp.inference.inversion import Inversion, InversionSettings
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.observed.lightcurve_file import LightCurve, read_light_curve
 from lightcurve_gp.observed.run import FileGeometryError, file_geometry
@@ -155,12 +161,14 @@ def _figures(folder: Path, t: np.ndarray, problem: TrajectoryProblem, inv: Inver
     save_figure(fig, folder / "light_curve.png")
 
 
-def _summary(inv: Inversion, fam: Families, group, settings: InversionSettings, record: dict) -> dict:
-    return {"families": len(fam), "converged_solutions": int(inv.q0.shape[0]), "images": list(group.labels),
+def _summary(ans: Answer, group, settings: InversionSettings, record: dict) -> dict:
+    inv, fam = ans.inversion, ans.families
+    return {**ans.as_dict(), "verdict_words": ans.words(), "families": len(fam),
+            "converged_solutions": int(inv.q0.shape[0]), "images": list(group.labels),
             "ambiguity_images": group.as_dict(), "top_weight": float(fam.weight[0]),
             "rate_candidates_deg_s": [float(r) for r in inv.periodogram.rates_deg_s],
             "periodogram_detection": inv.periodogram.detection,
-            "screened_rates": int(inv.rate_grid.shape[0]), "seconds": inv.seconds,
+            "screened_rates": int(inv.rate_grid.shape[0]), "seconds": {**inv.seconds, **ans.seconds},
             "settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(settings).items()},
             "run": record}
 
@@ -178,22 +186,23 @@ def _run(args: argparse.Namespace) -> int:
     say = (lambda message: tqdm.write(message)) if show else None
     group = ambiguity_group(scene, times_s=t, inertia=problem.inertia, rate_known=False, dt_s=problem.dt)
     try:
-        inv = invert(problem, group, settings=settings, progress=say)
+        ans = answer(problem, group, settings=settings, rate_max_rad_s=math.radians(args.rate_max),
+                     max_log_ratio=args.max_log_ratio, progress=say)
     except ValueError as exc:  # the periodogram's one-line errors (e.g. a rate range that excludes it)
         raise UserError(f"{lc.source}: {exc}") from None
-    fam = families(group, q0=inv.q0, omega0=inv.omega0, log_rho=inv.log_rho, cost=inv.cost,
-                   covariance=inv.covariance, sigma=problem.sigma, rate_max_rad_s=math.radians(args.rate_max),
-                   max_log_ratio=args.max_log_ratio)
+    inv, fam = ans.inversion, ans.families
     record = provenance(cfg, config_file=str(args.config), light_curve=str(args.light_curve))
-    table = solutions_table(fam, {"light_curve": lc.source, "config": cfg.name})
+    table = solutions_table(fam, {"light_curve": lc.source, "config": cfg.name, "verdict": ans.verdict,
+                                  "chi2_per_dof": ans.fit.chi2_per_dof, "p_value": ans.fit.p_value})
     with RunFolder(folder, force=args.force) as tmp:
         write_solutions(table, tmp / "solutions.ecsv")
-        write_json_atomic(_summary(inv, fam, group, settings, record), tmp / "summary.json")
+        write_json_atomic(_summary(ans, group, settings, record), tmp / "summary.json")
         _figures(tmp, t.cpu().numpy(), problem, inv, fam)
     best = table[0]
     print(f"{lc.source}: {len(fam)} families within {args.max_log_ratio:g} nats (modulo {len(group)} exact images); "
           f"best weight {float(best['weight']):.3f}, rate {math.hypot(*(float(best[f'omega_{a}']) for a in 'xyz')):.4g}"
-          f" deg/s, rho {float(best['rho']):.3g}; {sum(inv.seconds.values()):.1f} s")
+          f" deg/s, rho {float(best['rho']):.3g}; {sum(ans.seconds.values()):.1f} s")
+    print(f"verdict: {ans.words()}")
     print(f"written: {folder}")
     return 0
 
