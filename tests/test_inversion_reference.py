@@ -9,10 +9,12 @@ import pytest
 import torch
 
 from lightcurve_gp.attitude.dynamics import propagate
+from lightcurve_gp.attitude.metrics import total_angle_deg
+from lightcurve_gp.attitude.rotations import quat_mul, rotvec_to_quat
 from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.evaluation.inversion_reference import MISS_NATS, answer_kind, inversion_reference, truth_basin
-from lightcurve_gp.inference.answer import answer
+from lightcurve_gp.inference.answer import RIDGE_FACTORS, RIDGE_TILTS_DEG, answer, ridge_starts, tilted_rates
 from lightcurve_gp.inference.families import families, log_prior_volume, prior_precision
 from lightcurve_gp.inference.forward import GroupRenderer
 from lightcurve_gp.inference.inversion import InversionSettings, rate_starts
@@ -54,6 +56,41 @@ def test_prior_precision_has_the_prior_volume_and_bounds_a_flat_familys_evidence
     sharp_z = (-10.5 - constant + 0.5 * 7 * math.log(2 * math.pi * 1e-6) - log_prior_volume(rate_max)
                - 0.5 * float(torch.log1p(1e-6 * p).sum()))  # det(I + S P), ~5e-4 nats here
     assert float(fam.log_evidence[1]) == pytest.approx(sharp_z, abs=1e-6)
+
+
+def test_the_ridge_probe_tilts_and_scales_slow_rates_and_keeps_the_mid_arc_attitude():
+    omega = torch.tensor([[0.0, 0.0, 0.002], [0.001, -0.002, 0.0005]], dtype=F64)
+    axes = tilted_rates(omega)
+    assert axes.shape == (2, 1 + 6 * len(RIDGE_TILTS_DEG), 3)
+    torch.testing.assert_close(torch.linalg.vector_norm(axes, dim=-1),
+                               torch.linalg.vector_norm(omega, dim=-1, keepdim=True).expand(2, axes.shape[1]))
+    cos = (axes * omega[:, None]).sum(-1) / (torch.linalg.vector_norm(axes, dim=-1) * omega.norm(dim=-1)[:, None])
+    angles = torch.rad2deg(torch.acos(cos.clamp(-1.0, 1.0)))
+    expected = torch.tensor([0.0] + [t for t in RIDGE_TILTS_DEG for _ in range(6)], dtype=F64)
+    torch.testing.assert_close(angles, expected.expand_as(angles), atol=1e-5, rtol=0)  # acos near 1: ~1e-6 deg
+    # one slow family (1 turn = 2 pi over 600 s needs 0.0105 rad/s) and one fast: only the slow one restarts
+    q = random_attitudes(2, seed=1, dtype=F64)
+    fast = torch.tensor([[0.0, 0.0, 0.002], [0.05, 0.0, 0.0]], dtype=F64)
+    fam = families_of(q, fast)
+    q_start, x = ridge_starts(fam, span_s=600.0)
+    assert x.shape == (axes.shape[1] * (1 + len(RIDGE_FACTORS)) - 1, 7)
+    sizes = torch.linalg.vector_norm(x[:, 3:6], dim=-1) / 0.002
+    assert sorted({round(float(v), 6) for v in sizes}) == sorted({1.0, *RIDGE_FACTORS})
+    mid = quat_mul(rotvec_to_quat(x[:, 3:6] * 300.0), q_start)  # q(300 s) for a constant rate
+    keep = quat_mul(rotvec_to_quat(fast[0] * 300.0), q[0]).expand_as(mid)
+    assert float(total_angle_deg(mid, keep).max()) < 1e-6
+    assert ridge_starts(families_of(q[1:], fast[1:]), span_s=600.0)[1].shape == (0, 7)
+
+
+def families_of(q, omega):
+    """Families of states with equal costs and sharp covariances, in the order given (the first the lowest cost)."""
+    scene = Scene.from_config(load_config(ROOT / "configs" / "boxwing.yaml"))
+    group = ambiguity_group(scene, times_s=torch.arange(31.0), inertia=[55.0, 40.0, 65.0], rate_known=False, probes=2)
+    n = q.shape[0]
+    cost = torch.arange(n, dtype=F64) * 0.01
+    cov = torch.eye(7, dtype=F64).expand(n, 7, 7) * 1e-6
+    return families(group, q0=q, omega0=omega, log_rho=torch.zeros(n, dtype=F64), cost=cost, covariance=cov,
+                    sigma=torch.full((31,), SIGMA, dtype=F64), rate_max_rad_s=math.radians(5.0))
 
 
 def _light_curve(span: int, rate_deg_s: float, seed: int):
@@ -102,7 +139,7 @@ def test_a_seed_is_right_and_a_starved_search_of_it_a_search_miss():
     assert bad.verdict == "no_fit"  # and the verdict says so
 
 
-@pytest.mark.slow  # ~15 s on two loaded cores
+@pytest.mark.slow  # ~20 s on two loaded cores
 def test_a_slow_tumbler_is_reported_as_a_ridge_with_spread_weights():
     # 0.1 deg/s over 200 s: 20 deg of turn, the rate is not resolved
     problem, group, q0, w0 = _light_curve(200, 0.1, 1)
