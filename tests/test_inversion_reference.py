@@ -14,7 +14,14 @@ from lightcurve_gp.attitude.rotations import quat_mul, rotvec_to_quat
 from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.evaluation.inversion_reference import MISS_NATS, answer_kind, inversion_reference, truth_basin
-from lightcurve_gp.inference.answer import RIDGE_FACTORS, RIDGE_TILTS_DEG, answer, ridge_starts, tilted_rates
+from lightcurve_gp.inference.answer import (
+    RIDGE_FACTORS,
+    RIDGE_TILTS_DEG,
+    answer,
+    below_one_turn,
+    ridge_starts,
+    tilted_rates,
+)
 from lightcurve_gp.inference.families import families, log_prior_volume, prior_precision
 from lightcurve_gp.inference.forward import GroupRenderer
 from lightcurve_gp.inference.inversion import InversionSettings, rate_starts
@@ -80,6 +87,14 @@ def test_the_ridge_probe_tilts_and_scales_slow_rates_and_keeps_the_mid_arc_attit
     keep = quat_mul(rotvec_to_quat(fast[0] * 300.0), q[0]).expand_as(mid)
     assert float(total_angle_deg(mid, keep).max()) < 1e-6
     assert ridge_starts(families_of(q[1:], fast[1:]), span_s=600.0)[1].shape == (0, 7)
+
+
+def test_one_turn_over_the_arc():
+    # 360 deg over 600 s is 0.6 deg/s: just below it a ridge, just above it not
+    assert below_one_turn(math.radians(0.6 * (1 - 1e-9)), span_s=600.0)
+    assert not below_one_turn(math.radians(0.6 * (1 + 1e-9)), span_s=600.0)
+    assert not below_one_turn(math.radians(2.0), span_s=600.0)
+    assert below_one_turn(torch.tensor([0.001, 0.02]), span_s=600.0).tolist() == [True, False]
 
 
 def families_of(q, omega):

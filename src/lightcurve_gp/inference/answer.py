@@ -51,8 +51,8 @@ from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
 
 __all__ = ["WIDEN_FACTOR", "RIDGE_FACTORS", "RIDGE_FAMILIES", "RIDGE_TILTS_DEG", "RIDGE_AZIMUTHS", "Answer",
-           "sample_times", "widened_settings", "wider_rates", "merge", "polish", "tilted_rates", "ridge_starts",
-           "answer"]
+           "sample_times", "below_one_turn", "widened_settings", "wider_rates", "merge", "polish", "tilted_rates",
+           "ridge_starts", "answer"]
 
 #: the widened search's starts, screen attitudes, screen rates and continuation rows, each times this
 WIDEN_FACTOR = 2
@@ -124,6 +124,12 @@ def sample_times(problem: TrajectoryProblem) -> Tensor:
     if times is not None:
         return times - times[0]
     return problem.index.to(problem.y.dtype) * problem.dt
+
+
+def below_one_turn(rate_rad_s, *, span_s: float):
+    """Whether a rate (rad/s; a number or a tensor) turns less than once over ``span_s`` seconds: where the
+    periodogram has no resolution and the answer is a ridge (module docstring)."""
+    return rate_rad_s * span_s < 2.0 * math.pi
 
 
 def widened_settings(settings: InversionSettings) -> InversionSettings:
@@ -199,7 +205,7 @@ def ridge_starts(fam: Families, *, span_s: float, factors=RIDGE_FACTORS,
     for every leading family below one turn over ``span_s``, at its rate's axis and the tilted ones
     (:func:`tilted_rates`) times 1 and every factor (the family itself left out); ``M = 0`` when there is none."""
     rate = torch.linalg.vector_norm(fam.omega0[:leading], dim=-1)
-    slow = torch.nonzero(rate * span_s < 2.0 * math.pi).squeeze(-1)
+    slow = torch.nonzero(below_one_turn(rate, span_s=span_s)).squeeze(-1)
     if slow.numel() == 0:
         return fam.q0.new_zeros(0, 4), fam.q0.new_zeros(0, 7)
     scale = torch.tensor((1.0, *factors), dtype=fam.q0.dtype, device=fam.q0.device)
@@ -272,7 +278,7 @@ def answer(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: Inver
             seconds["ridge probe"] = time.perf_counter() - tick
     fit = _test(inv, problem)
     rates = torch.rad2deg(torch.linalg.vector_norm(fam.omega0, dim=-1))
-    on_ridge = math.radians(float(rates[0])) * span_s < 2.0 * math.pi
+    on_ridge = below_one_turn(math.radians(float(rates[0])), span_s=span_s)
     said = verdict(fit, float(fam.weight[0]))
     return Answer(inversion=inv, families=fam, fit=fit, verdict="ambiguous" if said == "unique" and on_ridge else said,
                   widened=widened, first_fit=first, ridge_rows=ridge_rows, ridge=on_ridge,
