@@ -8,15 +8,19 @@ MAP with the surface unknown from each of the ``--polish`` leading families. Wri
 ``OUT/estimates/<name>/invert_<file stem>/`` (:func:`lightcurve_gp.commands.layout.invert_folder`, beside the
 estimates of the same file) atomically (an existing one is refused unless ``--force``):
 
-* ``solutions.ecsv`` — one row per family, ranked by weight (:mod:`lightcurve_gp.observed.solutions`);
-* ``summary.json`` — the ambiguity group used, the periodogram's candidates, the polished families' fits (χ², p-value,
-  verdict, surface), timings, the settings, provenance;
+* ``solutions.ecsv`` — one row per family, ranked by weight (:mod:`lightcurve_gp.observed.solutions`), the
+  verdict in its metadata;
+* ``summary.json`` — the verdict (``unique``, ``ambiguous`` or ``no_fit``: :mod:`lightcurve_gp.inference.answer`)
+  and the best fit's χ² test, the ambiguity group used, the periodogram's candidates, the polished families' fits
+  (χ², p-value, verdict, surface), timings, the settings, provenance;
 * ``periodogram.png`` and ``light_curve.png`` (the observed magnitudes with each leading family's prediction).
 
-Sample times may have any spacing and gaps (the propagation is closed form,
-:mod:`lightcurve_gp.attitude.torque_free`); ``mag_err`` gives each sample's 1σ, ``--mag-err`` one value for a file
-without it. Errors are one line and exit code 2, as in every command; samples a
-file's TLE and site say cannot have been observed are one warning line, or refused with ``--strict``.
+The verdict is printed in words; a light curve that nothing fits (after one widened search) is said so, exit
+code 0. Sample times may have any spacing and gaps (the propagation is closed form,
+:mod:`lightcurve_gp.attitude.torque_free`); passes after a gap of more than ten minutes are also reached from the
+first pass's answers (:mod:`lightcurve_gp.inference.bridge`). ``mag_err`` gives each sample's 1σ, ``--mag-err`` one
+value for a file without it. Errors are one line and exit code 2, as in every command; samples a file's TLE and site
+say cannot have been observed are one warning line, or refused with ``--strict``.
 
 A config with a ``convex:`` section runs the convex inversion of :mod:`lightcurve_gp.commands.invert_convex`
 instead (pole, period and convex shape from relative light curves of a DAMIT file; its own outputs).
@@ -152,12 +156,14 @@ def _polished(run: InversionRun) -> list[dict]:
 
 
 def _summary(run: InversionRun, settings: InversionSettings, record: dict) -> dict:
-    inv, fam, group = run.inversion, run.families, run.group
-    return {"families": len(fam), "polished": _polished(run), "converged_solutions": int(inv.q0.shape[0]),
-            "images": list(group.labels), "ambiguity_images": group.as_dict(), "top_weight": float(fam.weight[0]),
+    ans, inv, fam, group = run.answer, run.inversion, run.families, run.group
+    return {**ans.as_dict(), "verdict_words": ans.words(), "families": len(fam), "polished": _polished(run),
+            "converged_solutions": int(inv.q0.shape[0]), "images": list(group.labels),
+            "ambiguity_images": group.as_dict(), "top_weight": float(fam.weight[0]),
             "rate_candidates_deg_s": [float(r) for r in inv.periodogram.rates_deg_s],
             "periodogram_detection": inv.periodogram.detection,
-            "screened_rates": int(inv.rate_grid.shape[0]), "seconds": {**inv.seconds, "polish": run.seconds},
+            "screened_rates": int(inv.rate_grid.shape[0]),
+            "seconds": {**inv.seconds, **ans.seconds, "polish": run.seconds},
             "settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(settings).items()},
             "run": record}
 
@@ -198,7 +204,9 @@ def _run(args: argparse.Namespace) -> int:
     fam, inv = run.families, run.inversion
     record = provenance(cfg, config_file=str(args.config), light_curves=[str(p) for p in args.light_curve],
                         relative=args.relative)
-    table = solutions_table(fam, {"light_curve": source, "config": cfg.name})
+    ans = run.answer
+    table = solutions_table(fam, {"light_curve": source, "config": cfg.name, "verdict": ans.verdict,
+                                  "chi2_per_dof": ans.fit.chi2_per_dof, "p_value": ans.fit.p_value})
     with RunFolder(folder, force=args.force) as tmp:
         write_solutions(table, tmp / "solutions.ecsv")
         write_json_atomic(_summary(run, settings, record), tmp / "summary.json")
@@ -208,6 +216,7 @@ def _run(args: argparse.Namespace) -> int:
     print(f"{len(fam)} families within {args.max_log_ratio:g} nats (modulo {len(run.group)} exact images); "
           f"best weight {float(best['weight']):.3f}, rate {math.hypot(*(float(best[f'omega_{a}']) for a in 'xyz')):.4g}"
           f" deg/s, rho {float(best['rho']):.3g}; {sum(inv.seconds.values()) + run.seconds:.1f} s")
+    print(f"verdict: {run.answer.words()}")
     for k, arc in enumerate(run.polished):
         print(f"family {k + 1} polished by the whole-arc MAP (surface unknown): chi2/dof {arc.chi2 / arc.dof:.2f}, "
               f"p = {arc.p_value:.3g}, {arc.verdict.replace('_', ' ')}")

@@ -15,14 +15,24 @@ Tensors: states ``x = [θ, ω_0, ln ρ]`` ``(M, 7)`` as in :mod:`.trajectory`; r
 from __future__ import annotations
 
 import math
+import time
+from dataclasses import replace
+from typing import Callable
 
 import torch
 from torch import Tensor
 
+from lightcurve_gp.inference.families import cluster
+from lightcurve_gp.inference.inversion import Inversion, InversionSettings, invert
 from lightcurve_gp.inference.solver import LeastSquaresOptions, batch_least_squares
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
+from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
 
-__all__ = ["first_pass_samples", "rate_offsets", "bridge"]
+__all__ = ["BRIDGED", "first_pass_samples", "rate_offsets", "bridge", "carry_across_gaps"]
+
+#: the first pass's distinct solutions carried across a long gap (a first pass often fits a wrong family as well as
+#: the truth's)
+BRIDGED = 8
 
 
 def first_pass_samples(times: Tensor, *, gap_s: float = 600.0) -> int:
@@ -75,3 +85,27 @@ def bridge(problem: TrajectoryProblem, *, anchors: Tensor, x: Tensor, covariance
                                                             jacobian="provided", covariance="solution"))
     cost = torch.where(torch.isfinite(final.cost), final.cost, torch.full_like(final.cost, math.inf))
     return q0, out, cost, final.covariance
+
+
+def carry_across_gaps(problem: TrajectoryProblem, group: AmbiguityGroup, inv: Inversion, *,
+                      settings: InversionSettings, progress: Callable[[str], None] | None = None) -> Inversion:
+    """``inv`` (the direct inversion of ``problem``) joined by the first pass's best distinct solutions carried
+    across the gap (module docstring); ``inv`` itself when the samples have no gap longer than ten minutes."""
+    first = first_pass_samples(problem.times)
+    if first >= problem.samples:
+        return inv
+    say = progress or (lambda message: None)
+    say(f"the first pass alone ({first} of {problem.samples} samples), then carried across the gap")
+    alone = invert(problem.arc(first), group, settings=settings, progress=progress)
+    _, heads = cluster(group, alone.q0, alone.omega0, alone.cost, angle_deg=settings.cluster_angle_deg,
+                       rate_deg_s=settings.cluster_rate_deg_s)
+    heads = heads[:BRIDGED]
+    x = torch.cat([torch.zeros(heads.numel(), 3, dtype=alone.q0.dtype, device=alone.q0.device),
+                   alone.omega0[heads], alone.log_rho[heads, None]], -1)
+    tick = time.perf_counter()
+    q0, x, cost, covariance = bridge(problem, anchors=alone.q0[heads], x=x, covariance=alone.covariance[heads])
+    seconds = {**inv.seconds, **{f"first pass {k}": v for k, v in alone.seconds.items()},
+               "bridge": time.perf_counter() - tick}
+    return replace(inv, q0=torch.cat([inv.q0, q0]), omega0=torch.cat([inv.omega0, x[:, 3:6]]),
+                   log_rho=torch.cat([inv.log_rho, x[:, 6]]), cost=torch.cat([inv.cost, cost]),
+                   covariance=torch.cat([inv.covariance, covariance]), seconds=seconds)

@@ -10,7 +10,8 @@ fitted light curve.
 
 The fit is judged as any least-squares fit: its ``χ² = Σ r_k²`` over the ``n`` samples it uses (the first sets the
 surface prior) against ``χ²_ν``, ``ν = n − 7 − C_rel`` (attitude 3, surface state 4, one offset per relative
-curve). :func:`verdict` says ``"fits"`` when the p-value is at least :data:`P_NO_FIT`, ``"no_fit"`` below it (the
+curve). :func:`verdict` says ``"fits"`` when the p-value is at least ``P_NO_FIT`` (1e-3, the one definition in
+:mod:`lightcurve_gp.inference.fit_test`, the inversion's too), ``"no_fit"`` below it (the
 shape, the spin or the start is wrong: the answer is not one), and ``"ambiguous"`` when it fits but a second mode
 carries more than ``1 − UNIQUE_WEIGHT`` of the evidence.
 """
@@ -33,6 +34,7 @@ from lightcurve_gp.evaluation.registry import arc_estimate, map_solution
 from lightcurve_gp.evaluation.scoring import Estimate
 from lightcurve_gp.inference.arc import ArcSolution
 from lightcurve_gp.inference.arc_search import arc_setup
+from lightcurve_gp.inference.fit_test import P_NO_FIT, UNIQUE_WEIGHT
 from lightcurve_gp.inference.forward import rate_sensitivity
 from lightcurve_gp.observation.surface_state import surface_from_state
 from lightcurve_gp.observations.observations import Observations
@@ -44,10 +46,6 @@ from lightcurve_gp.photometry.render import Scene
 __all__ = ["ArcRun", "P_NO_FIT", "UNIQUE_WEIGHT", "STATE_SIZE", "estimate_arc", "check_observations", "file_scene",
            "verdict", "arc_history_table", "estimate_table", "arc_summary", "arc_report"]
 
-#: a fit whose χ² has a p-value below this is no answer
-P_NO_FIT = 1e-3
-#: a fit is unique when its best mode carries at least this share of the evidence
-UNIQUE_WEIGHT = 0.9
 #: the 3-2-1 angles of the tables
 ANGLES = ("yaw", "pitch", "roll")
 #: the unknowns of the whole-arc MAP with the surface unknown (attitude 3, surface state 4)

@@ -3,9 +3,10 @@
 :func:`invert_observations` turns :class:`~lightcurve_gp.observations.Observations` (one or several files of one
 object, any sample times, each light curve with its own geometry and, when relative, its own unknown zero point)
 into the inversion's :class:`~lightcurve_gp.inference.trajectory.TrajectoryProblem` (:func:`trajectory_problem`),
-runs the global search (:func:`lightcurve_gp.inference.inversion.invert`; when later passes follow a gap of more
-than ten minutes, also on the first pass alone, its best distinct solutions carried across the gap by
-:mod:`lightcurve_gp.inference.bridge`), takes the families modulo the exact
+runs the global search and judges it (:func:`lightcurve_gp.inference.answer.answer`: the fit test and the verdict,
+one widened search when nothing fits; when later passes follow a gap of more than ten minutes, also the first pass
+alone, its best distinct solutions carried across the gap by :mod:`lightcurve_gp.inference.bridge`), takes the
+families modulo the exact
 ambiguity group, and polishes the ``polish`` leading families with the whole-arc MAP with the surface unknown
 (:func:`lightcurve_gp.observed.arc_run.estimate_arc`, the family's rate taken as known): the inversion fits ρ on the
 config's F0 and lobe, the MAP the whole surface state, so the polished fit's χ² is the one to judge it by.
@@ -18,26 +19,23 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Callable
 
 import torch
 
 from lightcurve_gp.config.load import Config
-from lightcurve_gp.inference.bridge import bridge, first_pass_samples
-from lightcurve_gp.inference.families import Families, cluster, families
+from lightcurve_gp.inference.answer import Answer, answer
+from lightcurve_gp.inference.families import Families
 from lightcurve_gp.inference.forward import GroupRenderer
-from lightcurve_gp.inference.inversion import Inversion, InversionSettings, invert
+from lightcurve_gp.inference.inversion import Inversion, InversionSettings
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.observations.observations import Observations
 from lightcurve_gp.observed.arc_run import ArcRun, estimate_arc, file_scene
 from lightcurve_gp.photometry.ambiguity import AmbiguityGroup, ambiguity_group
 from lightcurve_gp.photometry.render import Scene
 
-__all__ = ["InversionRun", "BRIDGED", "trajectory_problem", "invert_observations"]
-
-#: the first pass's distinct solutions carried across a long gap (:mod:`lightcurve_gp.inference.bridge`)
-BRIDGED = 8
+__all__ = ["InversionRun", "trajectory_problem", "invert_observations"]
 
 
 @dataclass
@@ -46,7 +44,9 @@ class InversionRun:
 
     Attributes:
         problem: the least-squares problem of every sample; scene: its renderer; group: the exact ambiguity group.
-        inversion: the search's survivors; families: the families within the likelihood ratio, best weight first.
+        answer: the search's survivors, the families within the likelihood ratio (best weight first), the fit test
+            and the verdict (:func:`lightcurve_gp.inference.answer.answer`: widened once when nothing fits, the
+            passes after a long gap carried from the first, a slow rate's ridge probed).
         polished: the whole-arc MAP of each of the leading families (``[]`` when none was asked for).
         seconds: the polish's wall time (the search's stages are in ``inversion.seconds``).
     """
@@ -54,10 +54,17 @@ class InversionRun:
     problem: TrajectoryProblem
     scene: Scene
     group: AmbiguityGroup
-    inversion: Inversion
-    families: Families
+    answer: Answer
     polished: list[ArcRun]
     seconds: float
+
+    @property
+    def inversion(self) -> Inversion:
+        return self.answer.inversion
+
+    @property
+    def families(self) -> Families:
+        return self.answer.families
 
 
 def trajectory_problem(cfg: Config, obs: Observations) -> tuple[TrajectoryProblem, Scene]:
@@ -76,40 +83,15 @@ def trajectory_problem(cfg: Config, obs: Observations) -> tuple[TrajectoryProble
     return problem, scene
 
 
-def _bridged(problem: TrajectoryProblem, group: AmbiguityGroup, inv: Inversion, first: int,
-             settings: InversionSettings, progress: Callable[[str], None] | None) -> Inversion:
-    """The inversion of the first pass (its first ``first`` samples), its best distinct solutions carried across the
-    gap by :func:`~lightcurve_gp.inference.bridge.bridge`, joined to the direct inversion's ``inv``."""
-    say = progress or (lambda message: None)
-    say(f"the first pass alone ({first} of {problem.samples} samples), then carried across the gap")
-    alone = invert(problem.arc(first), group, settings=settings, progress=progress)
-    _, heads = cluster(group, alone.q0, alone.omega0, alone.cost, angle_deg=settings.cluster_angle_deg,
-                       rate_deg_s=settings.cluster_rate_deg_s)
-    heads = heads[:BRIDGED]
-    x = torch.cat([torch.zeros(heads.numel(), 3, dtype=alone.q0.dtype, device=alone.q0.device),
-                   alone.omega0[heads], alone.log_rho[heads, None]], -1)
-    tick = time.perf_counter()
-    q0, x, cost, covariance = bridge(problem, anchors=alone.q0[heads], x=x, covariance=alone.covariance[heads])
-    seconds = {**inv.seconds, **{f"first pass {k}": v for k, v in alone.seconds.items()},
-               "bridge": time.perf_counter() - tick}
-    return replace(inv, q0=torch.cat([inv.q0, q0]), omega0=torch.cat([inv.omega0, x[:, 3:6]]),
-                   log_rho=torch.cat([inv.log_rho, x[:, 6]]), cost=torch.cat([inv.cost, cost]),
-                   covariance=torch.cat([inv.covariance, covariance]), seconds=seconds)
-
-
 def invert_observations(cfg: Config, obs: Observations, *, settings: InversionSettings, max_log_ratio: float = 10.0,
                         polish: int = 3, progress: Callable[[str], None] | None = None) -> InversionRun:
     """The global inversion of ``obs`` and the whole-arc MAP of its ``polish`` leading families (module docstring).
     The periodogram's one-line errors come out as ``ValueError``."""
     problem, scene = trajectory_problem(cfg, obs)
     group = ambiguity_group(scene, times_s=problem.times, inertia=problem.inertia, rate_known=False)
-    inv = invert(problem, group, settings=settings, progress=progress)
-    first = first_pass_samples(problem.times)
-    if first < problem.samples:  # passes after a long gap: the first pass's answers carried across it too
-        inv = _bridged(problem, group, inv, first, settings, progress)
-    fam = families(group, q0=inv.q0, omega0=inv.omega0, log_rho=inv.log_rho, cost=inv.cost,
-                   covariance=inv.covariance, sigma=problem.sigma,
-                   rate_max_rad_s=math.radians(settings.rate_range_deg_s[1]), max_log_ratio=max_log_ratio)
+    ans = answer(problem, group, settings=settings, rate_max_rad_s=math.radians(settings.rate_range_deg_s[1]),
+                 max_log_ratio=max_log_ratio, progress=progress)
+    fam = ans.families
     start = time.perf_counter()
     polished = []
     for k in range(min(polish, len(fam))):
@@ -119,4 +101,4 @@ def invert_observations(cfg: Config, obs: Observations, *, settings: InversionSe
         polished.append(estimate_arc(cfg, obs, q0=fam.q0[k].cpu(), sigma0=math.radians(cfg.filter.p0_deg),
                                      omega0=fam.omega0[k].cpu(),
                                      omega_sigma=torch.where(torch.isfinite(rate_std), rate_std, 0.0)))
-    return InversionRun(problem, scene, group, inv, fam, polished, time.perf_counter() - start)
+    return InversionRun(problem, scene, group, ans, polished, time.perf_counter() - start)

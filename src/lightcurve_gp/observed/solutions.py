@@ -5,7 +5,9 @@ and ``log_evidence`` (nats), ``q_x, q_y, q_z, q_w`` (the attitude at the first s
 ``omega_x, omega_y, omega_z`` (body rate at the first sample, deg/s), ``rho`` (ρ̂), ``members`` (converged starts in
 the family), and the 1σ of the Laplace covariance: ``sigma_att_x, sigma_att_y, sigma_att_z`` (deg, body-side
 rotation of the first attitude), ``sigma_omega_x, …`` (deg/s), ``sigma_rho``. Metadata: ``images`` (the exact
-ambiguity images the families were taken modulo; every row stands for all of them), ``light_curve``, ``config``.
+ambiguity images the families were taken modulo; every row stands for all of them), ``light_curve``, ``config``
+and, from ``invert``, ``verdict`` (``unique``, ``ambiguous`` or ``no_fit``: then no row is an answer), ``chi2_per_dof``
+and ``p_value`` of the best fit.
 """
 
 from __future__ import annotations
