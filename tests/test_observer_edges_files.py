@@ -170,9 +170,11 @@ def test_invert_warns_on_stderr_and_refuses_with_strict(unseen_file, tmp_path, c
 
     monkeypatch.setattr(invert, "check_output_root", stop)
     assert invert.main(args) == 2
-    assert capsys.readouterr().err == (f"warning: {UNSEEN.replace('leo.csv', str(unseen_file))}; check the TLE, the "
-                                       f"site and the times (--strict refuses such a file)\n"
-                                       f"error: stopped after the geometry\n")
+    lines = capsys.readouterr().err.splitlines(keepends=True)
+    assert lines[0] == (f"warning: {UNSEEN.replace('leo.csv', str(unseen_file))}; check the TLE, the site and the "
+                        f"times (--strict refuses such a file)\n")
+    assert lines[1].startswith(f"warning: {unseen_file}: flat within its noise")  # its magnitudes are constant
+    assert lines[2:] == ["error: stopped after the geometry\n"]
     assert not out.exists()
 
 

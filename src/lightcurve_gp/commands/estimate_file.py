@@ -248,8 +248,6 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
     check_output_root(args.out)
     folder = _folder(args, cfg)
     check_new_folder(folder, args.force)
-    for path in args.light_curve:
-        warn(flat_light_curve(read_light_curve(path), noise_std=mag_err))
     record = provenance(cfg, config_file=str(args.config), light_curves=[str(p) for p in args.light_curve],
                         initial_attitude=args.initial_attitude, relative=args.relative, mag_err_default=mag_err,
                         solutions=None if getattr(args, "solutions", None) is None else str(args.solutions),

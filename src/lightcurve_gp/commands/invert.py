@@ -59,9 +59,7 @@ from lightcurve_gp.inference.families import Families
 from lightcurve_gp.inference.inversion import Inversion, InversionSettings
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.observed.arc_run import arc_summary
-from lightcurve_gp.observed.information import flat_light_curve
 from lightcurve_gp.observed.inversion_run import InversionRun, invert_observations, trajectory_problem
-from lightcurve_gp.observed.lightcurve_file import read_light_curve
 from lightcurve_gp.observed.observations_file import read_observations
 from lightcurve_gp.observed.run import FileGeometryError
 from lightcurve_gp.observed.solutions import solutions_table, write_solutions
@@ -189,10 +187,6 @@ def _run(args: argparse.Namespace) -> int:
     check_output_root(args.out)
     folder = _folder(args, cfg)
     check_new_folder(folder, args.force)
-    for path in args.light_curve:
-        lc = read_light_curve(path)
-        noise = args.mag_err if args.mag_err is not None or lc.mag_err is None else float(np.median(lc.mag_err))
-        warn(flat_light_curve(lc, noise_std=noise))
     show = progress_enabled(args.no_progress)
     say = (lambda message: tqdm.write(message, file=sys.stderr)) if show else None
     source = obs.curves[0].source + (f" and {len(obs.curves) - 1} more" if len(obs.curves) > 1 else "")

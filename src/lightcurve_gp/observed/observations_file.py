@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from lightcurve_gp.observations.observations import Observations, ObservationsError
+from lightcurve_gp.observed.information import flat_light_curve
 from lightcurve_gp.observed.lightcurve_file import LightCurve, LightCurveFileError, iso_times, read_light_curve
 from lightcurve_gp.observed.run import file_geometry
 
@@ -43,7 +44,9 @@ def read_observations(paths: Sequence[str | Path], *, mag_err: float | None = No
                       warn: Callable[[str], None] | None = None) -> Observations:
     """Read light-curve files of one object into one :class:`Observations` (module docstring). ``relative``: one
     flag for every file or one per file (the zero point of that light curve is unknown). Errors are one
-    :class:`LightCurveFileError` line naming the file."""
+    :class:`LightCurveFileError` line naming the file; ``warn`` gets a line for each file whose TLE and site say some
+    samples cannot have been observed (``strict`` refuses it instead) and for each flat light curve
+    (:func:`lightcurve_gp.observed.information.flat_light_curve`)."""
     paths = list(paths)
     if not paths:
         raise LightCurveFileError("no light-curve file given")
@@ -53,6 +56,11 @@ def read_observations(paths: Sequence[str | Path], *, mag_err: float | None = No
     curves = [read_light_curve(p) for p in paths]
     parts = [light_curve_observations(lc, mag_err=mag_err, relative=r, strict=strict, warn=warn)
              for lc, r in zip(curves, flags)]
+    if warn is not None:
+        for lc, part in zip(curves, parts):
+            message = flat_light_curve(lc, noise_std=float(torch.median(part.sigma)))
+            if message:
+                warn(message)
     first = curves[0].start
     offsets = [float((lc.start - first).sec) for lc in curves]
     try:
