@@ -16,11 +16,13 @@ is not known when a section is serialised alone (the field is then kept).
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
-from typing import Any
 
 import torch
+
+from lightcurve_gp.config.fields import hash_rule as _hash_rule
+from lightcurve_gp.config.fields import spec as _spec
+from lightcurve_gp.config.searches import ConvexConfig, MapConfig
 
 __all__ = ["ConfigError", "Config", "GeometryConfig", "OrbitElementsConfig", "SiteConfig", "ShapeConfig",
            "SurfaceConfig", "DataConfig", "TrainingSurfacesConfig", "SpinRangeConfig", "ModelConfig",
@@ -30,30 +32,6 @@ __all__ = ["ConfigError", "Config", "GeometryConfig", "OrbitElementsConfig", "Si
 
 class ConfigError(ValueError):
     """A configuration value is missing, unknown, of the wrong type or out of range; the message names its key path."""
-
-
-def _spec(default: Any = dataclasses.MISSING, *, lo: float | None = None, hi: float | None = None,
-          lo_open: bool = False, choices: tuple | None = None, length: int | None = None,
-          min_length: int | None = None, doc: str = "", omit_default: bool = False, omit_when: dict | None = None,
-          omit_unless: dict | None = None) -> Any:
-    """A dataclass field with its validation rule and its hash rule stored in ``metadata``.
-
-    ``lo``/``hi`` bound numbers (and every element of number lists); ``lo_open`` makes the lower bound
-    strict; ``choices`` lists allowed strings; ``length``/``min_length`` constrain lists. ``omit_default``,
-    ``omit_when`` and ``omit_unless`` are the hash rule (module docstring).
-    """
-    meta = dict(lo=lo, hi=hi, lo_open=lo_open, choices=choices, length=length, min_length=min_length, doc=doc,
-                **_hash_rule(omit_default=omit_default, omit_when=omit_when, omit_unless=omit_unless))
-    if isinstance(default, list):
-        return field(default_factory=lambda d=tuple(default): list(d), metadata=meta)
-    return field(default=default, metadata=meta)
-
-
-def _hash_rule(*, omit_default: bool = False, omit_when: dict | None = None,
-               omit_unless: dict | None = None) -> dict[str, Any]:
-    """The metadata of a hash rule (module docstring): only the rules given."""
-    rule = {"omit_default": omit_default, "omit_when": omit_when, "omit_unless": omit_unless}
-    return {k: v for k, v in rule.items() if v}
 
 
 #: the geometry keys of one ``geometry.kind`` only
@@ -369,67 +347,10 @@ class FilterConfig:
 
 
 @dataclass(kw_only=True)
-class MapConfig:
-    """The whole-arc MAP's search (:mod:`lightcurve_gp.inference.arc_search`): its starts, the continuation in the
-    noise, the misfit test's second search and the weak-direction probe. Every default was chosen on the tuning seeds
-    of the random truths (docs/studies/realistic-photometry.md)."""
-
-    screen: int = _spec(0, lo=0, omit_default=True, doc="prior draws screened by cost for more starts (0: none)")
-    keep: int = _spec(4, lo=1, omit_default=True, doc="screened draws that become starts")
-    noise_floor_mag: float | None = _spec(0.1, lo=0.0, lo_open=True, omit_default=True,
-                                          doc="the continuation's noise floor (mag); null: no continuation")
-    floor_keep: int = _spec(4, lo=1, omit_default=True, doc="the continuation's solutions that start the true-noise "
-                                                           "solve")
-    floor_iterations: int = _spec(10, lo=1, omit_default=True, doc="Levenberg-Marquardt iterations of the "
-                                                                   "continuation's first stage")
-    lobe_starts: list[float] = _spec([10.0, 100.0, 1000.0, 10000.0], lo=0.0, lo_open=True, omit_default=True,
-                                     doc="lobe exponents n_u = n_v of the surface starts (surface unknown)")
-    misfit_z: float | None = _spec(1.0, omit_default=True,
-                                   doc="the misfit test: a best cost above nu/2 + z sqrt(nu/2) is searched again; "
-                                       "null: no test")
-    lobe_pairs: list[list[float]] = _spec([[1.0e4, 10.0], [10.0, 1.0e4], [3000.0, 100.0], [100.0, 3000.0]],
-                                          lo=0.0, lo_open=True, omit_default=True,
-                                          doc="unequal lobe exponents (n_u, n_v) of the second search's starts")
-    again_draws: int = _spec(256, lo=0, omit_default=True, doc="the second search's screen of prior attitude draws")
-    again_keep: int = _spec(8, lo=1, omit_default=True, doc="screened draws the second search solves from")
-    probe_sigmas: list[float] = _spec([2.5], lo=0.0, lo_open=True, omit_default=True,
-                                      doc="the weak-direction probe: standard deviations along the weakest attitude "
-                                          "direction (empty: no probe)")
-
-
-@dataclass(kw_only=True)
 class EvaluationConfig:
     """Scoring windows and evaluation options."""
 
     rmse_window_s: list[float] = _spec(lo=0.0, length=2)
-
-
-@dataclass(kw_only=True)
-class ConvexConfig:
-    """Convex inversion (``python -m lightcurve_gp.invert`` with this section set runs
-    :mod:`lightcurve_gp.commands.invert_convex`): pole, period and a convex shape from relative light curves with
-    per-sample Sun and observer directions (e.g. a DAMIT file); the other sections are then not used."""
-
-    lambert: float = _spec(0.1, lo=0.0, doc="c of the Lommel-Seeliger + c Lambert law")
-    phase_amplitude: float = _spec(0.5, doc="a of the phase function a exp(-alpha/d) + k alpha + 1")
-    phase_width_rad: float = _spec(0.1, lo=0.0, lo_open=True, doc="d of the phase function (rad)")
-    phase_slope: float = _spec(-0.5, doc="k of the phase function (per rad)")
-    period_range_h: list[float] = _spec([2.0, 20.0], lo=0.0, lo_open=True, length=2,
-                                        doc="shortest and longest period searched (h)")
-    harmonics: int = _spec(2, lo=1, hi=8, doc="Fourier harmonics of the periodogram per apparition")
-    window: float = _spec(0.25, lo=0.0, lo_open=True, doc="half-width of each period scan in periodogram peak widths")
-    step: float = _spec(0.125, lo=0.0, lo_open=True, hi=1.0, doc="period step as a fraction of P^2/T (T the span)")
-    coarse_poles: int = _spec(24, lo=4, doc="poles of the coarse screen (Fibonacci grid)")
-    coarse_normals: int = _spec(32, lo=6, doc="facet normals of the coarse screen")
-    subsample: int = _spec(3, lo=1, doc="the coarse screen uses every n-th sample of each light curve")
-    top_periods: int = _spec(6, lo=1, doc="periods of the coarse screen passed to the fine one")
-    poles: int = _spec(200, lo=4, doc="poles of the fine screen (Fibonacci grid)")
-    screen_normals: int = _spec(60, lo=6, doc="facet normals of the fine screen")
-    starts: int = _spec(6, lo=1, doc="(pole, period) starts polished by Levenberg-Marquardt")
-    normals: int = _spec(120, lo=6, doc="facet normals of the polished shape")
-    polish_iterations: int = _spec(60, lo=1, doc="Levenberg-Marquardt iterations of the polish")
-    closure: float = _spec(0.1, lo=0.0, doc="weight of |sum a_k n_k|^2 (the Gaussian image closes)")
-    separation_deg: float = _spec(20.0, lo=0.0, lo_open=True, hi=180.0, doc="poles closer are one family")
 
 
 @dataclass(kw_only=True)
