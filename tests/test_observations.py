@@ -156,3 +156,25 @@ def test_two_files_at_the_same_instant_are_refused_naming_both(simulated, tmp_pa
         read_observations([tmp_path / "x.ecsv", tmp_path / "y.ecsv"])
     assert str(err.value).startswith(f"{tmp_path / 'x.ecsv'} and {tmp_path / 'y.ecsv'}: two samples at the same "
                                      f"time 0.000000 s after ")
+
+
+def test_a_no_fit_solutions_file_is_warned_about_as_a_start_not_an_answer(simulated, tmp_path, capsys):
+    from astropy.table import Table
+
+    from lightcurve_gp.commands.estimate import main as estimate_main
+
+    cfg, sc, path = simulated
+    q = sc.q_est0[0].tolist()
+    table = Table({"rank": [1], "weight": [1.0], "log_likelihood": [0.0], "log_evidence": [0.0],
+                   **{f"q_{a}": [v] for a, v in zip("xyzw", q)},
+                   **{f"omega_{a}": [v] for a, v in zip("xyz", cfg.scenario.omega0_deg_s)}, "rho": [0.5],
+                   "members": [1], **{f"sigma_att_{a}": [0.01] for a in "xyz"},
+                   **{f"sigma_omega_{a}": [1e-4] for a in "xyz"}, "sigma_rho": [0.01]})
+    table.meta.update({"verdict": "no_fit", "chi2_per_dof": 12.5})
+    solutions = tmp_path / "solutions.ecsv"
+    table.write(solutions, format="ascii.ecsv")
+    sets = [a for o in SHORT for a in ("--set", o)]
+    assert estimate_main([REALISTIC, "--light-curve", str(path), "--solutions", str(solutions), "--out",
+                          str(tmp_path / "out"), "--no-progress", *sets]) == 0
+    assert (f"warning: {solutions}: the inversion found no solution that fits (chi2/dof 12.50); its best family is a "
+            f"start, not an answer\n") in capsys.readouterr().err

@@ -211,6 +211,9 @@ def _from_solutions(args: argparse.Namespace, cfg):
         q, w, _ = best_solution(table)
     except SolutionsFileError as exc:
         raise UserError(str(exc)) from None
+    if table.meta.get("verdict") == "no_fit":
+        warn(f"{args.solutions}: the inversion found no solution that fits (chi2/dof "
+             f"{float(table.meta.get('chi2_per_dof', float('nan'))):.2f}); its best family is a start, not an answer")
     rate = [math.degrees(float(v)) for v in w]
     return dataclasses.replace(cfg, scenario=dataclasses.replace(cfg.scenario, omega0_deg_s=rate)), q, \
         rate_sigma(table)
