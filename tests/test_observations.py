@@ -6,13 +6,15 @@ import numpy as np
 import pytest
 import torch
 from astropy.time import TimeDelta
+from scipy.stats import chi2
 
 from lightcurve_gp.attitude.metrics import attitude_error_vector, nees
 from lightcurve_gp.commands import simulate
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.evaluation.registry import map_solution
+from lightcurve_gp.inference.fit_test import P_NO_FIT, fit_test, verdict
 from lightcurve_gp.observations import CurveInfo, Observations, ObservationsError
-from lightcurve_gp.observed.arc_run import P_NO_FIT, estimate_arc, verdict
+from lightcurve_gp.observed.arc_run import estimate_arc
 from lightcurve_gp.observed.lightcurve_file import LightCurveFileError, read_light_curve, write_light_curve
 from lightcurve_gp.observed.observations_file import read_observations
 from lightcurve_gp.photometry.render import Scene
@@ -55,7 +57,6 @@ def test_combined_light_curves_keep_their_own_curve_and_zero_point_and_interleav
     assert both.curves == (CurveInfo("a", False), CurveInfo("b", True))
     assert both.relative.tolist() == [False, True]
     assert both.zero_point_indicator().squeeze(-1).tolist() == [0.0, 1.0, 0.0, 1.0, 0.0]
-    assert both.chi2_dof(7) == 5 - 7 - 1
     later = both.select(both.t >= 12.0)  # light curve b's last sample and a's
     assert later.curves == both.curves and later.curve.tolist() == [1, 0]
     only_a = both.select(both.curve == 0)
@@ -91,7 +92,7 @@ def test_a_scenario_and_the_file_simulate_writes_of_it_give_the_same_estimate(si
                        omega0=omega0)
     assert torch.allclose(run.solution.q0, from_scenario.q0, atol=1e-7)
     assert torch.allclose(run.solution.theta, from_scenario.theta, atol=1e-6)
-    assert run.verdict == "fits" and run.p_value > P_NO_FIT
+    assert run.verdict == "unique" and run.p_value > P_NO_FIT
 
 
 def _two_files(path, tmp_path, shift):
@@ -123,7 +124,7 @@ def test_irregular_times_in_two_files_one_relative_recover_its_zero_point(simula
     # the offset is profiled exactly: shifting a relative light curve moves its offset by the shift, nothing else
     assert abs(float(shifted.offsets[0] - plain.offsets[0]) - 0.3) < 1e-6
     assert torch.allclose(shifted.solution.q0, plain.solution.q0, atol=1e-8)
-    assert abs(float(plain.offsets[0])) < 0.1 and plain.verdict == "fits"
+    assert abs(float(plain.offsets[0])) < 0.1 and plain.verdict == "unique"
     e = attitude_error_vector(sc.q_true[0, rows[-1]], plain.estimate.q_est[0, -1])
     assert float(nees(e, plain.estimate.P[0, -1])) < 16.3  # χ²(3)'s 99.9 % point: the reported 1σ is honest
 
@@ -141,10 +142,10 @@ def test_a_light_curve_the_shape_cannot_make_is_no_fit(simulated, tmp_path):
 
 
 def test_the_verdict_follows_the_p_value_then_the_weight():
-    assert verdict(0.5, 0.95) == "fits"
-    assert verdict(0.5, 0.6) == "ambiguous"
-    assert verdict(P_NO_FIT / 2, 1.0) == "no_fit"
-    assert verdict(math.nan, 1.0) == "no_fit"
+    fits, fails = fit_test(100.0, samples=207), fit_test(400.0, samples=207)  # ½χ² against ν = 200
+    assert fits.p_value == pytest.approx(chi2.sf(200.0, 200)) and fails.p_value < P_NO_FIT
+    assert verdict(fits, 0.95) == "unique" and verdict(fits, 0.6) == "ambiguous"
+    assert verdict(fails, 1.0) == "no_fit" and verdict(fit_test(math.nan, samples=207), 1.0) == "no_fit"
 
 
 def test_two_files_at_the_same_instant_are_refused_naming_both(simulated, tmp_path):

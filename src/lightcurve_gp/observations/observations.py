@@ -209,26 +209,12 @@ class Observations:
                        sun=pick(self.sun), observer=pick(self.observer), range_m=pick(self.range_m),
                        sun_range_m=pick(self.sun_range_m))
 
-    def first(self, seconds: float) -> Observations:
-        """The samples of the first ``seconds`` after the first sample."""
-        return self.select(torch.nonzero(self.t <= self.t[0] + seconds).flatten())
-
     def to(self, *, dtype: torch.dtype | None = None, device=None) -> Observations:
         """The float tensors in ``dtype`` on ``device`` (times stay float64: seconds over years need it)."""
         move = lambda x, d=dtype: None if x is None else x.to(device=device, dtype=d or x.dtype)  # noqa: E731
         return replace(self, t=move(self.t, torch.float64), mag=move(self.mag), sigma=move(self.sigma),
                        curve=self.curve.to(device=device), sun=move(self.sun), observer=move(self.observer),
                        range_m=move(self.range_m), sun_range_m=move(self.sun_range_m))
-
-    def with_sigma(self, sigma) -> Observations:
-        """The same samples with 1σ ``sigma`` (a number or ``(N,)``)."""
-        sigma = torch.as_tensor(sigma, dtype=self.mag.dtype, device=self.mag.device)
-        return replace(self, sigma=sigma.expand(self.mag.shape).clone())
-
-    def chi2_dof(self, parameters: int) -> int:
-        """Degrees of freedom of a fit with ``parameters`` unknowns besides the zero points of the relative light
-        curves: ``N − parameters − (relative curves)``."""
-        return len(self) - int(parameters) - int(self.relative.sum())
 
     def describe(self) -> str:
         """One line: samples, light curves, span and geometry."""

@@ -10,10 +10,10 @@ fitted light curve.
 
 The fit is judged as any least-squares fit: its ``χ² = Σ r_k²`` over the ``n`` samples it uses (the first sets the
 surface prior) against ``χ²_ν``, ``ν = n − 7 − C_rel`` (attitude 3, surface state 4, one offset per relative
-curve). :func:`verdict` says ``"fits"`` when the p-value is at least ``P_NO_FIT`` (1e-3, the one definition in
-:mod:`lightcurve_gp.inference.fit_test`, the inversion's too), ``"no_fit"`` below it (the
-shape, the spin or the start is wrong: the answer is not one), and ``"ambiguous"`` when it fits but a second mode
-carries more than ``1 − UNIQUE_WEIGHT`` of the evidence.
+curve), with the inversion's rule and words (:mod:`lightcurve_gp.inference.fit_test`): ``"no_fit"`` when the
+p-value is below ``P_NO_FIT`` (1e-3: the shape, the spin or the start is wrong, and the answer is not one),
+``"ambiguous"`` when it fits but the best mode carries less than ``UNIQUE_WEIGHT`` (0.9) of the evidence, else
+``"unique"``.
 """
 
 from __future__ import annotations
@@ -25,7 +25,6 @@ import numpy as np
 import torch
 from astropy.table import Table
 from astropy.time import Time, TimeDelta
-from scipy.stats import chi2
 from torch import Tensor
 
 from lightcurve_gp.attitude.rotations import quat_to_euler321
@@ -34,7 +33,7 @@ from lightcurve_gp.evaluation.registry import arc_estimate, map_solution
 from lightcurve_gp.evaluation.scoring import Estimate
 from lightcurve_gp.inference.arc import ArcSolution
 from lightcurve_gp.inference.arc_search import arc_setup
-from lightcurve_gp.inference.fit_test import P_NO_FIT, UNIQUE_WEIGHT
+from lightcurve_gp.inference.fit_test import P_NO_FIT, FitTest, fit_test, verdict
 from lightcurve_gp.inference.forward import rate_sensitivity
 from lightcurve_gp.observation.surface_state import surface_from_state
 from lightcurve_gp.observations.observations import Observations
@@ -43,8 +42,8 @@ from lightcurve_gp.observed.run import euler321_jacobian
 from lightcurve_gp.observed.table_units import ISO_UTC, QUATERNION, set_units
 from lightcurve_gp.photometry.render import Scene
 
-__all__ = ["ArcRun", "P_NO_FIT", "UNIQUE_WEIGHT", "STATE_SIZE", "estimate_arc", "check_observations", "file_scene",
-           "verdict", "arc_history_table", "estimate_table", "arc_summary", "arc_report"]
+__all__ = ["ArcRun", "STATE_SIZE", "estimate_arc", "check_observations", "file_scene", "arc_history_table",
+           "estimate_table", "arc_summary", "arc_report"]
 
 #: the 3-2-1 angles of the tables
 ANGLES = ("yaw", "pitch", "roll")
@@ -63,7 +62,7 @@ class ArcRun:
         fitted: the fitted magnitudes ``(N,)`` (the relative curves' offsets included).
         offsets: the relative light curves' fitted magnitude offsets ``(C_rel,)`` (mag), or ``None``.
         used: the samples the fit uses ``(N,)`` (bool).
-        chi2, dof, p_value: the fit's χ², its degrees of freedom and the probability of a χ² at least as large.
+        fit: the fit's χ² against ``χ²_ν`` (:func:`lightcurve_gp.inference.fit_test.fit_test`).
         seconds: the run's wall time.
     """
 
@@ -73,9 +72,7 @@ class ArcRun:
     fitted: Tensor
     offsets: Tensor | None
     used: Tensor
-    chi2: float
-    dof: int
-    p_value: float
+    fit: FitTest
     seconds: float
 
     @property
@@ -83,15 +80,22 @@ class ArcRun:
         return self.problem.obs
 
     @property
+    def chi2(self) -> float:
+        return self.fit.chi2
+
+    @property
+    def dof(self) -> int:
+        return self.fit.dof
+
+    @property
+    def p_value(self) -> float:
+        return self.fit.p_value
+
+    @property
     def verdict(self) -> str:
-        return verdict(self.p_value, float(self.solution.weight_best[0]))
-
-
-def verdict(p_value: float, weight_best: float) -> str:
-    """``"no_fit"``, ``"ambiguous"`` or ``"fits"`` (module docstring)."""
-    if not p_value >= P_NO_FIT:
-        return "no_fit"
-    return "fits" if weight_best >= UNIQUE_WEIGHT else "ambiguous"
+        """``"unique"``, ``"ambiguous"`` or ``"no_fit"`` (:func:`lightcurve_gp.inference.fit_test.verdict`, the best
+        mode's evidence weight as the heaviest family's)."""
+        return verdict(self.fit, float(self.solution.weight_best[0]))
 
 
 def check_observations(obs: Observations) -> None:
@@ -143,8 +147,8 @@ def estimate_arc(cfg: Config, obs: Observations, *, q0: Tensor, sigma0: float, o
     if offsets is not None:
         fitted = fitted + offsets[0] @ indicator.T
     used = setup.problem.weight[0] > 0
-    value = float(r[0][used].square().sum())
-    dof = max(1, int(used.sum()) - STATE_SIZE - (0 if offsets is None else offsets.shape[-1]))
+    fit = fit_test(0.5 * float(r[0][used].square().sum()), samples=int(used.sum()),
+                   parameters=STATE_SIZE + (0 if offsets is None else offsets.shape[-1]))
     estimate = arc_estimate(problem, solution)
     if omega_sigma is not None:
         w0 = problem.omega_est0[0]
@@ -153,8 +157,8 @@ def estimate_arc(cfg: Config, obs: Observations, *, q0: Tensor, sigma0: float, o
         share = phi @ torch.diag_embed(omega_sigma.to(w0).square()) @ phi.mT
         estimate = replace(estimate, P=estimate.P + share.unsqueeze(0))
     return ArcRun(problem=problem, solution=solution, estimate=estimate, fitted=fitted,
-                  offsets=None if offsets is None else offsets[0], used=used, chi2=value, dof=dof,
-                  p_value=float(chi2.sf(value, dof)), seconds=time.perf_counter() - start)
+                  offsets=None if offsets is None else offsets[0], used=used, fit=fit,
+                  seconds=time.perf_counter() - start)
 
 
 def _times(run: ArcRun) -> np.ndarray:
@@ -249,6 +253,6 @@ def arc_report(run: ArcRun) -> list[str]:
         lines.append(f"verdict: ambiguous: the light curve fits, but {int(sol.modes[0])} attitudes fit it; the best "
                      f"carries {float(sol.weight_best[0]):.2f} of the evidence and the 1-sigma written spans them")
     else:
-        lines.append("verdict: fits: the residuals are what the given mag_err allows, one attitude carries the "
+        lines.append("verdict: unique: the residuals are what the given mag_err allows, one attitude carries the "
                      "evidence")
     return lines
