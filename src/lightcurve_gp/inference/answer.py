@@ -45,15 +45,14 @@ from torch import Tensor
 from lightcurve_gp.attitude.rotations import quat_conj, quat_mul, rotvec_to_quat
 from lightcurve_gp.inference.bridge import carry_across_gaps
 from lightcurve_gp.inference.families import Families, families
-from lightcurve_gp.inference.fit_test import FitTest, fit_test, verdict
-from lightcurve_gp.inference.inversion import Inversion, InversionSettings, invert, rate_starts
+from lightcurve_gp.inference.fit_test import INVERSION_PARAMETERS, FitTest, fit_test, verdict
+from lightcurve_gp.inference.inversion import Inversion, InversionSettings, invert, polish, rate_starts
 from lightcurve_gp.inference.periodogram import RATE_FACTORS
-from lightcurve_gp.inference.solver import LeastSquaresOptions, batch_least_squares
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
 
 __all__ = ["WIDEN_FACTOR", "RIDGE_FACTORS", "RIDGE_FAMILIES", "RIDGE_TILTS_DEG", "RIDGE_AZIMUTHS", "Answer",
-           "sample_times", "below_one_turn", "widened_settings", "wider_rates", "merge", "polish", "tilted_rates",
+           "sample_times", "below_one_turn", "widened_settings", "wider_rates", "merge", "tilted_rates",
            "ridge_starts", "answer"]
 
 #: the widened search's starts, screen attitudes, screen rates and continuation rows, each times this
@@ -162,23 +161,6 @@ def merge(a: Inversion, b: Inversion) -> Inversion:
                      seconds=seconds)
 
 
-def polish(problem: TrajectoryProblem, q0: Tensor, x: Tensor, *, iterations: int = 12) -> Inversion:
-    """Levenberg–Marquardt on the whole light curve from initial attitudes ``q0 (M, 4)`` and states ``x (M, 7)``
-    (``θ`` about ``q0``; no prior), then the Laplace covariance about the solutions: the rows of an
-    :class:`~.inversion.Inversion` (no periodogram, no rate grid)."""
-    tolerance = torch.tensor([1e-7] * 3 + [1e-10] * 3 + [1e-6], dtype=x.dtype, device=x.device)
-    options = LeastSquaresOptions(method="levenberg_marquardt", iterations=iterations, jacobian="provided",
-                                  tolerance=tolerance, covariance="none")
-    rows = torch.arange(x.shape[0], device=x.device)
-    res = batch_least_squares(problem.with_anchors(q0), x, options=options)
-    anchors = problem.with_anchors(q0).initial_attitudes(res.x, rows)
-    x = torch.cat([torch.zeros_like(res.x[:, :3]), res.x[:, 3:]], -1)
-    final = batch_least_squares(problem.with_anchors(anchors), x,
-                                options=replace(options, iterations=0, covariance="solution"))
-    return Inversion(q0=anchors, omega0=x[:, 3:6], log_rho=x[:, 6], cost=final.cost, covariance=final.covariance,
-                     periodogram=None, rate_grid=x.new_zeros(0, 3))
-
-
 def tilted_rates(omega: Tensor, *, tilts_deg=RIDGE_TILTS_DEG, azimuths: int = RIDGE_AZIMUTHS) -> Tensor:
     """Rates ``(n, 1 + len(tilts_deg) · azimuths, 3)`` of the magnitudes of ``omega (n, 3)`` (rad/s): the rate
     itself first, then its axis tilted by each angle of ``tilts_deg`` towards ``azimuths`` directions spread about
@@ -231,8 +213,10 @@ def _families(group: AmbiguityGroup, inv: Inversion, problem: TrajectoryProblem,
 
 
 def _test(inv: Inversion, problem: TrajectoryProblem) -> FitTest:
+    """The best fit's test: ``ν = N − 7`` less one for each relative light curve's profiled zero point."""
     samples = int(torch.isfinite(problem.y).sum())
-    return fit_test(float(inv.cost.min()), samples=samples)
+    offsets = 0 if problem.zero_points is None else int(problem.zero_points.shape[-1])
+    return fit_test(float(inv.cost.min()), samples=samples, parameters=INVERSION_PARAMETERS + offsets)
 
 
 def answer(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: InversionSettings = InversionSettings(),

@@ -14,7 +14,6 @@ Tensors: states ``x = [θ, ω_0, ln ρ]`` ``(M, 7)`` as in :mod:`.trajectory`; r
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import replace
 from typing import Callable
@@ -23,8 +22,7 @@ import torch
 from torch import Tensor
 
 from lightcurve_gp.inference.families import cluster
-from lightcurve_gp.inference.inversion import Inversion, InversionSettings, invert
-from lightcurve_gp.inference.solver import LeastSquaresOptions, batch_least_squares
+from lightcurve_gp.inference.inversion import Inversion, InversionSettings, invert, polish
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
 
@@ -73,18 +71,9 @@ def bridge(problem: TrajectoryProblem, *, anchors: Tensor, x: Tensor, covariance
                                  beta[best, 0].unsqueeze(-1)], -1))
         rows.append(torch.full((best.numel(),), m, dtype=torch.long, device=x.device))
     x0, row = torch.cat(starts), torch.cat(rows)
-    tolerance = torch.tensor([1e-7] * 3 + [1e-10] * 3 + [1e-6], dtype=x.dtype, device=x.device)
-    options = LeastSquaresOptions(method="levenberg_marquardt", iterations=iterations, jacobian="provided",
-                                  tolerance=tolerance)
-    local = problem.with_anchors(anchors[row])
-    result = batch_least_squares(local, x0, options=options)
-    q0 = local.initial_attitudes(result.x, torch.arange(x0.shape[0], device=x.device))
-    out = torch.cat([torch.zeros_like(result.x[:, :3]), result.x[:, 3:]], -1)
-    final = batch_least_squares(problem.with_anchors(q0), out,
-                                options=LeastSquaresOptions(method="levenberg_marquardt", iterations=0,
-                                                            jacobian="provided", covariance="solution"))
-    cost = torch.where(torch.isfinite(final.cost), final.cost, torch.full_like(final.cost, math.inf))
-    return q0, out, cost, final.covariance
+    solved = polish(problem, anchors[row], x0, iterations=iterations)
+    return solved.q0, torch.cat([torch.zeros_like(solved.omega0), solved.omega0, solved.log_rho[:, None]], -1), \
+        solved.cost, solved.covariance
 
 
 def carry_across_gaps(problem: TrajectoryProblem, group: AmbiguityGroup, inv: Inversion, *,

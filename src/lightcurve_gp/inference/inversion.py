@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import torch
@@ -37,7 +37,7 @@ from lightcurve_gp.inference.solver import GaussianPrior, LeastSquaresOptions, b
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
 
-__all__ = ["InversionSettings", "Inversion", "rate_starts", "screen", "invert"]
+__all__ = ["InversionSettings", "Inversion", "rate_starts", "screen", "invert", "polish"]
 
 
 @dataclass(frozen=True)
@@ -215,3 +215,21 @@ def invert(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: Inver
     seconds["covariance"] = time.perf_counter() - tick
     return Inversion(q0=anchors, omega0=x[:, 3:6], log_rho=x[:, 6], cost=final.cost, covariance=final.covariance,
                      periodogram=pg, rate_grid=rates, seconds=seconds)
+
+
+def polish(problem: TrajectoryProblem, q0: Tensor, x: Tensor, *, iterations: int = 12) -> Inversion:
+    """Levenberg–Marquardt on the whole light curve from initial attitudes ``q0 (M, 4)`` and states ``x (M, 7)``
+    (``θ`` about ``q0``; no prior), then the Laplace covariance about the solutions: the rows of an
+    :class:`~.inversion.Inversion` (no periodogram, no rate grid); non-finite costs are ``inf``."""
+    tolerance = torch.tensor([1e-7] * 3 + [1e-10] * 3 + [1e-6], dtype=x.dtype, device=x.device)
+    options = LeastSquaresOptions(method="levenberg_marquardt", iterations=iterations, jacobian="provided",
+                                  tolerance=tolerance, covariance="none")
+    rows = torch.arange(x.shape[0], device=x.device)
+    res = batch_least_squares(problem.with_anchors(q0), x, options=options)
+    anchors = problem.with_anchors(q0).initial_attitudes(res.x, rows)
+    x = torch.cat([torch.zeros_like(res.x[:, :3]), res.x[:, 3:]], -1)
+    final = batch_least_squares(problem.with_anchors(anchors), x,
+                                options=replace(options, iterations=0, covariance="solution"))
+    cost = torch.where(torch.isfinite(final.cost), final.cost, torch.full_like(final.cost, math.inf))
+    return Inversion(q0=anchors, omega0=x[:, 3:6], log_rho=x[:, 6], cost=cost, covariance=final.covariance,
+                     periodogram=None, rate_grid=x.new_zeros(0, 3))
