@@ -279,7 +279,8 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
                                          progress=progress_enabled(args.no_progress))
     summary = arc_summary(run, record)
     if inversion is not None:
-        summary["start"] = {"from": "the global inversion (no start given)", "families": len(inversion.families),
+        summary["start"] = {"from": "the global inversion (no start given)", "verdict": inversion.answer.verdict,
+                            "verdict_words": inversion.answer.words(), "families": len(inversion.families),
                             "polished": len(inversion.polished),
                             "chosen_family": 1 + inversion.polished.index(run),
                             "weights": [float(w) for w in inversion.families.weight[:len(inversion.polished)]]}
@@ -290,8 +291,10 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
             write_table(estimate_table(run.problem, estimate), tmp / f"attitude_history_{name}.ecsv",
                         fmt="ascii.ecsv")
         if inversion is not None:
-            write_solutions(solutions_table(inversion.families, {"light_curve": obs.curves[0].source,
-                                                                 "config": cfg.name}), tmp / "solutions.ecsv")
+            ans = inversion.answer
+            write_solutions(solutions_table(inversion.families, {
+                "light_curve": obs.curves[0].source, "config": cfg.name, "verdict": ans.verdict,
+                "chi2_per_dof": ans.fit.chi2_per_dof, "p_value": ans.fit.p_value}), tmp / "solutions.ecsv")
         write_json_atomic(summary, tmp / "summary.json")
         title = f"{Path(args.light_curve[0]).name}{' …' if len(args.light_curve) > 1 else ''}: whole-arc MAP " \
                 f"({summary['verdict'].replace('_', ' ')})"
@@ -301,7 +304,7 @@ def run_on_file(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
         chosen = summary["start"]["chosen_family"]
         print(f"start: the global inversion's family {chosen} of {len(inversion.families)} (weight "
               f"{summary['start']['weights'][chosen - 1]:.3f}), the best fit of the {len(inversion.polished)} "
-              f"polished; the families are in solutions.ecsv")
+              f"polished; the families are in solutions.ecsv; the inversion's verdict: {inversion.answer.words()}")
     print("\n".join(arc_report(run)))
     print(f"written: {folder}")
     return 0
@@ -321,8 +324,8 @@ def _run_gpukf(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
     q0 = _check_arguments(args)
     if getattr(args, "solutions", None) is not None:
         cfg, q0, _ = _from_solutions(args, cfg)
-    lc = read_light_curve(args.light_curve[0])
-    args.light_curve = args.light_curve[0]
+    path = Path(args.light_curve[0])
+    lc = read_light_curve(path)
     check_light_curve(cfg, lc)
     try:
         check_model_takes_geometry(model, lc)
@@ -330,10 +333,10 @@ def _run_gpukf(args: argparse.Namespace, cfg, model, model_info: dict) -> int:
     except FileGeometryError as exc:
         raise UserError(str(exc)) from None
     check_output_root(args.out)
-    folder = light_curve_folder(args.out, cfg.name, args.light_curve)
+    folder = light_curve_folder(args.out, cfg.name, path)
     check_new_folder(folder, args.force)
     warn(flat_light_curve(lc, noise_std=math.sqrt(cfg.filter.measurement_noise)))
-    record = provenance(cfg, config_file=str(args.config), light_curve=str(args.light_curve),
+    record = provenance(cfg, config_file=str(args.config), light_curve=str(path),
                         initial_attitude=args.initial_attitude,
                         solutions=None if getattr(args, "solutions", None) is None else str(args.solutions),
                         bank_size=None if q0 is not None else args.bank_size,
