@@ -1,13 +1,18 @@
-"""Carry an inversion of the first light curve across a long gap to every light curve of the object.
+"""Carry the inversions of single passes across the long gaps between them to every light curve of the object.
 
 An inversion grows its arcs from the first sample (:mod:`.inversion`), so the passes after a gap of an hour or a day
 enter only its last stage, where the rate must already be right to a fraction of a turn over the gap: a rate known to
-``σ_ω`` from the first pass leaves ``σ_ω T`` radians of phase at time ``T``, and the last stage's local search cannot
-cross the wrong turns. :func:`bridge` searches that rate explicitly: around each of the first pass's best solutions
-it screens a grid of rates within ``±span`` standard deviations per axis, spaced so that no two neighbours differ by
-more than ``phase_rad`` of turn at the last sample (:func:`rate_offsets`), on every sample (the attitude at the first
-sample held, ρ profiled), and polishes the best few by Levenberg–Marquardt on every sample. Its solutions join the
-direct inversion's before the families are formed.
+``σ_ω`` from one pass leaves ``σ_ω T`` radians of phase at a time ``T`` away, and the last stage's local search cannot
+cross the wrong turns. :func:`bridge` searches that rate explicitly: around each of a pass's best solutions it screens
+a grid of rates within ``±span`` standard deviations per axis, spaced so that no two neighbours differ by more than
+``phase_rad`` of turn at the sample farthest from the pass (:func:`rate_offsets`), on every sample (the attitude at
+the pass's first sample held, ρ profiled), and polishes the best few by Levenberg–Marquardt on every sample.
+
+:func:`carry_across_gaps` does this from each of the (up to :data:`CARRIED_PASSES` longest) passes alone, not only
+the first: a pass whose own search misses the truth's family leaves it to another pass that finds it, forwards or
+backwards in time (the closed-form propagation runs both ways). Solutions found from a later pass are moved to the
+first sample's epoch by the torque-free motion and polished there. All of them join the direct inversion's before
+the families are formed.
 
 Tensors: states ``x = [θ, ω_0, ln ρ]`` ``(M, 7)`` as in :mod:`.trajectory`; rates rad/s; times s.
 """
@@ -21,23 +26,36 @@ from typing import Callable
 import torch
 from torch import Tensor
 
+from lightcurve_gp.attitude.rotations import quat_mul
+from lightcurve_gp.attitude.torque_free import torque_free_motion
 from lightcurve_gp.inference.families import cluster
 from lightcurve_gp.inference.inversion import Inversion, InversionSettings, invert, polish
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
 
-__all__ = ["BRIDGED", "first_pass_samples", "rate_offsets", "bridge", "carry_across_gaps"]
+__all__ = ["BRIDGED", "CARRIED_PASSES", "GAP_S", "first_pass_samples", "pass_bounds", "rate_offsets", "bridge",
+           "carry_across_gaps"]
 
-#: the first pass's distinct solutions carried across a long gap (a first pass often fits a wrong family as well as
-#: the truth's)
+#: each pass's distinct solutions carried across a long gap (a single pass often fits a wrong family as well as the
+#: truth's)
 BRIDGED = 8
+#: the passes searched alone and carried (the longest ones): each costs a search of its own samples
+CARRIED_PASSES = 3
+#: a gap longer than this (s) separates two passes
+GAP_S = 600.0
 
 
-def first_pass_samples(times: Tensor, *, gap_s: float = 600.0) -> int:
+def first_pass_samples(times: Tensor, *, gap_s: float = GAP_S) -> int:
     """The samples before the first gap longer than ``gap_s`` (all of them when there is none)."""
-    steps = torch.diff(times)
-    gaps = torch.nonzero(steps > gap_s).flatten()
-    return int(gaps[0]) + 1 if gaps.numel() else int(times.shape[0])
+    return pass_bounds(times, gap_s=gap_s)[0][1]
+
+
+def pass_bounds(times: Tensor, *, gap_s: float = GAP_S) -> list[tuple[int, int]]:
+    """``[(start, stop), …]``: the sample ranges of the passes of ``times (K,)`` (increasing, s), split at every gap
+    longer than ``gap_s``."""
+    cuts = (torch.nonzero(torch.diff(times) > gap_s).flatten() + 1).tolist()
+    edges = [0, *cuts, int(times.shape[0])]
+    return list(zip(edges[:-1], edges[1:]))
 
 
 def rate_offsets(sigma: Tensor, *, span_s: float, span: float = 3.0, phase_rad: float = 0.5,
@@ -59,7 +77,7 @@ def bridge(problem: TrajectoryProblem, *, anchors: Tensor, x: Tensor, covariance
     ``(M, 7, 7)`` on the first pass) carried to every sample of ``problem`` (module docstring): ``(anchors, x, cost,
     covariance)`` of the ``M·keep`` polished solutions, each re-anchored (``θ = 0``), with their Laplace
     covariances on every sample."""
-    span_s = float(problem.times[-1] - problem.times[0])
+    span_s = float(problem.times.abs().max())  # from the epoch (the anchors' time) to the farthest sample
     starts, rows = [], []
     for m in range(x.shape[0]):
         sigma = torch.diagonal(covariance[m, 3:6, 3:6]).clamp_min(0).sqrt()
@@ -78,23 +96,38 @@ def bridge(problem: TrajectoryProblem, *, anchors: Tensor, x: Tensor, covariance
 
 def carry_across_gaps(problem: TrajectoryProblem, group: AmbiguityGroup, inv: Inversion, *,
                       settings: InversionSettings, progress: Callable[[str], None] | None = None) -> Inversion:
-    """``inv`` (the direct inversion of ``problem``) joined by the first pass's best distinct solutions carried
-    across the gap (module docstring); ``inv`` itself when the samples have no gap longer than ten minutes."""
-    first = first_pass_samples(problem.times)
-    if first >= problem.samples:
+    """``inv`` (the direct inversion of ``problem``) joined by each long pass's best distinct solutions carried across
+    the gaps (module docstring); ``inv`` itself when the samples have no gap longer than :data:`GAP_S`."""
+    passes = pass_bounds(problem.times)
+    if len(passes) == 1:
         return inv
     say = progress or (lambda message: None)
-    say(f"the first pass alone ({first} of {problem.samples} samples), then carried across the gap")
-    alone = invert(problem.arc(first), group, settings=settings, progress=progress)
-    _, heads = cluster(group, alone.q0, alone.omega0, alone.cost, angle_deg=settings.cluster_angle_deg,
-                       rate_deg_s=settings.cluster_rate_deg_s)
-    heads = heads[:BRIDGED]
-    x = torch.cat([torch.zeros(heads.numel(), 3, dtype=alone.q0.dtype, device=alone.q0.device),
-                   alone.omega0[heads], alone.log_rho[heads, None]], -1)
-    tick = time.perf_counter()
-    q0, x, cost, covariance = bridge(problem, anchors=alone.q0[heads], x=x, covariance=alone.covariance[heads])
-    seconds = {**inv.seconds, **{f"first pass {k}": v for k, v in alone.seconds.items()},
-               "bridge": time.perf_counter() - tick}
-    return replace(inv, q0=torch.cat([inv.q0, q0]), omega0=torch.cat([inv.omega0, x[:, 3:6]]),
-                   log_rho=torch.cat([inv.log_rho, x[:, 6]]), cost=torch.cat([inv.cost, cost]),
-                   covariance=torch.cat([inv.covariance, covariance]), seconds=seconds)
+    longest = sorted(sorted(range(len(passes)), key=lambda p: passes[p][1] - passes[p][0], reverse=True)
+                     [:CARRIED_PASSES])
+    seconds, joined = dict(inv.seconds), [inv]
+    for p in longest:
+        start, stop = passes[p]
+        say(f"pass {p + 1} of {len(passes)} alone (samples {start + 1}-{stop} of {problem.samples}), then carried "
+            f"across the gaps")
+        alone = invert(problem.window(start, stop), group, settings=settings, progress=progress)
+        _, heads = cluster(group, alone.q0, alone.omega0, alone.cost, angle_deg=settings.cluster_angle_deg,
+                           rate_deg_s=settings.cluster_rate_deg_s)
+        heads = heads[:BRIDGED]
+        x = torch.cat([torch.zeros(heads.numel(), 3, dtype=alone.q0.dtype, device=alone.q0.device),
+                       alone.omega0[heads], alone.log_rho[heads, None]], -1)
+        tick = time.perf_counter()
+        q0, x, cost, covariance = bridge(problem.with_epoch(start), anchors=alone.q0[heads], x=x,
+                                         covariance=alone.covariance[heads])
+        if start > 0:  # to the first sample's epoch, polished there (costs and covariances of that epoch)
+            back = problem.times[:1] - problem.times[start]
+            delta, omega = torque_free_motion(x[:, 3:6], inertia=problem.inertia, times=back)
+            moved = torch.cat([torch.zeros_like(x[:, :3]), omega[:, 0], x[:, 6:]], -1)
+            solved = polish(problem, quat_mul(delta[:, 0], q0), moved, iterations=5)
+            q0, x = solved.q0, torch.cat([torch.zeros_like(solved.omega0), solved.omega0, solved.log_rho[:, None]], -1)
+            cost, covariance = solved.cost, solved.covariance
+        seconds.update({f"pass {p + 1} {k}": v for k, v in alone.seconds.items()})
+        seconds[f"pass {p + 1} bridge"] = time.perf_counter() - tick
+        joined.append(replace(inv, q0=q0, omega0=x[:, 3:6], log_rho=x[:, 6], cost=cost, covariance=covariance))
+    return replace(inv, q0=torch.cat([j.q0 for j in joined]), omega0=torch.cat([j.omega0 for j in joined]),
+                   log_rho=torch.cat([j.log_rho for j in joined]), cost=torch.cat([j.cost for j in joined]),
+                   covariance=torch.cat([j.covariance for j in joined]), seconds=seconds)

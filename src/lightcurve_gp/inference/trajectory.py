@@ -93,6 +93,18 @@ class TrajectoryProblem:
         return replace(self, renderer=self.renderer.restrict(slice(0, n)), times=self.times[:n], y=self.y[:n],
                        sigma=self.sigma[:n], zero_points=None if self.zero_points is None else self.zero_points[:n])
 
+    def window(self, start: int, stop: int) -> "TrajectoryProblem":
+        """The same problem on samples ``start:stop``, their epoch (``t = 0``) at sample ``start``."""
+        cut = slice(int(start), int(stop))
+        return replace(self, renderer=self.renderer.restrict(cut), times=self.times[cut] - self.times[cut][0],
+                       y=self.y[cut], sigma=self.sigma[cut],
+                       zero_points=None if self.zero_points is None else self.zero_points[cut])
+
+    def with_epoch(self, index: int) -> "TrajectoryProblem":
+        """Every sample, the epoch of ``q_0`` and ``ω_0`` moved to sample ``index`` (earlier samples at ``t < 0``:
+        the propagation is closed form in both directions)."""
+        return replace(self, times=self.times - self.times[int(index)])
+
     def with_anchors(self, anchors: Tensor) -> "TrajectoryProblem":
         return replace(self, anchors=anchors)
 
