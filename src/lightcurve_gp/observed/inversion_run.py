@@ -4,8 +4,8 @@
 object, any sample times, each light curve with its own geometry and, when relative, its own unknown zero point)
 into the inversion's :class:`~lightcurve_gp.inference.trajectory.TrajectoryProblem` (:func:`trajectory_problem`),
 runs the global search and judges it (:func:`lightcurve_gp.inference.answer.answer`: the fit test and the verdict,
-one widened search when nothing fits; when later passes follow a gap of more than ten minutes, also the first pass
-alone, its best distinct solutions carried across the gap by :mod:`lightcurve_gp.inference.bridge`), takes the
+one widened search when nothing fits; when later passes follow a gap of more than ten minutes, also each of the
+longest passes alone, its best distinct solutions carried across the gaps by :mod:`lightcurve_gp.inference.bridge`), takes the
 families modulo the exact
 ambiguity group, and polishes the ``polish`` leading families with the whole-arc MAP with the surface unknown
 (:func:`lightcurve_gp.observed.arc_run.estimate_arc`, the family's rate taken as known): the inversion fits ρ on the
