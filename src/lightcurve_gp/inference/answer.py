@@ -37,6 +37,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import Callable
 
 import torch
@@ -51,7 +52,7 @@ from lightcurve_gp.inference.periodogram import RATE_FACTORS
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
 
-__all__ = ["WIDEN_FACTOR", "RIDGE_FACTORS", "RIDGE_FAMILIES", "RIDGE_TILTS_DEG", "RIDGE_AZIMUTHS", "Answer",
+__all__ = ["WIDEN_FACTOR", "RIDGE_FACTORS", "RIDGE_FAMILIES", "RIDGE_TILTS_DEG", "RIDGE_AZIMUTHS", "Answer", "searched",
            "sample_times", "below_one_turn", "widened_settings", "wider_rates", "merge", "tilted_rates",
            "ridge_starts", "answer"]
 
@@ -219,6 +220,19 @@ def _test(inv: Inversion, problem: TrajectoryProblem) -> FitTest:
     return fit_test(float(inv.cost.min()), samples=samples, parameters=INVERSION_PARAMETERS + offsets)
 
 
+def searched(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: InversionSettings, judge: dict,
+             widen: bool = True, progress: Callable[[str], None] | None = None) -> Inversion:
+    """One search of ``problem`` and, when its best fit fails its test, one widened search joined to it (what a pass
+    searched alone across a gap gets, :func:`~.bridge.carry_across_gaps`); ``judge``: :func:`_families`' options."""
+    found = invert(problem, group, settings=settings, progress=progress)
+    if widen and not _test(found, problem).fits:
+        wide = widened_settings(settings)
+        rates = wider_rates(found, _families(group, found, problem, **judge), wide,
+                            span_s=float(sample_times(problem)[-1]))
+        found = merge(found, invert(problem, group, settings=wide, rate_grid=rates, progress=progress))
+    return found
+
+
 def answer(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: InversionSettings = InversionSettings(),
            rate_max_rad_s: float | None = None, max_log_ratio: float = 10.0, widen: bool = True, ridge: bool = True,
            rate_grid: Tensor | None = None, progress: Callable[[str], None] | None = None) -> Answer:
@@ -236,7 +250,9 @@ def answer(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: Inver
     judge = dict(rate_max_rad_s=rate_max, max_log_ratio=max_log_ratio, settings=settings)
     seconds, tick = {}, time.perf_counter()
     inv = invert(problem, group, settings=settings, rate_grid=rate_grid, progress=progress)
-    inv = carry_across_gaps(problem, group, inv, settings=settings, progress=progress)  # later passes after a gap
+    inv = carry_across_gaps(problem, group, inv, settings=settings, progress=progress,  # passes after a gap
+                            search=partial(searched, group=group, settings=settings, judge=judge, widen=widen,
+                                           progress=progress))
     fam = _families(group, inv, problem, **judge)
     first = _test(inv, problem)
     seconds["search"], tick = time.perf_counter() - tick, time.perf_counter()

@@ -95,9 +95,12 @@ def bridge(problem: TrajectoryProblem, *, anchors: Tensor, x: Tensor, covariance
 
 
 def carry_across_gaps(problem: TrajectoryProblem, group: AmbiguityGroup, inv: Inversion, *,
-                      settings: InversionSettings, progress: Callable[[str], None] | None = None) -> Inversion:
+                      settings: InversionSettings, search: Callable[[TrajectoryProblem], Inversion] | None = None,
+                      progress: Callable[[str], None] | None = None) -> Inversion:
     """``inv`` (the direct inversion of ``problem``) joined by each long pass's best distinct solutions carried across
-    the gaps (module docstring); ``inv`` itself when the samples have no gap longer than :data:`GAP_S`."""
+    the gaps (module docstring); ``inv`` itself when the samples have no gap longer than :data:`GAP_S`. ``search``
+    inverts one pass alone (default :func:`~.inversion.invert` with ``settings``; the answer's search widens a pass
+    whose best fit fails its test)."""
     passes = pass_bounds(problem.times)
     if len(passes) == 1:
         return inv
@@ -109,7 +112,8 @@ def carry_across_gaps(problem: TrajectoryProblem, group: AmbiguityGroup, inv: In
         start, stop = passes[p]
         say(f"pass {p + 1} of {len(passes)} alone (samples {start + 1}-{stop} of {problem.samples}), then carried "
             f"across the gaps")
-        alone = invert(problem.window(start, stop), group, settings=settings, progress=progress)
+        part = problem.window(start, stop)
+        alone = search(part) if search is not None else invert(part, group, settings=settings, progress=progress)
         _, heads = cluster(group, alone.q0, alone.omega0, alone.cost, angle_deg=settings.cluster_angle_deg,
                            rate_deg_s=settings.cluster_rate_deg_s)
         heads = heads[:BRIDGED]
