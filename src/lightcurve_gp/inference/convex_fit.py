@@ -32,7 +32,15 @@ from torch import Tensor
 
 from lightcurve_gp.inference.solver import GaussianPrior, LeastSquaresOptions, batch_least_squares
 from lightcurve_gp.observations.observations import Observations
-from lightcurve_gp.photometry.convex import Scattering, body_vectors, facet_brightness, phase_angle
+from lightcurve_gp.photometry.convex import (
+    SatelliteScattering,
+    Scattering,
+    area_normals,
+    body_vectors,
+    facet_brightness,
+    facet_terms,
+    phase_angle,
+)
 
 __all__ = ["ConvexData", "AreaFit", "Polished", "PolishResidual", "convex_data", "design", "fit_areas",
            "relative_residuals", "polish"]
@@ -92,10 +100,11 @@ def convex_data(obs: Observations) -> ConvexData:
                       span_s=obs.span_s)
 
 
-def design(data: ConvexData, normals: Tensor, scattering: Scattering, *, lam: Tensor, beta: Tensor,
-           period_s: Tensor, phi0: Tensor | None = None, dtype: torch.dtype | None = None) -> Tensor:
-    """``G`` ``(B, N, K)`` of ``B`` spin states (``lam``, ``beta`` rad, ``period_s`` s, ``phi0`` rad, each
-    ``(B,)``; ``phi0`` 0 by default): the brightness of a unit area on each normal at each sample. The rotation is
+def design(data: ConvexData, normals: Tensor, scattering: Scattering | SatelliteScattering, *, lam: Tensor,
+           beta: Tensor, period_s: Tensor, phi0: Tensor | None = None, dtype: torch.dtype | None = None) -> Tensor:
+    """``G`` ``(B, N, M·K)`` of ``B`` spin states (``lam``, ``beta`` rad, ``period_s`` s, ``phi0`` rad, each
+    ``(B,)``; ``phi0`` 0 by default): the brightness of a unit area on each normal ``(K, 3)`` and basis of the law
+    (``M`` of them, basis-major) at each sample. The rotation is
     formed in ``lam``'s dtype (float64 over decades), the scattering in ``dtype`` (default: ``lam``'s; float32 is
     six times faster on a CPU and enough for a screen)."""
     phi0 = torch.zeros_like(lam) if phi0 is None else phi0
@@ -137,14 +146,16 @@ def _quadratic(G: Tensor, data: ConvexData, normals: Tensor, closure: float) -> 
 
 def fit_areas(G: Tensor, data: ConvexData, normals: Tensor, *, closure: float = 0.1,
               iterations: int = 12) -> AreaFit:
-    """Non-negative areas of ``B`` spin states at once (module docstring), from their ``G`` ``(B, N, K)`` (float32
-    or float64; the quadratic program is solved in float64).
+    """Non-negative areas of ``B`` spin states at once (module docstring), from their ``G`` ``(B, N, M·K)`` (float32
+    or float64; the quadratic program is solved in float64) on ``normals`` ``(K, 3)``, ``M`` the law's bases (the
+    closure term sums every basis's areas).
 
     The program ``min aᵀ M a − 2 cᵀ a, a ≥ 0`` is solved by a batched projected Newton iteration with a fixed count:
     the free set is every area that is positive or whose gradient is negative; the areas on it solve
     ``M_FF a_F = c_F`` (the rest are 0), then are clipped at 0. A few iterations fix the active set of a screen's
     candidate; the returned rss is that of the returned (feasible) areas, so an unconverged candidate only looks
     worse than it is."""
+    normals = normals.repeat(G.shape[-1] // normals.shape[0], 1)
     M, c = _quadratic(G, data.with_dtype(G.dtype), normals.to(G.dtype), closure)
     M, c = M.to(torch.float64), c.to(torch.float64)
     B, K = c.shape
@@ -180,9 +191,9 @@ def fit_areas(G: Tensor, data: ConvexData, normals: Tensor, *, closure: float = 
     return AreaFit(areas=areas, rss=rss, rms=torch.sqrt(rss / len(data)))
 
 
-def relative_residuals(data: ConvexData, normals: Tensor, scattering: Scattering, *, lam: Tensor, beta: Tensor,
-                       period_s: Tensor, areas: Tensor) -> Tensor:
-    """convexinv's residuals ``ỹ_i − L_i / L̄_c`` ``(B, N)`` of ``B`` models (areas ``(B, K)``)."""
+def relative_residuals(data: ConvexData, normals: Tensor, scattering: Scattering | SatelliteScattering, *,
+                       lam: Tensor, beta: Tensor, period_s: Tensor, areas: Tensor) -> Tensor:
+    """convexinv's residuals ``ỹ_i − L_i / L̄_c`` ``(B, N)`` of ``B`` models (areas ``(B, M·K)``)."""
     G = design(data, normals, scattering, lam=lam, beta=beta, period_s=period_s)
     L = (G * areas[:, None, :]).sum(-1)
     return data.y - L / data.curve_mean(L)[:, data.curve]
@@ -194,7 +205,7 @@ class Polished:
 
     Attributes:
         lam, beta: pole (rad) ``(B,)``; period_s: sidereal period (s) ``(B,)``.
-        areas: ``(B, K)`` areas (relative units, summing to 1).
+        areas: ``(B, M·K)`` areas (relative units, summing to 1; basis-major).
         rms: convexinv's rms of the relative-intensity residuals ``(B,)``.
         period_sigma_s: the period's 1σ from the Laplace approximation with the residuals' rms as noise ``(B,)``.
         iterations: Levenberg–Marquardt iterations taken ``(B,)``.
@@ -213,9 +224,11 @@ class PolishResidual:
     """Whitened residuals of :func:`polish` and their Jacobian (analytic in the log areas, central differences in
     the spin); ``x = (λ, β, x_P, log a)``."""
 
-    def __init__(self, data: ConvexData, normals: Tensor, scattering: Scattering, period0_s: Tensor,
-                 sigma: float, closure: float, smoothness: float = 0.0, neighbours: int = 6) -> None:
-        self.data, self.normals, self.scattering, self.p0 = data, normals, scattering, period0_s
+    def __init__(self, data: ConvexData, normals: Tensor, scattering: Scattering | SatelliteScattering,
+                 period0_s: Tensor, sigma: float, closure: float, smoothness: float = 0.0, neighbours: int = 6) -> None:
+        self.data, self.design_normals, self.scattering, self.p0 = data, normals, scattering, period0_s
+        normals = area_normals(normals, scattering)                  # (M·K, 3): closure and smoothness per area
+        self.normals = normals
         self.sigma, self.weight = sigma, math.sqrt(closure * len(data))
         # smoothness: smoothness · (log a_i − log a_j) for each normal and its nearest neighbours (whitened rows)
         K = normals.shape[0]
@@ -239,7 +252,7 @@ class PolishResidual:
 
     def _design(self, x: Tensor, rows: Tensor) -> Tensor:
         lam, beta, period = self.spin(x, rows)
-        return design(self.data, self.normals, self.scattering, lam=lam, beta=beta, period_s=period)
+        return design(self.data, self.design_normals, self.scattering, lam=lam, beta=beta, period_s=period)
 
     def __call__(self, x: Tensor, rows: Tensor) -> Tensor:
         return self._parts(self._design(x, rows), torch.exp(x[:, 3:]))[0]
@@ -251,7 +264,8 @@ class PolishResidual:
 
     def linearize(self, x: Tensor, rows: Tensor) -> tuple[Tensor, Tensor]:
         """Residuals and Jacobian: the body-frame vectors' derivatives in the spin by central differences (cheap:
-        ``(A, N, 3)``), the rest in closed form with ``∂S/∂μ = μ0²/(μ+μ0)² + c μ0`` and its twin."""
+        ``(A, N, 3)``), the rest in closed form from the law's partial derivatives in ``μ``, ``μ0`` and ``ν``
+        (:meth:`~lightcurve_gp.photometry.convex.Scattering.terms`)."""
         A = x.shape[0]
         h = torch.tensor([1e-6, 1e-6, 1e-6], dtype=x.dtype, device=x.device)
         shifts = torch.cat([torch.zeros(1, 3, dtype=x.dtype), torch.diag(h), -torch.diag(h)])   # (7, 3)
@@ -260,16 +274,18 @@ class PolishResidual:
         sun_all, obs_all = sun_all.reshape(7, A, -1, 3), obs_all.reshape(7, A, -1, 3)
         dsun = (sun_all[1:4] - sun_all[4:7]) / (2 * h[:, None, None, None])                     # (3, A, N, 3)
         dobs = (obs_all[1:4] - obs_all[4:7]) / (2 * h[:, None, None, None])
-        mu0 = (sun_all[0] @ self.normals.T).clamp_min(0.0)
-        mu = (obs_all[0] @ self.normals.T).clamp_min(0.0)
-        lit = (mu > 0) & (mu0 > 0)
-        total = torch.where(lit, mu + mu0, 1.0)
-        c, f = self.scattering.lambert, self.scattering.phase_function(self.data.alpha)[:, None]
-        G = f * mu * mu0 * (1.0 / total + c)
+        terms, h, norm = facet_terms(self.design_normals, sun_all[0], obs_all[0], self.data.alpha, self.scattering,
+                                     derivatives=True)
+        G = terms.value.flatten(-2)                                                               # (A, N, M·K)
         a = torch.exp(x[:, 3:])
-        d_mu = torch.where(lit, f * (mu0 * mu0 / (total * total) + c * mu0), 0.0) * a[:, None, :]   # ∂L/∂μ_k
-        d_mu0 = torch.where(lit, f * (mu * mu / (total * total) + c * mu), 0.0) * a[:, None, :]
-        grad_obs, grad_sun = d_mu @ self.normals, d_mu0 @ self.normals                           # (A, N, 3)
+        per_basis = a.reshape(A, 1, *terms.value.shape[-2:])                                      # (A, 1, M, K)
+        d_mu, d_mu0 = (terms.d_mu * per_basis).sum(-2), (terms.d_mu0 * per_basis).sum(-2)        # ∂L/∂μ_k (A, N, K)
+        grad_obs, grad_sun = d_mu @ self.design_normals, d_mu0 @ self.design_normals              # (A, N, 3)
+        if terms.d_nu is not None:                  # ∂ν_k/∂v = ∂ν_k/∂s = (n_k − ν_k h)/|s + v|
+            d_nu = (terms.d_nu * per_basis).sum(-2)
+            nu = h @ self.design_normals.T
+            via_h = (d_nu @ self.design_normals - (d_nu * nu).sum(-1, keepdim=True) * h) / norm
+            grad_obs, grad_sun = grad_obs + via_h, grad_sun + via_h
         dL = ((grad_obs[None] * dobs).sum(-1) + (grad_sun[None] * dsun).sum(-1)).permute(1, 2, 0)  # (A, N, 3)
         r, mean = self._parts(G, a)
         L = (G * a[:, None, :]).sum(-1)
@@ -287,9 +303,9 @@ class PolishResidual:
         return r, torch.cat([spin_jac, area_jac], -1)
 
 
-def polish(data: ConvexData, normals: Tensor, scattering: Scattering, *, lam: Tensor, beta: Tensor,
-           period_s: Tensor, areas: Tensor, closure: float = 0.1, iterations: int = 30, sigma: float = 0.01,
-           area_prior_std: float = 3.0, smoothness: float = 0.0) -> Polished:
+def polish(data: ConvexData, normals: Tensor, scattering: Scattering | SatelliteScattering, *, lam: Tensor,
+           beta: Tensor, period_s: Tensor, areas: Tensor, closure: float = 0.1, iterations: int = 30,
+           sigma: float = 0.01, area_prior_std: float = 3.0, smoothness: float = 0.0) -> Polished:
     """Levenberg–Marquardt on ``(λ, β, P, log a)`` of ``B`` starts at once (module docstring).
 
     The residuals are whitened by ``sigma`` (relative intensity); a weak Gaussian prior of standard deviation
