@@ -55,7 +55,7 @@ def settings_from_config(cfg, max_log_ratio: float) -> ConvexSettings:
         scattering = Scattering(lambert=c.lambert, amplitude=c.phase_amplitude, width_rad=c.phase_width_rad,
                                 slope=c.phase_slope)
     return ConvexSettings(
-        scattering=scattering, ring=c.ring_normals,
+        scattering=scattering, ring=c.ring_normals, area_refine=c.refine_steps,
         period_range_h=(float(c.period_range_h[0]), float(c.period_range_h[1])), harmonics=c.harmonics,
         window=c.window, step=c.step, coarse_poles=c.coarse_poles, coarse_normals=c.coarse_normals,
         subsample=c.subsample, top_periods=c.top_periods, fine_poles=c.poles, fine_normals=c.screen_normals,
@@ -155,7 +155,10 @@ def run(cfg, args: argparse.Namespace) -> int:
     settings = settings_from_config(cfg, args.max_log_ratio)
     show = progress_enabled(args.no_progress)
     say = (lambda message: tqdm.write(message)) if show else None
-    data = convex_data(obs)
+    data = convex_data(obs, glint_clip=cfg.convex.glint_clip)
+    if len(data) < len(obs):
+        print(f"{path.name}: {len(obs) - len(data)} of {len(obs)} samples brighter than {cfg.convex.glint_clip:g} "
+              f"times their curve's median dropped as glints (convex.glint_clip)")
     start = time.perf_counter()
     search = convex_search(data, settings, progress=say)
     total = time.perf_counter() - start

@@ -55,6 +55,12 @@ class ConvexConfig:
     ring_normals: int = spec(0, lo=0, omit_default=True,
                              doc="normals on the body equator (faces parallel to the spin axis) and the poles +-z "
                                  "added to every stage's Fibonacci normals (0: none)")
+    glint_clip: float | None = spec(None, lo=1.0, lo_open=True, omit_default=True,
+                                    doc="samples brighter than this many times their curve's median intensity are "
+                                        "dropped as specular glints (null: none dropped)")
+    refine_steps: int = spec(0, lo=0, omit_default=True,
+                             doc="accelerated projected-gradient steps after every area fit's Newton iteration (for "
+                                 "the near-singular fits of close ring normals and several bases; 0: none)")
     lambert: float = spec(0.1, lo=0.0, doc="c of the Lommel-Seeliger + c Lambert law")
     phase_amplitude: float = spec(0.5, doc="a of the phase function a exp(-alpha/d) + k alpha + 1")
     phase_width_rad: float = spec(0.1, lo=0.0, lo_open=True, doc="d of the phase function (rad)")

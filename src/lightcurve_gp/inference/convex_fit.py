@@ -42,7 +42,7 @@ from lightcurve_gp.photometry.convex import (
     phase_angle,
 )
 
-__all__ = ["ConvexData", "AreaFit", "Polished", "PolishResidual", "convex_data", "design", "fit_areas",
+__all__ = ["ConvexData", "AreaFit", "Polished", "PolishResidual", "glint_samples", "convex_data", "design", "fit_areas",
            "relative_residuals", "polish"]
 
 
@@ -84,12 +84,24 @@ class ConvexData:
         return sums.index_add_(-1, self.curve, values) / self.counts.to(values.dtype)
 
 
-def convex_data(obs: Observations) -> ConvexData:
+def glint_samples(obs: Observations, clip: float) -> Tensor:
+    """The samples ``(N,)`` (bool) brighter than ``clip`` times their light curve's median intensity: a satellite's
+    specular glints, flashes a few degrees of rotation wide that a model on fixed normals cannot time."""
+    intensity = torch.pow(10.0, -0.4 * obs.mag.to(torch.float64))
+    median = torch.stack([intensity[obs.curve == c].median() if bool((obs.curve == c).any())
+                          else intensity.new_tensor(math.inf) for c in range(len(obs.curves))])
+    return intensity > clip * median[obs.curve]
+
+
+def convex_data(obs: Observations, *, glint_clip: float | None = None) -> ConvexData:
     """:class:`ConvexData` from observations with per-sample geometry (magnitudes → relative intensities: every
-    curve is treated as relative, its scale unknown). Raises ``ValueError`` without geometry."""
+    curve is treated as relative, its scale unknown), without the samples :func:`glint_samples` finds when
+    ``glint_clip`` is given. Raises ``ValueError`` without geometry."""
     if not obs.has_geometry:
         raise ValueError("convex inversion needs per-sample Sun and observer directions (none given)")
     obs = obs.to(dtype=torch.float64)
+    if glint_clip is not None:
+        obs = obs.select(torch.nonzero(~glint_samples(obs, glint_clip)).flatten())
     intensity = torch.pow(10.0, -0.4 * obs.mag)
     counts = obs.counts().to(obs.t.device)
     curves = len(obs.curves)
@@ -144,8 +156,27 @@ def _quadratic(G: Tensor, data: ConvexData, normals: Tensor, closure: float) -> 
     return M, W.mean(1)
 
 
+def _refine(M: Tensor, c: Tensor, a: Tensor, steps: int) -> Tensor:
+    """``steps`` accelerated projected-gradient steps (FISTA with adaptive restart, Jacobi-preconditioned) on
+    ``min aᵀ M a − 2 cᵀ a, a ≥ 0`` from ``a`` ``(B, K)``: they keep descending where the Newton iteration stalls on a
+    near-singular ``M`` (close normals, several bases per normal)."""
+    d = torch.sqrt(torch.diagonal(M, dim1=1, dim2=2).clamp_min(1e-300))
+    Ms, cs = M / (d[:, :, None] * d[:, None, :]), c / d
+    lipschitz = torch.linalg.eigvalsh(Ms)[:, -1:].clamp_min(1e-300)
+    b = a * d
+    y, t = b.clone(), torch.ones_like(lipschitz)
+    for _ in range(steps):
+        nxt = (y - ((Ms @ y[..., None])[..., 0] - cs) / lipschitz).clamp_min(0.0)
+        t_next = 0.5 * (1.0 + torch.sqrt(1.0 + 4.0 * t * t))
+        restart = ((y - nxt) * (nxt - b)).sum(-1, keepdim=True) > 0
+        y = torch.where(restart, nxt, nxt + (t - 1.0) / t_next * (nxt - b))
+        t = torch.where(restart, torch.ones_like(t), t_next)
+        b = nxt
+    return b / d
+
+
 def fit_areas(G: Tensor, data: ConvexData, normals: Tensor, *, closure: float = 0.1,
-              iterations: int = 12) -> AreaFit:
+              iterations: int = 12, refine: int = 0) -> AreaFit:
     """Non-negative areas of ``B`` spin states at once (module docstring), from their ``G`` ``(B, N, M·K)`` (float32
     or float64; the quadratic program is solved in float64) on ``normals`` ``(K, 3)``, ``M`` the law's bases (the
     closure term sums every basis's areas).
@@ -154,7 +185,9 @@ def fit_areas(G: Tensor, data: ConvexData, normals: Tensor, *, closure: float = 
     the free set is every area that is positive or whose gradient is negative; the areas on it solve
     ``M_FF a_F = c_F`` (the rest are 0), then are clipped at 0. A few iterations fix the active set of a screen's
     candidate; the returned rss is that of the returned (feasible) areas, so an unconverged candidate only looks
-    worse than it is."""
+    worse than it is. ``refine`` > 0 adds that many accelerated projected-gradient steps (:func:`_refine`), for
+    near-singular programs (the satellite law's close ring normals and bases), where the Newton iteration stalls far
+    from the optimum."""
     normals = normals.repeat(G.shape[-1] // normals.shape[0], 1)
     M, c = _quadratic(G, data.with_dtype(G.dtype), normals.to(G.dtype), closure)
     M, c = M.to(torch.float64), c.to(torch.float64)
@@ -182,6 +215,8 @@ def fit_areas(G: Tensor, data: ConvexData, normals: Tensor, *, closure: float = 
         a = trial[torch.arange(B, device=M.device), value.argmin(-1)]
         grad = (M * a[:, None, :]).sum(-1) - c
         free = (a > 0) | (grad < 0)
+    if refine > 0:
+        a = _refine(M, c, a, refine)
     ca = (c * a).sum(-1)
     quad = (a * (M * a[:, None, :]).sum(-1)).sum(-1)
     good = ca > 0
@@ -313,7 +348,8 @@ def polish(data: ConvexData, normals: Tensor, scattering: Scattering | Satellite
     ``smoothness`` > 0 adds ``smoothness · (log a_i − log a_j)`` for every normal and its six nearest (whitened
     rows: a Laplacian-like prior that makes the Gaussian image smooth, as a low-degree expansion does). The period is
     scaled to a phase change over the data's span, ``x_P = 2π span (1/P₀ − 1/P)`` (rad), so every coordinate is
-    O(1); the areas start at ``max(a, 1e-3 max a)`` (a zero area cannot leave zero in log space)."""
+    O(1); the areas start at ``max(a, 1e-3 max a)`` (a zero area cannot leave zero in log space). A start whose
+    polish ends with no finite rms or a non-positive period is returned as it started (its period's 1σ NaN)."""
     p0 = period_s.to(torch.float64)
     floor = 1e-3 * areas.max(-1, keepdim=True).values
     log_a = torch.log(torch.maximum(areas, floor) / areas.sum(-1, keepdim=True))
@@ -325,13 +361,22 @@ def polish(data: ConvexData, normals: Tensor, scattering: Scattering | Satellite
                                   covariance="solution")
     result = batch_least_squares(residual, x0, prior=GaussianPrior.independent(x0, precision), options=options)
     rows = torch.arange(x0.shape[0], device=x0.device)
-    lam_, beta_, period = residual.spin(result.x, rows)
-    a = torch.exp(result.x[:, 3:])
-    r = relative_residuals(data, normals, scattering, lam=lam_, beta=beta_, period_s=period, areas=a)
+    x = result.x
+    lam_, beta_, period = residual.spin(x, rows)
+    r = relative_residuals(data, normals, scattering, lam=lam_, beta=beta_, period_s=period, areas=torch.exp(x[:, 3:]))
     rms = torch.sqrt((r * r).mean(-1))
+    failed = ~torch.isfinite(rms) | ~(period > 0)         # a step that left the model (data the law cannot fit)
+    if bool(failed.any()):                                 # keeps its start, its period's 1σ unknown
+        x = torch.where(failed[:, None], x0, x)
+        lam_, beta_, period = residual.spin(x, rows)
+        r = relative_residuals(data, normals, scattering, lam=lam_, beta=beta_, period_s=period,
+                               areas=torch.exp(x[:, 3:]))
+        rms = torch.sqrt((r * r).mean(-1))
+    a = torch.exp(x[:, 3:])
     # the Laplace 1σ of x_P, rescaled from the assumed sigma to the fit's rms
     var_phase = torch.diagonal(result.covariance, dim1=1, dim2=2)[:, 2] * (rms / sigma) ** 2
     period_sigma = period * period * torch.sqrt(var_phase.clamp_min(0)) / (2 * math.pi * data.span_s)
+    period_sigma = torch.where(failed, torch.full_like(period_sigma, math.nan), period_sigma)
     # a pole past a geographic pole of the grid: fold β back into [−π/2, π/2]
     flip = beta_.abs() > math.pi / 2
     lam_ = torch.where(flip, lam_ + math.pi, lam_)

@@ -62,7 +62,8 @@ HOUR_S = 3600.0
 class ConvexSettings:
     """What :func:`convex_search` does (module docstring); periods in hours, angles in degrees. ``ring`` > 0 adds
     that many normals on the body equator (:func:`~lightcurve_gp.photometry.convex.ring_normals`: faces parallel to
-    the spin axis) and the two poles ``±z`` to every stage's Fibonacci normals."""
+    the spin axis) and the two poles ``±z`` to every stage's Fibonacci normals; ``area_refine`` > 0 adds that many
+    accelerated projected-gradient steps to every area fit (three times that many before the polish)."""
 
     scattering: Scattering | SatelliteScattering = field(default_factory=Scattering)
     ring: int = 0
@@ -84,6 +85,7 @@ class ConvexSettings:
     closure: float = 0.1
     smoothness: float = 0.0
     area_iterations: int = 10
+    area_refine: int = 0
     max_log_ratio: float = 10.0
     chunk: int = 128
 
@@ -174,8 +176,8 @@ def _screen(data: ConvexData, normals: Tensor, settings: ConvexSettings, lam: Te
         sl = slice(s, s + settings.chunk)
         G = design(data, normals, settings.scattering, lam=lam[sl], beta=beta[sl], period_s=period_s[sl],
                    dtype=dtype)
-        out.append(fit_areas(G, data, normals, closure=settings.closure,
-                             iterations=settings.area_iterations).rms)
+        out.append(fit_areas(G, data, normals, closure=settings.closure, iterations=settings.area_iterations,
+                             refine=settings.area_refine).rms)
     return torch.cat(out)
 
 
@@ -326,7 +328,8 @@ def convex_search(data: ConvexData, settings: ConvexSettings = ConvexSettings(),
     normals = search_normals(settings.polish_normals, settings.ring)
     idx = torch.as_tensor(picks)
     G = design(data, normals, settings.scattering, lam=lam_all[idx], beta=beta_all[idx], period_s=per[idx])
-    init = fit_areas(G, data, normals, closure=settings.closure, iterations=3 * settings.area_iterations)
+    init = fit_areas(G, data, normals, closure=settings.closure, iterations=3 * settings.area_iterations,
+                     refine=3 * settings.area_refine)
     polished = polish(data, normals, settings.scattering, lam=lam_all[idx], beta=beta_all[idx], period_s=per[idx],
                       areas=init.areas, closure=settings.closure, iterations=settings.polish_iterations,
                       smoothness=settings.smoothness)
