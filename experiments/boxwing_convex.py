@@ -90,7 +90,8 @@ def magnitudes(scene: Scene, A: np.ndarray) -> np.ndarray:
     return scene.magnitude(q).numpy()
 
 
-def simulate(seed: int, *, nights: int, hours: float, cadence: float) -> tuple[Observations, dict, dict]:
+def simulate(seed: int, *, nights: int, hours: float, cadence: float, gap_days: float = 1.0
+             ) -> tuple[Observations, dict, dict]:
     """One seed's relative light curves (ecliptic J2000 directions), its truth and what scoring needs."""
     rng = np.random.default_rng(seed)
     pole = rng.standard_normal(3)
@@ -98,7 +99,8 @@ def simulate(seed: int, *, nights: int, hours: float, cadence: float) -> tuple[O
     axis = int(rng.choice([1, 2]))
     period_s = 60.0 * math.exp(rng.uniform(math.log(2.0), math.log(20.0)))
     phase0 = rng.uniform(0.0, 2 * math.pi)
-    stamps = np.concatenate([k * DAY + np.arange(0.0, hours * 3600.0, cadence) for k in range(nights)])
+    stamps = np.concatenate([round(k * gap_days) * DAY + np.arange(0.0, hours * 3600.0, cadence)
+                             for k in range(nights)])
     span = float(stamps[-1])
     cfg = load_config(CONFIG, [f"geometry.timestamps_s={stamps.tolist()}", f"geometry.gap_seed={seed}",
                                f"scenario.dt_s={cadence}", f"scenario.duration_s={span}",
@@ -119,7 +121,7 @@ def simulate(seed: int, *, nights: int, hours: float, cadence: float) -> tuple[O
     S = np.diag([-1.0, 1.0, 1.0])
     image_misfit = float(np.nanmax(np.abs(magnitudes(scene, S @ A @ M) - clean)))
     image_pole = -M @ pole
-    night = np.floor(t / DAY).astype(int)
+    night = np.floor(t / DAY + 0.5 / 24).astype(int)
     _, curve = np.unique(night, return_inverse=True)
     f64 = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float64)  # noqa: E731
     mag = clean + NOISE_MAG * rng.standard_normal(t.size)
@@ -204,7 +206,8 @@ def score(truth: dict, search, data, settings: ConvexSettings) -> dict:
 
 
 def run_seed(seed: int, args, settings: ConvexSettings) -> dict:
-    obs, truth, _ = simulate(seed, nights=args.nights, hours=args.hours, cadence=args.cadence)
+    obs, truth, _ = simulate(seed, nights=args.nights, hours=args.hours, cadence=args.cadence,
+                             gap_days=args.gap_days)
     data = convex_data(obs, glint_clip=args.glint_clip)
     start = time.perf_counter()
     search = convex_search(data, settings)
@@ -242,6 +245,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--nights", type=int, default=2)
     parser.add_argument("--hours", type=float, default=2.5)
     parser.add_argument("--cadence", type=float, default=15.0, help="seconds between samples")
+    parser.add_argument("--gap-days", type=float, default=1.0, help="days from one night's start to the next "
+                                                                    "(rounded to whole days)")
     parser.add_argument("--glint-clip", type=float, default=GLINT_CLIP)
     parser.add_argument("--lobes", default=None, help="the lobe exponents, comma separated ('' for the diffuse "
                                                       "basis alone; default this study's)")
