@@ -41,7 +41,7 @@ from lightcurve_gp.inference.convex_fit import ConvexData, convex_data, relative
 from lightcurve_gp.inference.convex_search import ConvexSearch, ConvexSettings, convex_search
 from lightcurve_gp.observed.convex_solutions import areas_table, convex_solutions_table, write_convex_tables
 from lightcurve_gp.observed.damit import DEFAULT_SIGMA_MAG, is_damit_file, read_damit
-from lightcurve_gp.photometry.convex import Scattering
+from lightcurve_gp.photometry.convex import SatelliteScattering, Scattering
 
 __all__ = ["settings_from_config", "run"]
 
@@ -49,9 +49,13 @@ __all__ = ["settings_from_config", "run"]
 def settings_from_config(cfg, max_log_ratio: float) -> ConvexSettings:
     """The search's settings from the config's ``convex:`` section."""
     c = cfg.convex
+    if c.law == "ashikhmin_shirley":
+        scattering = SatelliteScattering(f0=c.fresnel_f0, exponents=tuple(float(n) for n in c.lobe_exponents))
+    else:
+        scattering = Scattering(lambert=c.lambert, amplitude=c.phase_amplitude, width_rad=c.phase_width_rad,
+                                slope=c.phase_slope)
     return ConvexSettings(
-        scattering=Scattering(lambert=c.lambert, amplitude=c.phase_amplitude, width_rad=c.phase_width_rad,
-                              slope=c.phase_slope),
+        scattering=scattering, ring=c.ring_normals, area_refine=c.refine_steps,
         period_range_h=(float(c.period_range_h[0]), float(c.period_range_h[1])), harmonics=c.harmonics,
         window=c.window, step=c.step, coarse_poles=c.coarse_poles, coarse_normals=c.coarse_normals,
         subsample=c.subsample, top_periods=c.top_periods, fine_poles=c.poles, fine_normals=c.screen_normals,
@@ -106,7 +110,7 @@ def _figures(folder: Path, data: ConvexData, search: ConvexSearch, settings: Con
     save_figure(fig, folder / "light_curves.png")
 
     n = search.normals.numpy()
-    a = fam.areas[0]
+    a = fam.areas[0].reshape(-1, n.shape[0]).sum(0)                      # every basis's areas on a normal
     fig = Figure(figsize=(10.0, 4.5), layout="constrained")
     ax3 = fig.add_subplot(1, 2, 1, projection="3d")
     tips = n * (a / a.max())[:, None]
@@ -151,7 +155,10 @@ def run(cfg, args: argparse.Namespace) -> int:
     settings = settings_from_config(cfg, args.max_log_ratio)
     show = progress_enabled(args.no_progress)
     say = (lambda message: tqdm.write(message)) if show else None
-    data = convex_data(obs)
+    data = convex_data(obs, glint_clip=cfg.convex.glint_clip)
+    if len(data) < len(obs):
+        print(f"{path.name}: {len(obs) - len(data)} of {len(obs)} samples brighter than {cfg.convex.glint_clip:g} "
+              f"times their curve's median dropped as glints (convex.glint_clip)")
     start = time.perf_counter()
     search = convex_search(data, settings, progress=say)
     total = time.perf_counter() - start
@@ -166,7 +173,8 @@ def run(cfg, args: argparse.Namespace) -> int:
                "effective_samples": search.effective_samples,
                "settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(settings).items()
                             if k != "scattering"},
-               "scattering": vars(settings.scattering), "run": record}
+               "scattering": {"law": type(settings.scattering).__name__, **vars(settings.scattering)},
+               "run": record}
     with RunFolder(folder, force=args.force) as tmp:
         write_convex_tables(tmp, table, areas_table(search))
         write_json_atomic(summary, tmp / "summary.json")

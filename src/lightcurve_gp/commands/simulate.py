@@ -18,6 +18,11 @@ magnitude); the sidecar holds the same samples.
 by a draw of ``--truth-seed`` (default ``--seed``): an attitude uniform on SO(3), a rate of log-uniform magnitude in
 ``[MIN, MAX]`` deg/s about a uniform axis (:func:`random_truth`); the sidecar's config records the drawn values.
 
+``--format damit`` writes the light curve as a DAMIT/convexinv file instead (:mod:`lightcurve_gp.observed.damit`:
+``JD intensity sun_xyz earth_xyz``, the vectors rotated from the GCRS into the ecliptic J2000 frame, the Sun at
+1 au, the curve flagged calibrated), which ``invert`` with a ``convex:`` config reads; it needs a pass
+(``geometry.kind: orbit``: per-sample geometry) and an ``--out`` without a table suffix.
+
 Both files appear together or not at all (temporary files renamed at the end); an existing file is refused unless
 ``--force``. Errors are one line and exit code 2, as in every command.
 """
@@ -47,7 +52,10 @@ from lightcurve_gp.commands.common import (
 )
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.files import atomic_path, json_ready
+from lightcurve_gp.observations.observations import CurveInfo, Observations
+from lightcurve_gp.observed.damit import AU_M, DEFAULT_SIGMA_MAG, equatorial_to_ecliptic, write_damit
 from lightcurve_gp.observed.lightcurve_file import (
+    FORMATS,
     LightCurve,
     iso_times,
     light_curve_format,
@@ -57,7 +65,7 @@ from lightcurve_gp.observed.lightcurve_file import (
 from lightcurve_gp.observed.table_units import ISO_UTC, QUATERNION, set_units
 from lightcurve_gp.simulation.scenario import Scenario, simulate_scenario
 
-__all__ = ["truth_path", "truth_table", "random_truth", "build_parser", "main"]
+__all__ = ["truth_path", "truth_table", "random_truth", "damit_observations", "build_parser", "main"]
 
 #: offset of the truth draw's generator from ``--truth-seed`` (apart from the noise seeds)
 TRUTH_DRAW_STREAM = 1 << 41
@@ -115,6 +123,20 @@ def truth_table(sc: Scenario, lc: LightCurve, record: dict, rows: np.ndarray) ->
     return table
 
 
+def damit_observations(lc: LightCurve, *, source: str) -> Observations:
+    """The simulated light curve with its pass geometry as one calibrated curve of :class:`Observations` in the
+    ecliptic J2000 frame (what :func:`~lightcurve_gp.observed.damit.write_damit` writes; the Sun at 1 au)."""
+    f64 = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float64)  # noqa: E731
+    n = lc.t.size
+    sigma = lc.mag_err if lc.mag_err is not None else np.full(n, DEFAULT_SIGMA_MAG)
+    return Observations(t=f64(lc.t), mag=f64(lc.mag), sigma=f64(sigma), curve=torch.zeros(n, dtype=torch.long),
+                        curves=(CurveInfo(source=source, relative=False),),
+                        sun=f64(equatorial_to_ecliptic(lc.geometry["sun"])),
+                        observer=f64(equatorial_to_ecliptic(lc.geometry["obs"])),
+                        range_m=f64(lc.geometry["range_km"] * 1e3), sun_range_m=f64(np.full(n, AU_M)),
+                        epoch=iso_times(lc.start))
+
+
 def build_parser(prog: str = "lightcurve-gp simulate") -> argparse.ArgumentParser:
     """The command's options; ``prog`` is how it was called (its usage line)."""
     parser = argparse.ArgumentParser(
@@ -122,7 +144,11 @@ def build_parser(prog: str = "lightcurve-gp simulate") -> argparse.ArgumentParse
         description="Simulate the config's scenario and write its noisy light curve as a light-curve file "
                     "(.ecsv, .csv or .fits) with the truth in <stem>.truth.ecsv beside it.")
     parser.add_argument("config", help="YAML config, e.g. configs/boxwing_robust.yaml")
-    parser.add_argument("--out", required=True, type=Path, help="the light-curve file to write (.ecsv, .csv, .fits)")
+    parser.add_argument("--out", required=True, type=Path,
+                        help="the light-curve file to write (.ecsv, .csv, .fits; with --format damit no suffix)")
+    parser.add_argument("--format", dest="file_format", choices=("table", "damit"), default="table",
+                        help="table: a light-curve table (its format from the suffix); damit: a DAMIT/convexinv "
+                             "file for the convex inversion (needs geometry.kind: orbit)")
     parser.add_argument("--seed", type=int, default=0, help="noise seed, an integer >= 0 (default 0)")
     parser.add_argument("--rho-true", type=float, default=None, help="true rho in (0, 1] (default scenario.rho_true)")
     parser.add_argument("--start", default=None,
@@ -189,7 +215,14 @@ def _run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config, args.overrides + drawn)
     if args.rho_true is not None and not 0.0 < args.rho_true <= 1.0:
         raise UserError(f"--rho-true: {args.rho_true:g} is outside (0, 1]")
-    fmt = light_curve_format(args.out)
+    damit = args.file_format == "damit"
+    if damit and args.out.suffix.lower() in FORMATS:
+        raise UserError(f"--out: {args.out} has a table suffix; a DAMIT file (--format damit) has none, e.g. "
+                        f"{args.out.with_suffix('')}")
+    if damit and cfg.geometry.kind != "orbit":
+        raise UserError("--format damit: the file needs per-sample Sun and observer directions; use a pass config "
+                        "(geometry.kind: orbit), e.g. configs/geo_night.yaml")
+    fmt = None if damit else light_curve_format(args.out)
     start = _checked_start(args.start, cfg)
     sidecar = truth_path(args.out)
     check_output_root(args.out.parent)
@@ -202,7 +235,10 @@ def _run(args: argparse.Namespace) -> int:
     with ExitStack() as stack:
         tmp_obs = stack.enter_context(atomic_path(args.out))
         tmp_truth = stack.enter_context(atomic_path(sidecar))
-        write_table(light_curve_table(lc, args.time_format), tmp_obs, fmt=fmt)
+        if damit:
+            write_damit(damit_observations(lc, source=f"simulation seed {args.seed}"), tmp_obs)
+        else:
+            write_table(light_curve_table(lc, args.time_format), tmp_obs, fmt=fmt)
         write_table(truth_table(sc, lc, record, rows), tmp_truth, fmt="ascii.ecsv")
     print(f"written: {args.out} ({rows.size} samples, seed {args.seed}, rho_true {sc.rho_true:g}) and {sidecar}")
     return 0

@@ -44,6 +44,23 @@ class ConvexConfig:
     :mod:`lightcurve_gp.commands.invert_convex`): pole, period and a convex shape from relative light curves with
     per-sample Sun and observer directions (e.g. a DAMIT file); the other sections are then not used."""
 
+    law: str = spec("lommel_seeliger", choices=("lommel_seeliger", "ashikhmin_shirley"), omit_default=True,
+                    doc="the scattering law: lommel_seeliger (+ c Lambert, with the phase function; asteroids) or "
+                        "ashikhmin_shirley (a diffuse basis and one specular lobe per lobe_exponents entry, each "
+                        "with its own areas; satellites)")
+    lobe_exponents: list[float] = spec([800.0], lo=0.0, lo_open=True, omit_default=True,
+                                        doc="ashikhmin_shirley: the fixed exponents n_u = n_v of the specular bases")
+    fresnel_f0: float = spec(0.5, lo=0.0, hi=1.0, omit_default=True,
+                             doc="ashikhmin_shirley: the lobes' Fresnel reflectance F0")
+    ring_normals: int = spec(0, lo=0, omit_default=True,
+                             doc="normals on the body equator (faces parallel to the spin axis) and the poles +-z "
+                                 "added to every stage's Fibonacci normals (0: none)")
+    glint_clip: float | None = spec(None, lo=1.0, lo_open=True, omit_default=True,
+                                    doc="samples brighter than this many times their curve's median intensity are "
+                                        "dropped as specular glints (null: none dropped)")
+    refine_steps: int = spec(0, lo=0, omit_default=True,
+                             doc="accelerated projected-gradient steps after every area fit's Newton iteration (for "
+                                 "the near-singular fits of close ring normals and several bases; 0: none)")
     lambert: float = spec(0.1, lo=0.0, doc="c of the Lommel-Seeliger + c Lambert law")
     phase_amplitude: float = spec(0.5, doc="a of the phase function a exp(-alpha/d) + k alpha + 1")
     phase_width_rad: float = spec(0.1, lo=0.0, lo_open=True, doc="d of the phase function (rad)")

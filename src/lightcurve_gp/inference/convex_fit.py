@@ -32,9 +32,17 @@ from torch import Tensor
 
 from lightcurve_gp.inference.solver import GaussianPrior, LeastSquaresOptions, batch_least_squares
 from lightcurve_gp.observations.observations import Observations
-from lightcurve_gp.photometry.convex import Scattering, body_vectors, facet_brightness, phase_angle
+from lightcurve_gp.photometry.convex import (
+    SatelliteScattering,
+    Scattering,
+    area_normals,
+    body_vectors,
+    facet_brightness,
+    facet_terms,
+    phase_angle,
+)
 
-__all__ = ["ConvexData", "AreaFit", "Polished", "PolishResidual", "convex_data", "design", "fit_areas",
+__all__ = ["ConvexData", "AreaFit", "Polished", "PolishResidual", "glint_samples", "convex_data", "design", "fit_areas",
            "relative_residuals", "polish"]
 
 
@@ -76,12 +84,24 @@ class ConvexData:
         return sums.index_add_(-1, self.curve, values) / self.counts.to(values.dtype)
 
 
-def convex_data(obs: Observations) -> ConvexData:
+def glint_samples(obs: Observations, clip: float) -> Tensor:
+    """The samples ``(N,)`` (bool) brighter than ``clip`` times their light curve's median intensity: a satellite's
+    specular glints, flashes a few degrees of rotation wide that a model on fixed normals cannot time."""
+    intensity = torch.pow(10.0, -0.4 * obs.mag.to(torch.float64))
+    median = torch.stack([intensity[obs.curve == c].median() if bool((obs.curve == c).any())
+                          else intensity.new_tensor(math.inf) for c in range(len(obs.curves))])
+    return intensity > clip * median[obs.curve]
+
+
+def convex_data(obs: Observations, *, glint_clip: float | None = None) -> ConvexData:
     """:class:`ConvexData` from observations with per-sample geometry (magnitudes → relative intensities: every
-    curve is treated as relative, its scale unknown). Raises ``ValueError`` without geometry."""
+    curve is treated as relative, its scale unknown), without the samples :func:`glint_samples` finds when
+    ``glint_clip`` is given. Raises ``ValueError`` without geometry."""
     if not obs.has_geometry:
         raise ValueError("convex inversion needs per-sample Sun and observer directions (none given)")
     obs = obs.to(dtype=torch.float64)
+    if glint_clip is not None:
+        obs = obs.select(torch.nonzero(~glint_samples(obs, glint_clip)).flatten())
     intensity = torch.pow(10.0, -0.4 * obs.mag)
     counts = obs.counts().to(obs.t.device)
     curves = len(obs.curves)
@@ -92,10 +112,11 @@ def convex_data(obs: Observations) -> ConvexData:
                       span_s=obs.span_s)
 
 
-def design(data: ConvexData, normals: Tensor, scattering: Scattering, *, lam: Tensor, beta: Tensor,
-           period_s: Tensor, phi0: Tensor | None = None, dtype: torch.dtype | None = None) -> Tensor:
-    """``G`` ``(B, N, K)`` of ``B`` spin states (``lam``, ``beta`` rad, ``period_s`` s, ``phi0`` rad, each
-    ``(B,)``; ``phi0`` 0 by default): the brightness of a unit area on each normal at each sample. The rotation is
+def design(data: ConvexData, normals: Tensor, scattering: Scattering | SatelliteScattering, *, lam: Tensor,
+           beta: Tensor, period_s: Tensor, phi0: Tensor | None = None, dtype: torch.dtype | None = None) -> Tensor:
+    """``G`` ``(B, N, M·K)`` of ``B`` spin states (``lam``, ``beta`` rad, ``period_s`` s, ``phi0`` rad, each
+    ``(B,)``; ``phi0`` 0 by default): the brightness of a unit area on each normal ``(K, 3)`` and basis of the law
+    (``M`` of them, basis-major) at each sample. The rotation is
     formed in ``lam``'s dtype (float64 over decades), the scattering in ``dtype`` (default: ``lam``'s; float32 is
     six times faster on a CPU and enough for a screen)."""
     phi0 = torch.zeros_like(lam) if phi0 is None else phi0
@@ -135,16 +156,39 @@ def _quadratic(G: Tensor, data: ConvexData, normals: Tensor, closure: float) -> 
     return M, W.mean(1)
 
 
+def _refine(M: Tensor, c: Tensor, a: Tensor, steps: int) -> Tensor:
+    """``steps`` accelerated projected-gradient steps (FISTA with adaptive restart, Jacobi-preconditioned) on
+    ``min aᵀ M a − 2 cᵀ a, a ≥ 0`` from ``a`` ``(B, K)``: they keep descending where the Newton iteration stalls on a
+    near-singular ``M`` (close normals, several bases per normal)."""
+    d = torch.sqrt(torch.diagonal(M, dim1=1, dim2=2).clamp_min(1e-300))
+    Ms, cs = M / (d[:, :, None] * d[:, None, :]), c / d
+    lipschitz = torch.linalg.eigvalsh(Ms)[:, -1:].clamp_min(1e-300)
+    b = a * d
+    y, t = b.clone(), torch.ones_like(lipschitz)
+    for _ in range(steps):
+        nxt = (y - ((Ms @ y[..., None])[..., 0] - cs) / lipschitz).clamp_min(0.0)
+        t_next = 0.5 * (1.0 + torch.sqrt(1.0 + 4.0 * t * t))
+        restart = ((y - nxt) * (nxt - b)).sum(-1, keepdim=True) > 0
+        y = torch.where(restart, nxt, nxt + (t - 1.0) / t_next * (nxt - b))
+        t = torch.where(restart, torch.ones_like(t), t_next)
+        b = nxt
+    return b / d
+
+
 def fit_areas(G: Tensor, data: ConvexData, normals: Tensor, *, closure: float = 0.1,
-              iterations: int = 12) -> AreaFit:
-    """Non-negative areas of ``B`` spin states at once (module docstring), from their ``G`` ``(B, N, K)`` (float32
-    or float64; the quadratic program is solved in float64).
+              iterations: int = 12, refine: int = 0) -> AreaFit:
+    """Non-negative areas of ``B`` spin states at once (module docstring), from their ``G`` ``(B, N, M·K)`` (float32
+    or float64; the quadratic program is solved in float64) on ``normals`` ``(K, 3)``, ``M`` the law's bases (the
+    closure term sums every basis's areas).
 
     The program ``min aᵀ M a − 2 cᵀ a, a ≥ 0`` is solved by a batched projected Newton iteration with a fixed count:
     the free set is every area that is positive or whose gradient is negative; the areas on it solve
     ``M_FF a_F = c_F`` (the rest are 0), then are clipped at 0. A few iterations fix the active set of a screen's
     candidate; the returned rss is that of the returned (feasible) areas, so an unconverged candidate only looks
-    worse than it is."""
+    worse than it is. ``refine`` > 0 adds that many accelerated projected-gradient steps (:func:`_refine`), for
+    near-singular programs (the satellite law's close ring normals and bases), where the Newton iteration stalls far
+    from the optimum."""
+    normals = normals.repeat(G.shape[-1] // normals.shape[0], 1)
     M, c = _quadratic(G, data.with_dtype(G.dtype), normals.to(G.dtype), closure)
     M, c = M.to(torch.float64), c.to(torch.float64)
     B, K = c.shape
@@ -171,6 +215,8 @@ def fit_areas(G: Tensor, data: ConvexData, normals: Tensor, *, closure: float = 
         a = trial[torch.arange(B, device=M.device), value.argmin(-1)]
         grad = (M * a[:, None, :]).sum(-1) - c
         free = (a > 0) | (grad < 0)
+    if refine > 0:
+        a = _refine(M, c, a, refine)
     ca = (c * a).sum(-1)
     quad = (a * (M * a[:, None, :]).sum(-1)).sum(-1)
     good = ca > 0
@@ -180,9 +226,9 @@ def fit_areas(G: Tensor, data: ConvexData, normals: Tensor, *, closure: float = 
     return AreaFit(areas=areas, rss=rss, rms=torch.sqrt(rss / len(data)))
 
 
-def relative_residuals(data: ConvexData, normals: Tensor, scattering: Scattering, *, lam: Tensor, beta: Tensor,
-                       period_s: Tensor, areas: Tensor) -> Tensor:
-    """convexinv's residuals ``ỹ_i − L_i / L̄_c`` ``(B, N)`` of ``B`` models (areas ``(B, K)``)."""
+def relative_residuals(data: ConvexData, normals: Tensor, scattering: Scattering | SatelliteScattering, *,
+                       lam: Tensor, beta: Tensor, period_s: Tensor, areas: Tensor) -> Tensor:
+    """convexinv's residuals ``ỹ_i − L_i / L̄_c`` ``(B, N)`` of ``B`` models (areas ``(B, M·K)``)."""
     G = design(data, normals, scattering, lam=lam, beta=beta, period_s=period_s)
     L = (G * areas[:, None, :]).sum(-1)
     return data.y - L / data.curve_mean(L)[:, data.curve]
@@ -194,7 +240,7 @@ class Polished:
 
     Attributes:
         lam, beta: pole (rad) ``(B,)``; period_s: sidereal period (s) ``(B,)``.
-        areas: ``(B, K)`` areas (relative units, summing to 1).
+        areas: ``(B, M·K)`` areas (relative units, summing to 1; basis-major).
         rms: convexinv's rms of the relative-intensity residuals ``(B,)``.
         period_sigma_s: the period's 1σ from the Laplace approximation with the residuals' rms as noise ``(B,)``.
         iterations: Levenberg–Marquardt iterations taken ``(B,)``.
@@ -213,9 +259,11 @@ class PolishResidual:
     """Whitened residuals of :func:`polish` and their Jacobian (analytic in the log areas, central differences in
     the spin); ``x = (λ, β, x_P, log a)``."""
 
-    def __init__(self, data: ConvexData, normals: Tensor, scattering: Scattering, period0_s: Tensor,
-                 sigma: float, closure: float, smoothness: float = 0.0, neighbours: int = 6) -> None:
-        self.data, self.normals, self.scattering, self.p0 = data, normals, scattering, period0_s
+    def __init__(self, data: ConvexData, normals: Tensor, scattering: Scattering | SatelliteScattering,
+                 period0_s: Tensor, sigma: float, closure: float, smoothness: float = 0.0, neighbours: int = 6) -> None:
+        self.data, self.design_normals, self.scattering, self.p0 = data, normals, scattering, period0_s
+        normals = area_normals(normals, scattering)                  # (M·K, 3): closure and smoothness per area
+        self.normals = normals
         self.sigma, self.weight = sigma, math.sqrt(closure * len(data))
         # smoothness: smoothness · (log a_i − log a_j) for each normal and its nearest neighbours (whitened rows)
         K = normals.shape[0]
@@ -239,7 +287,7 @@ class PolishResidual:
 
     def _design(self, x: Tensor, rows: Tensor) -> Tensor:
         lam, beta, period = self.spin(x, rows)
-        return design(self.data, self.normals, self.scattering, lam=lam, beta=beta, period_s=period)
+        return design(self.data, self.design_normals, self.scattering, lam=lam, beta=beta, period_s=period)
 
     def __call__(self, x: Tensor, rows: Tensor) -> Tensor:
         return self._parts(self._design(x, rows), torch.exp(x[:, 3:]))[0]
@@ -251,7 +299,8 @@ class PolishResidual:
 
     def linearize(self, x: Tensor, rows: Tensor) -> tuple[Tensor, Tensor]:
         """Residuals and Jacobian: the body-frame vectors' derivatives in the spin by central differences (cheap:
-        ``(A, N, 3)``), the rest in closed form with ``∂S/∂μ = μ0²/(μ+μ0)² + c μ0`` and its twin."""
+        ``(A, N, 3)``), the rest in closed form from the law's partial derivatives in ``μ``, ``μ0`` and ``ν``
+        (:meth:`~lightcurve_gp.photometry.convex.Scattering.terms`)."""
         A = x.shape[0]
         h = torch.tensor([1e-6, 1e-6, 1e-6], dtype=x.dtype, device=x.device)
         shifts = torch.cat([torch.zeros(1, 3, dtype=x.dtype), torch.diag(h), -torch.diag(h)])   # (7, 3)
@@ -260,16 +309,18 @@ class PolishResidual:
         sun_all, obs_all = sun_all.reshape(7, A, -1, 3), obs_all.reshape(7, A, -1, 3)
         dsun = (sun_all[1:4] - sun_all[4:7]) / (2 * h[:, None, None, None])                     # (3, A, N, 3)
         dobs = (obs_all[1:4] - obs_all[4:7]) / (2 * h[:, None, None, None])
-        mu0 = (sun_all[0] @ self.normals.T).clamp_min(0.0)
-        mu = (obs_all[0] @ self.normals.T).clamp_min(0.0)
-        lit = (mu > 0) & (mu0 > 0)
-        total = torch.where(lit, mu + mu0, 1.0)
-        c, f = self.scattering.lambert, self.scattering.phase_function(self.data.alpha)[:, None]
-        G = f * mu * mu0 * (1.0 / total + c)
+        terms, h, norm = facet_terms(self.design_normals, sun_all[0], obs_all[0], self.data.alpha, self.scattering,
+                                     derivatives=True)
+        G = terms.value.flatten(-2)                                                               # (A, N, M·K)
         a = torch.exp(x[:, 3:])
-        d_mu = torch.where(lit, f * (mu0 * mu0 / (total * total) + c * mu0), 0.0) * a[:, None, :]   # ∂L/∂μ_k
-        d_mu0 = torch.where(lit, f * (mu * mu / (total * total) + c * mu), 0.0) * a[:, None, :]
-        grad_obs, grad_sun = d_mu @ self.normals, d_mu0 @ self.normals                           # (A, N, 3)
+        per_basis = a.reshape(A, 1, *terms.value.shape[-2:])                                      # (A, 1, M, K)
+        d_mu, d_mu0 = (terms.d_mu * per_basis).sum(-2), (terms.d_mu0 * per_basis).sum(-2)        # ∂L/∂μ_k (A, N, K)
+        grad_obs, grad_sun = d_mu @ self.design_normals, d_mu0 @ self.design_normals              # (A, N, 3)
+        if terms.d_nu is not None:                  # ∂ν_k/∂v = ∂ν_k/∂s = (n_k − ν_k h)/|s + v|
+            d_nu = (terms.d_nu * per_basis).sum(-2)
+            nu = h @ self.design_normals.T
+            via_h = (d_nu @ self.design_normals - (d_nu * nu).sum(-1, keepdim=True) * h) / norm
+            grad_obs, grad_sun = grad_obs + via_h, grad_sun + via_h
         dL = ((grad_obs[None] * dobs).sum(-1) + (grad_sun[None] * dsun).sum(-1)).permute(1, 2, 0)  # (A, N, 3)
         r, mean = self._parts(G, a)
         L = (G * a[:, None, :]).sum(-1)
@@ -287,9 +338,9 @@ class PolishResidual:
         return r, torch.cat([spin_jac, area_jac], -1)
 
 
-def polish(data: ConvexData, normals: Tensor, scattering: Scattering, *, lam: Tensor, beta: Tensor,
-           period_s: Tensor, areas: Tensor, closure: float = 0.1, iterations: int = 30, sigma: float = 0.01,
-           area_prior_std: float = 3.0, smoothness: float = 0.0) -> Polished:
+def polish(data: ConvexData, normals: Tensor, scattering: Scattering | SatelliteScattering, *, lam: Tensor,
+           beta: Tensor, period_s: Tensor, areas: Tensor, closure: float = 0.1, iterations: int = 30,
+           sigma: float = 0.01, area_prior_std: float = 3.0, smoothness: float = 0.0) -> Polished:
     """Levenberg–Marquardt on ``(λ, β, P, log a)`` of ``B`` starts at once (module docstring).
 
     The residuals are whitened by ``sigma`` (relative intensity); a weak Gaussian prior of standard deviation
@@ -297,7 +348,8 @@ def polish(data: ConvexData, normals: Tensor, scattering: Scattering, *, lam: Te
     ``smoothness`` > 0 adds ``smoothness · (log a_i − log a_j)`` for every normal and its six nearest (whitened
     rows: a Laplacian-like prior that makes the Gaussian image smooth, as a low-degree expansion does). The period is
     scaled to a phase change over the data's span, ``x_P = 2π span (1/P₀ − 1/P)`` (rad), so every coordinate is
-    O(1); the areas start at ``max(a, 1e-3 max a)`` (a zero area cannot leave zero in log space)."""
+    O(1); the areas start at ``max(a, 1e-3 max a)`` (a zero area cannot leave zero in log space). A start whose
+    polish ends with no finite rms or a non-positive period is returned as it started (its period's 1σ NaN)."""
     p0 = period_s.to(torch.float64)
     floor = 1e-3 * areas.max(-1, keepdim=True).values
     log_a = torch.log(torch.maximum(areas, floor) / areas.sum(-1, keepdim=True))
@@ -309,13 +361,22 @@ def polish(data: ConvexData, normals: Tensor, scattering: Scattering, *, lam: Te
                                   covariance="solution")
     result = batch_least_squares(residual, x0, prior=GaussianPrior.independent(x0, precision), options=options)
     rows = torch.arange(x0.shape[0], device=x0.device)
-    lam_, beta_, period = residual.spin(result.x, rows)
-    a = torch.exp(result.x[:, 3:])
-    r = relative_residuals(data, normals, scattering, lam=lam_, beta=beta_, period_s=period, areas=a)
+    x = result.x
+    lam_, beta_, period = residual.spin(x, rows)
+    r = relative_residuals(data, normals, scattering, lam=lam_, beta=beta_, period_s=period, areas=torch.exp(x[:, 3:]))
     rms = torch.sqrt((r * r).mean(-1))
+    failed = ~torch.isfinite(rms) | ~(period > 0)         # a step that left the model (data the law cannot fit)
+    if bool(failed.any()):                                 # keeps its start, its period's 1σ unknown
+        x = torch.where(failed[:, None], x0, x)
+        lam_, beta_, period = residual.spin(x, rows)
+        r = relative_residuals(data, normals, scattering, lam=lam_, beta=beta_, period_s=period,
+                               areas=torch.exp(x[:, 3:]))
+        rms = torch.sqrt((r * r).mean(-1))
+    a = torch.exp(x[:, 3:])
     # the Laplace 1σ of x_P, rescaled from the assumed sigma to the fit's rms
     var_phase = torch.diagonal(result.covariance, dim1=1, dim2=2)[:, 2] * (rms / sigma) ** 2
     period_sigma = period * period * torch.sqrt(var_phase.clamp_min(0)) / (2 * math.pi * data.span_s)
+    period_sigma = torch.where(failed, torch.full_like(period_sigma, math.nan), period_sigma)
     # a pole past a geographic pole of the grid: fold β back into [−π/2, π/2]
     flip = beta_.abs() > math.pi / 2
     lam_ = torch.where(flip, lam_ + math.pi, lam_)

@@ -43,19 +43,30 @@ from lightcurve_gp.inference.convex_fit import (
     relative_residuals,
 )
 from lightcurve_gp.inference.convex_periodogram import ConvexPeriodogram, multiterm_periodogram
-from lightcurve_gp.photometry.convex import Scattering, fibonacci_normals, pole_angles, pole_vector
+from lightcurve_gp.photometry.convex import (
+    SatelliteScattering,
+    Scattering,
+    fibonacci_normals,
+    pole_angles,
+    pole_vector,
+    ring_normals,
+)
 
 __all__ = ["ConvexSettings", "ConvexFamilies", "ConvexSearch", "convex_search", "effective_samples", "period_grid",
-           "pole_grid"]
+           "pole_grid", "search_normals"]
 
 HOUR_S = 3600.0
 
 
 @dataclass(frozen=True)
 class ConvexSettings:
-    """What :func:`convex_search` does (module docstring); periods in hours, angles in degrees."""
+    """What :func:`convex_search` does (module docstring); periods in hours, angles in degrees. ``ring`` > 0 adds
+    that many normals on the body equator (:func:`~lightcurve_gp.photometry.convex.ring_normals`: faces parallel to
+    the spin axis) and the two poles ``±z`` to every stage's Fibonacci normals; ``area_refine`` > 0 adds that many
+    accelerated projected-gradient steps to every area fit (three times that many before the polish)."""
 
-    scattering: Scattering = field(default_factory=Scattering)
+    scattering: Scattering | SatelliteScattering = field(default_factory=Scattering)
+    ring: int = 0
     period_range_h: tuple[float, float] = (2.0, 20.0)
     harmonics: int = 2
     period_candidates: int = 1
@@ -74,8 +85,18 @@ class ConvexSettings:
     closure: float = 0.1
     smoothness: float = 0.0
     area_iterations: int = 10
+    area_refine: int = 0
     max_log_ratio: float = 10.0
     chunk: int = 128
+
+
+def search_normals(count: int, ring: int) -> Tensor:
+    """The normals ``(K, 3)`` of a stage: ``count`` Fibonacci normals, and with ``ring`` > 0 that many on the
+    equator and the poles ``±z`` (:class:`ConvexSettings`)."""
+    if ring <= 0:
+        return fibonacci_normals(count)
+    poles = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]], dtype=torch.float64)
+    return torch.cat([fibonacci_normals(count), ring_normals(ring), poles])
 
 
 def pole_grid(n: int, *, dtype: torch.dtype = torch.float64) -> tuple[Tensor, Tensor]:
@@ -125,7 +146,8 @@ class ConvexSearch:
     Attributes:
         periodogram: the seed's periodogram.
         families: the families (best first).
-        normals: the polish normals ``(K, 3)`` (body frame) the areas belong to.
+        normals: the polish normals ``(K, 3)`` (body frame) the areas belong to (``M·K`` areas per family, basis
+            by basis: ``basis_names``).
         screened: candidates screened per stage.
         seconds: wall time per stage (s).
         coarse_periods_h, coarse_rms: the coarse stage's periods and their best rms over poles (the scan's
@@ -143,6 +165,7 @@ class ConvexSearch:
     coarse_rms: np.ndarray
     residual_correlation: float
     effective_samples: float
+    basis_names: tuple[str, ...] = ("lommel_seeliger",)
 
 
 def _screen(data: ConvexData, normals: Tensor, settings: ConvexSettings, lam: Tensor, beta: Tensor,
@@ -153,8 +176,8 @@ def _screen(data: ConvexData, normals: Tensor, settings: ConvexSettings, lam: Te
         sl = slice(s, s + settings.chunk)
         G = design(data, normals, settings.scattering, lam=lam[sl], beta=beta[sl], period_s=period_s[sl],
                    dtype=dtype)
-        out.append(fit_areas(G, data, normals, closure=settings.closure,
-                             iterations=settings.area_iterations).rms)
+        out.append(fit_areas(G, data, normals, closure=settings.closure, iterations=settings.area_iterations,
+                             refine=settings.area_refine).rms)
     return torch.cat(out)
 
 
@@ -267,7 +290,7 @@ def convex_search(data: ConvexData, settings: ConvexSettings = ConvexSettings(),
     window_of = np.concatenate([np.full(w.size, k) for k, w in enumerate(windows)])
     periods = np.concatenate(windows)
     lam_c, beta_c = pole_grid(settings.coarse_poles)
-    coarse_normals = fibonacci_normals(settings.coarse_normals)
+    coarse_normals = search_normals(settings.coarse_normals, settings.ring)
     sub = _subsample(data, settings.subsample)
     P, C = periods.size, lam_c.numel()
     per = torch.as_tensor(periods * HOUR_S, dtype=torch.float64).repeat_interleave(C)
@@ -285,7 +308,7 @@ def convex_search(data: ConvexData, settings: ConvexSettings = ConvexSettings(),
 
     start = time.perf_counter()
     lam_f, beta_f = pole_grid(settings.fine_poles)
-    fine_normals = fibonacci_normals(settings.fine_normals)
+    fine_normals = search_normals(settings.fine_normals, settings.ring)
     F = lam_f.numel()
     fine_periods = periods[top]
     per = torch.as_tensor(fine_periods * HOUR_S, dtype=torch.float64).repeat_interleave(F)
@@ -302,10 +325,11 @@ def convex_search(data: ConvexData, settings: ConvexSettings = ConvexSettings(),
     say(f"fine: {top.size} periods x {F} poles ({seconds['fine']:.1f} s); best rms {rms_f[order[0]]:.4f}")
 
     start = time.perf_counter()
-    normals = fibonacci_normals(settings.polish_normals)
+    normals = search_normals(settings.polish_normals, settings.ring)
     idx = torch.as_tensor(picks)
     G = design(data, normals, settings.scattering, lam=lam_all[idx], beta=beta_all[idx], period_s=per[idx])
-    init = fit_areas(G, data, normals, closure=settings.closure, iterations=3 * settings.area_iterations)
+    init = fit_areas(G, data, normals, closure=settings.closure, iterations=3 * settings.area_iterations,
+                     refine=3 * settings.area_refine)
     polished = polish(data, normals, settings.scattering, lam=lam_all[idx], beta=beta_all[idx], period_s=per[idx],
                       areas=init.areas, closure=settings.closure, iterations=settings.polish_iterations,
                       smoothness=settings.smoothness)
@@ -319,6 +343,6 @@ def convex_search(data: ConvexData, settings: ConvexSettings = ConvexSettings(),
     say(f"polish: {len(picks)} starts ({seconds['polish']:.1f} s); {len(fam)} families (residual lag-1 correlation "
         f"{rho:.2f}: {n_eff:.0f} effective samples)")
     return ConvexSearch(periodogram=pg, families=fam, normals=normals, residual_correlation=rho,
-                        effective_samples=n_eff,
+                        effective_samples=n_eff, basis_names=settings.scattering.basis_names(),
                         screened={"coarse": P * C, "fine": int(per.numel()), "polish": len(picks)},
                         seconds=seconds, coarse_periods_h=periods, coarse_rms=best_per_period)

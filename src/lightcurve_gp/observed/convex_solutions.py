@@ -11,7 +11,9 @@ sum to 1) and ``within_ratio`` (false for the one extra row: the best solution a
 ``effective_samples``, ``residual_correlation``.
 
 ``areas.ecsv`` — one row per facet normal: ``n_x, n_y, n_z`` (body frame: ``z`` the spin axis) and ``area_1``,
-``area_2``, … (each family's Gaussian image, relative areas summing to 1).
+``area_2``, … (each family's Gaussian image, relative areas summing to 1); under a law of several bases
+(:class:`~lightcurve_gp.photometry.convex.SatelliteScattering`) one column per family and basis,
+``area_1_diffuse``, ``area_1_lobe_800``, … (all of a family's areas sum to 1).
 """
 
 from __future__ import annotations
@@ -59,8 +61,10 @@ def areas_table(search: ConvexSearch) -> Table:
     """The Gaussian images of the families on the polish normals (module docstring)."""
     n = search.normals.cpu().numpy()
     table = Table({"n_x": n[:, 0], "n_y": n[:, 1], "n_z": n[:, 2]})
+    names = search.basis_names
     for k, areas in enumerate(search.families.areas):
-        table[f"area_{k + 1}"] = areas
+        for m, part in enumerate(areas.reshape(len(names), n.shape[0])):
+            table[f"area_{k + 1}" + (f"_{names[m]}" if len(names) > 1 else "")] = part
     return table
 
 

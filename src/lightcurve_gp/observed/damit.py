@@ -36,13 +36,23 @@ from lightcurve_gp.files import atomic_path
 from lightcurve_gp.observations.observations import CurveInfo, Observations
 from lightcurve_gp.observed.lightcurve_file import LightCurveFileError
 
-__all__ = ["AU_M", "DEFAULT_SIGMA_MAG", "read_damit", "write_damit", "is_damit_file"]
+__all__ = ["AU_M", "DEFAULT_SIGMA_MAG", "OBLIQUITY_J2000_RAD", "equatorial_to_ecliptic", "read_damit", "write_damit",
+           "is_damit_file"]
 
 #: the astronomical unit (m, IAU 2012)
 AU_M = 149_597_870_700.0
 #: the 1σ every sample of a DAMIT file gets (mag): the format has none
 DEFAULT_SIGMA_MAG = 0.01
 SECONDS_PER_DAY = 86_400.0
+#: the mean obliquity of the ecliptic at J2000 (IAU 2006: 84381.406″), rad
+OBLIQUITY_J2000_RAD = math.radians(84381.406 / 3600.0)
+
+
+def equatorial_to_ecliptic(v: np.ndarray) -> np.ndarray:
+    """Vectors ``(…, 3)`` in the J2000 equatorial frame (the GCRS: its 23 mas frame bias is ignored) in the
+    ecliptic J2000 frame of this format: a rotation by the obliquity about the common ``x`` axis (the equinox)."""
+    c, s = math.cos(OBLIQUITY_J2000_RAD), math.sin(OBLIQUITY_J2000_RAD)
+    return np.stack([v[..., 0], c * v[..., 1] + s * v[..., 2], -s * v[..., 1] + c * v[..., 2]], -1)
 
 
 def _numbers(text: str, path: Path, line: int, expected: int, what: str) -> list[float]:

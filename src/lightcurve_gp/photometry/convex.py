@@ -10,6 +10,14 @@ with the Lommel–Seeliger plus ``c``·Lambert law ``S(μ, μ0) = μ μ0 / (μ +
 ``f(α) = a exp(−α/d) + k α + 1`` (α the phase angle in rad) of Kaasalainen, Torppa & Muinonen (2001). Only facets lit
 and seen count; for a convex body no facet shadows another, so the sum is exact.
 
+A satellite's facets reflect specularly too: :class:`SatelliteScattering` is a sum of Ashikhmin–Shirley *bases*, each
+with its own non-negative areas on the same normals, ``L = Σ_m Σ_k a_mk S_m(μ_k, μ0_k, ν_k)`` (``ν_k = n_k·h``, ``h``
+the half-angle vector): the diffuse term and one specular lobe per fixed exponent (module :mod:`.brdf`; with
+``n_u = n_v = n`` the lobe is ``(n·h)^n`` and, since ``v·h = cos(α/2)``, ``c_s μ μ0 = (n+1)/(8π) F(α)/cos(α/2)
+ν^n min(μ, μ0)``). The brightness stays linear in the ``M·K`` areas (basis-major: the areas of basis ``m`` are
+``a[m·K:(m+1)·K]``), so the areas are still a non-negative least-squares problem per spin state. ``ρ(1 − F0)`` of
+a material is absorbed by its diffuse area, the Fresnel reflectance ``F0`` of the lobes is fixed.
+
 Rotation about the principal axis of largest inertia: pole (λ, β) in the ecliptic frame, sidereal period ``P``,
 rotation phase ``φ0`` at ``t = 0``. A vector ``v`` in the ecliptic frame has the body coordinates
 
@@ -26,12 +34,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
 
-__all__ = ["Scattering", "fibonacci_normals", "spin_matrices", "body_vectors", "facet_brightness",
-           "brightness", "phase_angle", "pole_vector", "pole_angles"]
+from lightcurve_gp.photometry.brdf import DIFFUSE_SCALE, exp_floor
+
+__all__ = ["Scattering", "SatelliteScattering", "Terms", "fibonacci_normals", "ring_normals", "area_normals",
+           "spin_matrices", "body_vectors", "facet_brightness", "facet_terms", "brightness", "phase_angle",
+           "pole_vector", "pole_angles"]
 
 
 @dataclass(frozen=True)
@@ -54,6 +66,108 @@ class Scattering:
         mu, mu0 = mu.clamp_min(0.0), mu0.clamp_min(0.0)
         product = mu * mu0
         return product * (1.0 / (mu + mu0).clamp_min(1e-30) + self.lambert)
+
+    bases = 1
+    uses_half_angle = False
+
+    def basis_names(self) -> tuple[str, ...]:
+        """One name per basis (the areas' column names)."""
+        return ("lommel_seeliger",)
+
+    def terms(self, mu: Tensor, mu0: Tensor, nu: Tensor | None, alpha: Tensor, *, derivatives: bool = False
+              ) -> Terms:
+        """The brightness of a unit area and (``derivatives``) its partial derivatives in ``μ`` and ``μ0``, each
+        ``(B, N, 1, K)`` from ``mu``, ``mu0`` ``(B, N, K)`` and ``alpha`` ``(N,)``; ``nu`` is not used.
+        ``∂S/∂μ = f(α) (μ0²/(μ + μ0)² + c μ0)`` and its twin, 0 unless lit and seen."""
+        f = self.phase_function(alpha)[:, None]
+        value = (self.law(mu, mu0) * f)[:, :, None]
+        if not derivatives:
+            return Terms(value)
+        mu, mu0 = mu.clamp_min(0.0), mu0.clamp_min(0.0)
+        lit = (mu > 0) & (mu0 > 0)
+        total = torch.where(lit, mu + mu0, 1.0)
+        d_mu = torch.where(lit, f * (mu0 * mu0 / (total * total) + self.lambert * mu0), 0.0)
+        d_mu0 = torch.where(lit, f * (mu * mu / (total * total) + self.lambert * mu), 0.0)
+        return Terms(value, d_mu[:, :, None], d_mu0[:, :, None], None)
+
+
+class Terms(NamedTuple):
+    """A law's per-basis brightness of a unit area ``value`` ``(B, N, M, K)`` and, when asked, its partial
+    derivatives in ``μ = n·v``, ``μ0 = n·s`` and ``ν = n·h`` (same shape; ``d_nu`` ``None`` for a law without
+    ``h``)."""
+
+    value: Tensor
+    d_mu: Tensor | None = None
+    d_mu0: Tensor | None = None
+    d_nu: Tensor | None = None
+
+
+def _pow5(x: Tensor) -> Tensor:
+    x2 = x * x
+    return x2 * x2 * x
+
+
+@dataclass(frozen=True)
+class SatelliteScattering:
+    """Ashikhmin–Shirley bases (module docstring): the diffuse term (``diffuse``) and one isotropic specular lobe
+    per exponent in ``exponents`` with the Fresnel reflectance ``f0``; no phase function (the law is complete).
+
+    Per unit area, with ``μ = n·v``, ``μ0 = n·s``, ``ν = n·h`` and ``cos(α/2) = v·h``, where ``μ, μ0 > 0``:
+
+        diffuse:  28/(23π) [1 − (1 − μ0/2)^5] [1 − (1 − μ/2)^5] μ μ0       (ρ(1 − F0) in the area)
+        lobe n:   (n + 1)/(8π) F(α) / cos(α/2) · ν^n min(μ, μ0),   F(α) = F0 + (1 − F0)(1 − cos(α/2))^5
+    """
+
+    f0: float = 0.5
+    exponents: tuple[float, ...] = (800.0,)
+    diffuse: bool = True
+
+    uses_half_angle = True
+
+    @property
+    def bases(self) -> int:
+        """The number of bases ``M``."""
+        return int(self.diffuse) + len(self.exponents)
+
+    def basis_names(self) -> tuple[str, ...]:
+        """One name per basis (the areas' column names): ``diffuse``, ``lobe_<n>``."""
+        return ("diffuse",) * int(self.diffuse) + tuple(f"lobe_{n:g}" for n in self.exponents)
+
+    def terms(self, mu: Tensor, mu0: Tensor, nu: Tensor | None, alpha: Tensor, *, derivatives: bool = False
+              ) -> Terms:
+        """Per-basis brightness of a unit area ``(B, N, M, K)`` (and its partial derivatives in ``μ``, ``μ0``,
+        ``ν``) from ``mu``, ``mu0``, ``nu`` ``(B, N, K)`` and the phase angles ``alpha`` ``(N,)`` (rad)."""
+        lit = (mu > 0) & (mu0 > 0)
+        zero = torch.zeros((), dtype=mu.dtype, device=mu.device)
+        mu, mu0 = torch.where(lit, mu, zero), torch.where(lit, mu0, zero)
+        values, d_mu, d_mu0, d_nu = [], [], [], []
+        if self.diffuse:
+            b, b0 = 1.0 - _pow5(1.0 - 0.5 * mu), 1.0 - _pow5(1.0 - 0.5 * mu0)
+            values.append(DIFFUSE_SCALE * b * b0 * mu * mu0)
+            if derivatives:
+                db = 2.5 * (1.0 - 0.5 * mu) ** 4
+                db0 = 2.5 * (1.0 - 0.5 * mu0) ** 4
+                d_mu.append(DIFFUSE_SCALE * b0 * mu0 * (db * mu + b))
+                d_mu0.append(DIFFUSE_SCALE * b * mu * (db0 * mu0 + b0))
+                d_nu.append(torch.zeros_like(mu))
+        if self.exponents:
+            half = torch.cos(0.5 * alpha)[:, None]                                     # v·h  (N, 1)
+            fresnel = self.f0 + (1.0 - self.f0) * _pow5(1.0 - half)
+            smaller = torch.minimum(mu, mu0)
+            log_nu = torch.log(torch.where(lit, nu, torch.ones_like(nu)).clamp_min(torch.finfo(nu.dtype).tiny))
+            for n in self.exponents:
+                scale = (n + 1.0) / (8.0 * math.pi) * fresnel / half
+                lobe = torch.where(lit, torch.exp((n * log_nu).clamp_min(exp_floor(mu.dtype))), zero)
+                values.append(scale * lobe * smaller)
+                if derivatives:
+                    d_mu.append(torch.where(mu < mu0, scale * lobe, zero))
+                    d_mu0.append(torch.where(mu < mu0, zero, scale * lobe))
+                    lobe_1 = torch.where(lit, torch.exp(((n - 1.0) * log_nu).clamp_min(exp_floor(mu.dtype))), zero)
+                    d_nu.append(scale * n * lobe_1 * smaller)
+        stack = lambda parts: torch.stack(parts, -2)  # noqa: E731
+        if not derivatives:
+            return Terms(stack(values))
+        return Terms(stack(values), stack(d_mu), stack(d_mu0), stack(d_nu))
 
 
 def fibonacci_normals(k: int, *, dtype: torch.dtype = torch.float64, device=None) -> Tensor:
@@ -113,22 +227,50 @@ def phase_angle(sun: Tensor, observer: Tensor) -> Tensor:
     return torch.atan2(torch.linalg.cross(sun, observer).norm(dim=-1), (sun * observer).sum(-1))
 
 
+def ring_normals(k: int, *, dtype: torch.dtype = torch.float64, device=None) -> Tensor:
+    """``k`` unit vectors ``(k, 3)`` on the body equator (perpendicular to the spin axis ``z``), equally spaced in
+    longitude from 0: the faces parallel to a principal spin axis that a satellite's box has."""
+    phi = torch.arange(k, dtype=dtype, device=device) * (2 * math.pi / k)
+    return torch.stack([torch.cos(phi), torch.sin(phi), torch.zeros_like(phi)], -1)
+
+
+def area_normals(normals: Tensor, scattering) -> Tensor:
+    """The normal of every area ``(M·K, 3)``: ``normals`` ``(K, 3)`` once per basis (basis-major)."""
+    return normals.repeat(scattering.bases, 1)
+
+
 def facet_brightness(normals: Tensor, sun_body: Tensor, obs_body: Tensor, alpha: Tensor,
-                     scattering: Scattering) -> Tensor:
-    """The brightness of a unit area on each normal: ``G`` ``(B, N, K)`` with ``L = G a``.
+                     scattering: Scattering | SatelliteScattering) -> Tensor:
+    """The brightness of a unit area on each normal and basis: ``G`` ``(B, N, M·K)`` with ``L = G a`` (basis-major;
+    ``M = 1`` for :class:`Scattering`).
 
     Args:
         normals: ``(K, 3)`` unit normals (body frame).
         sun_body, obs_body: ``(B, N, 3)`` unit vectors object → Sun and object → observer in the body frame.
         alpha: ``(N,)`` phase angles (rad).
-        scattering: the law and phase function.
+        scattering: the law (and its phase function).
     """
+    return facet_terms(normals, sun_body, obs_body, alpha, scattering)[0].value.flatten(-2)
+
+
+def facet_terms(normals: Tensor, sun_body: Tensor, obs_body: Tensor, alpha: Tensor,
+                scattering: Scattering | SatelliteScattering, *, derivatives: bool = False
+                ) -> tuple[Terms, Tensor | None, Tensor | None]:
+    """:meth:`terms` of the law on ``normals`` ``(K, 3)``: per-basis values ``(B, N, M, K)`` (and derivatives),
+    with the half-angle vectors ``h`` ``(B, N, 3)`` and ``|s + v|`` ``(B, N, 1)`` (``None`` for a law without
+    ``h``)."""
     mu0 = sun_body @ normals.T
     mu = obs_body @ normals.T
-    return scattering.law(mu, mu0) * scattering.phase_function(alpha)[:, None]
+    nu = h = norm = None
+    if scattering.uses_half_angle:
+        both = sun_body + obs_body
+        norm = torch.linalg.vector_norm(both, dim=-1, keepdim=True).clamp_min(torch.finfo(both.dtype).tiny)
+        h = both / norm
+        nu = h @ normals.T
+    return scattering.terms(mu, mu0, nu, alpha, derivatives=derivatives), h, norm
 
 
 def brightness(areas: Tensor, normals: Tensor, sun_body: Tensor, obs_body: Tensor, alpha: Tensor,
-               scattering: Scattering) -> Tensor:
-    """Disk-integrated brightness ``(B, N)`` of ``B`` Gaussian images ``areas`` ``(B, K)`` (relative units)."""
+               scattering: Scattering | SatelliteScattering) -> Tensor:
+    """Disk-integrated brightness ``(B, N)`` of ``B`` Gaussian images ``areas`` ``(B, M·K)`` (relative units)."""
     return (facet_brightness(normals, sun_body, obs_body, alpha, scattering) * areas[:, None, :]).sum(-1)
