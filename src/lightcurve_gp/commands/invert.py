@@ -18,9 +18,9 @@ estimates of the same file) atomically (an existing one is refused unless ``--fo
 The verdict is printed in words; a light curve that nothing fits (after one widened search) is said so, exit
 code 0. Sample times may have any spacing and gaps (the propagation is closed form,
 :mod:`lightcurve_gp.attitude.torque_free`); passes after a gap of more than ten minutes are also reached from the
-answers of each long pass alone (:mod:`lightcurve_gp.inference.bridge`). ``mag_err`` gives each sample's 1σ, ``--mag-err`` one
-value for a file without it. Errors are one line and exit code 2, as in every command; samples a file's TLE and site
-say cannot have been observed are one warning line, or refused with ``--strict``.
+answers of each long pass alone (:mod:`lightcurve_gp.inference.bridge`). ``mag_err`` gives each sample's 1σ,
+``--mag-err`` one value for a file without it. Errors are one line and exit code 2, as in every command; samples a
+file's TLE and site say cannot have been observed are one warning line, or refused with ``--strict``.
 
 A config with a ``convex:`` section runs the convex inversion of :mod:`lightcurve_gp.commands.invert_convex`
 instead (pole, period and convex shape from relative light curves of a DAMIT file; its own outputs).

@@ -5,11 +5,11 @@ object, any sample times, each light curve with its own geometry and, when relat
 into the inversion's :class:`~lightcurve_gp.inference.trajectory.TrajectoryProblem` (:func:`trajectory_problem`),
 runs the global search and judges it (:func:`lightcurve_gp.inference.answer.answer`: the fit test and the verdict,
 one widened search when nothing fits; when later passes follow a gap of more than ten minutes, also each of the
-longest passes alone, its best distinct solutions carried across the gaps by :mod:`lightcurve_gp.inference.bridge`), takes the
-families modulo the exact
-ambiguity group, and polishes the ``polish`` leading families with the whole-arc MAP with the surface unknown
-(:func:`lightcurve_gp.observed.arc_run.estimate_arc`, the family's rate taken as known): the inversion fits ρ on the
-config's F0 and lobe, the MAP the whole surface state, so the polished fit's χ² is the one to judge it by.
+longest passes alone, its best distinct solutions carried across the gaps by :mod:`lightcurve_gp.inference.bridge`),
+takes the families modulo the exact ambiguity group, and polishes the ``polish`` leading families with the
+whole-arc MAP with the surface unknown (:func:`lightcurve_gp.observed.arc_run.estimate_arc`, the family's rate taken
+as known): the inversion fits ρ on the config's F0 and lobe, the MAP the whole surface state, so the polished fit's
+χ² is the one to judge it by.
 
 When every light curve is relative, the first one's zero point is carried by ρ (the others are profiled against it):
 ρ then sets the first curve's level only and means nothing physical.
