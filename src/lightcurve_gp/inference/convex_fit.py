@@ -35,7 +35,7 @@ from lightcurve_gp.observations.observations import Observations
 from lightcurve_gp.photometry.convex import Scattering, body_vectors, facet_brightness, phase_angle
 
 __all__ = ["ConvexData", "AreaFit", "Polished", "PolishResidual", "convex_data", "design", "fit_areas",
-           "relative_residuals", "polish"]
+           "relative_residuals", "magnitude_rss", "polish"]
 
 
 @dataclass(frozen=True)
@@ -188,6 +188,19 @@ def relative_residuals(data: ConvexData, normals: Tensor, scattering: Scattering
     return data.y - L / data.curve_mean(L)[:, data.curve]
 
 
+def magnitude_rss(data: ConvexData, normals: Tensor, scattering: Scattering, *, lam: Tensor, beta: Tensor,
+                  period_s: Tensor, areas: Tensor) -> Tensor:
+    """Residual sum of squares in magnitudes (mag², over all samples) of ``B`` models (areas ``(B, K)``), each
+    curve's zero point profiled (its mean residual removed): ``Σ_i (d_i − d̄_c)²`` with
+    ``d_i = −2.5 log10 ỹ_i + 2.5 log10 L_i``. With the noise's σ (mag), ``rss / (2σ²)`` is a negative
+    log-likelihood in nats up to a constant: what tells two fits apart on the data's own scale ``(B,)``."""
+    G = design(data, normals, scattering, lam=lam, beta=beta, period_s=period_s)
+    L = (G * areas[:, None, :]).sum(-1)
+    d = 2.5 * torch.log10(L.clamp_min(1e-300)) - 2.5 * torch.log10(data.y)
+    d = d - data.curve_mean(d)[:, data.curve]
+    return (d * d).sum(-1)
+
+
 @dataclass(frozen=True)
 class Polished:
     """Spin states and shapes after :func:`polish`.
@@ -210,12 +223,15 @@ class Polished:
 
 
 class PolishResidual:
-    """Whitened residuals of :func:`polish` and their Jacobian (analytic in the log areas, central differences in
-    the spin); ``x = (λ, β, x_P, log a)``."""
+    """Whitened residuals of :func:`polish` and their Jacobian (analytic in the shape, central differences in
+    the spin); ``x = (λ, β, x_P, c)`` with ``log a = basis c`` (``basis`` ``(K, J)``; ``None``: the identity,
+    ``c = log a``)."""
 
     def __init__(self, data: ConvexData, normals: Tensor, scattering: Scattering, period0_s: Tensor,
-                 sigma: float, closure: float, smoothness: float = 0.0, neighbours: int = 6) -> None:
+                 sigma: float, closure: float, smoothness: float = 0.0, neighbours: int = 6,
+                 basis: Tensor | None = None) -> None:
         self.data, self.normals, self.scattering, self.p0 = data, normals, scattering, period0_s
+        self.basis = basis
         self.sigma, self.weight = sigma, math.sqrt(closure * len(data))
         # smoothness: smoothness · (log a_i − log a_j) for each normal and its nearest neighbours (whitened rows)
         K = normals.shape[0]
@@ -225,6 +241,11 @@ class PolishResidual:
         for row, (i, j) in enumerate(sorted(pairs) if smoothness > 0 else []):
             diff[row, i], diff[row, j] = smoothness, -smoothness
         self.diff = diff
+        self.diff_jac = diff if basis is None else diff @ basis          # the rows' Jacobian in x's shape part
+
+    def log_areas(self, x: Tensor) -> Tensor:
+        """``log a`` ``(A, K)`` of parameters ``x`` ``(A, 3 + J)``."""
+        return x[:, 3:] if self.basis is None else x[:, 3:] @ self.basis.T
 
     def spin(self, x: Tensor, rows: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         period = 1.0 / (1.0 / self.p0[rows] - x[:, 2] / (2 * math.pi * self.data.span_s))
@@ -242,7 +263,7 @@ class PolishResidual:
         return design(self.data, self.normals, self.scattering, lam=lam, beta=beta, period_s=period)
 
     def __call__(self, x: Tensor, rows: Tensor) -> Tensor:
-        return self._parts(self._design(x, rows), torch.exp(x[:, 3:]))[0]
+        return self._parts(self._design(x, rows), torch.exp(self.log_areas(x)))[0]
 
     def _vectors(self, x: Tensor, rows: Tensor) -> tuple[Tensor, Tensor]:
         lam, beta, period = self.spin(x, rows)
@@ -266,7 +287,7 @@ class PolishResidual:
         total = torch.where(lit, mu + mu0, 1.0)
         c, f = self.scattering.lambert, self.scattering.phase_function(self.data.alpha)[:, None]
         G = f * mu * mu0 * (1.0 / total + c)
-        a = torch.exp(x[:, 3:])
+        a = torch.exp(self.log_areas(x))
         d_mu = torch.where(lit, f * (mu0 * mu0 / (total * total) + c * mu0), 0.0) * a[:, None, :]   # ∂L/∂μ_k
         d_mu0 = torch.where(lit, f * (mu * mu / (total * total) + c * mu), 0.0) * a[:, None, :]
         grad_obs, grad_sun = d_mu @ self.normals, d_mu0 @ self.normals                           # (A, N, 3)
@@ -283,14 +304,20 @@ class PolishResidual:
         s = a.sum(-1, keepdim=True)
         centroid = (a @ self.normals) / s                                                   # (A, 3)
         dclose = self.weight * a[:, None, :] * (self.normals.T[None] - centroid[..., None]) / s[..., None]
-        area_jac = torch.cat([-dratio / self.sigma, dclose, self.diff.expand(A, *self.diff.shape)], 1)
+        area_jac = torch.cat([-dratio / self.sigma, dclose], 1)
+        if self.basis is not None:
+            area_jac = area_jac @ self.basis
+        area_jac = torch.cat([area_jac, self.diff_jac.expand(A, *self.diff_jac.shape)], 1)
         return r, torch.cat([spin_jac, area_jac], -1)
 
 
 def polish(data: ConvexData, normals: Tensor, scattering: Scattering, *, lam: Tensor, beta: Tensor,
            period_s: Tensor, areas: Tensor, closure: float = 0.1, iterations: int = 30, sigma: float = 0.01,
-           area_prior_std: float = 3.0, smoothness: float = 0.0) -> Polished:
-    """Levenberg–Marquardt on ``(λ, β, P, log a)`` of ``B`` starts at once (module docstring).
+           area_prior_std: float = 3.0, smoothness: float = 0.0, basis: Tensor | None = None) -> Polished:
+    """Levenberg–Marquardt on ``(λ, β, P, log a)`` of ``B`` starts at once (module docstring), or with ``basis``
+    ``(K, J)`` on ``(λ, β, P, c)``, ``log a = basis c`` (e.g. :func:`~lightcurve_gp.photometry.convex.real_harmonics`:
+    convexinv's smooth shape, ``J`` parameters instead of ``K``; ``c`` starts at the least-squares fit of the
+    floored start's log areas and the prior is on ``c``).
 
     The residuals are whitened by ``sigma`` (relative intensity); a weak Gaussian prior of standard deviation
     ``area_prior_std`` on each log area about its start keeps areas that no sample sees determined;
@@ -301,16 +328,18 @@ def polish(data: ConvexData, normals: Tensor, scattering: Scattering, *, lam: Te
     p0 = period_s.to(torch.float64)
     floor = 1e-3 * areas.max(-1, keepdim=True).values
     log_a = torch.log(torch.maximum(areas, floor) / areas.sum(-1, keepdim=True))
+    if basis is not None:
+        log_a = torch.linalg.lstsq(basis, log_a.T).solution.T
     x0 = torch.cat([lam[:, None], beta[:, None], torch.zeros_like(lam)[:, None], log_a], -1)
     precision = torch.cat([torch.zeros(3, dtype=x0.dtype, device=x0.device),
                            torch.full((log_a.shape[1],), area_prior_std ** -2, dtype=x0.dtype, device=x0.device)])
-    residual = PolishResidual(data, normals, scattering, p0, sigma, closure, smoothness)
+    residual = PolishResidual(data, normals, scattering, p0, sigma, closure, smoothness, basis=basis)
     options = LeastSquaresOptions(iterations=iterations, jacobian="provided", tolerance=1e-8,
                                   covariance="solution")
     result = batch_least_squares(residual, x0, prior=GaussianPrior.independent(x0, precision), options=options)
     rows = torch.arange(x0.shape[0], device=x0.device)
     lam_, beta_, period = residual.spin(result.x, rows)
-    a = torch.exp(result.x[:, 3:])
+    a = torch.exp(residual.log_areas(result.x))
     r = relative_residuals(data, normals, scattering, lam=lam_, beta=beta_, period_s=period, areas=a)
     rms = torch.sqrt((r * r).mean(-1))
     # the Laplace 1σ of x_P, rescaled from the assumed sigma to the fit's rms
