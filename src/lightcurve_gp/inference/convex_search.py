@@ -14,10 +14,10 @@ Stages (each timed in :attr:`ConvexSearch.seconds`):
    seed and its double both go on) × a fine pole grid, on every sample and more normals.
 4. ``polish`` — the ``starts`` best (pole, period) of the fine stage (shared equally by the seeds' windows, rounded
    up) that are more than ``separation_deg`` apart in pole (or differ in period), polished by
-   Levenberg–Marquardt (:func:`polish_starts`) on the polish normals, the shape a spherical-harmonic series of
-   degree ``shape_degree`` of log area (0: a free area per normal); then ``refine_starts`` starts on each of two
-   rings, ``refine_deg`` and twice that about the best's pole, at its period, polished too, and again about the
-   new best while one of them improves on it (``refine_rounds`` rounds at most; 0 starts: none).
+   Levenberg–Marquardt (:func:`polish_starts`) on the polish normals, the shape a free area per normal
+   (``shape_degree`` 0) or log areas as a spherical-harmonic series of that degree; then ``refine_starts``
+   starts on each of two rings, ``refine_deg`` and twice that about the best's pole, at its period, polished too,
+   and again about the new best while one of them improves on it (``refine_rounds`` rounds at most; 0: none).
 5. families — polished solutions merged when their poles are within ``separation_deg`` and their periods within
    the resolution; each family's log-likelihood ratio to the best is ``N_eff (rss / rss_best − 1) / 2``: the noise
    variance is the best fit's residual variance (the format gives no 1σ) and, since the residuals of a model
@@ -76,10 +76,10 @@ class ConvexSettings:
     polish_iterations: int = 80
     closure: float = 0.1
     smoothness: float = 0.0
-    shape_degree: int = 6
+    shape_degree: int = 0
     refine_starts: int = 4
     refine_deg: float = 7.0
-    refine_rounds: int = 2
+    refine_rounds: int = 1
     area_iterations: int = 10
     max_log_ratio: float = 10.0
     chunk: int = 128
