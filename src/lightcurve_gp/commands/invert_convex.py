@@ -132,6 +132,7 @@ def _figures(folder: Path, data: ConvexData, search: ConvexSearch, settings: Con
         ax3.set_zlim(-reach, reach)
         ax3.set_box_aspect((1, 1, 1))
         ax3.view_init(elev=elev, azim=azim)
+        (ax3.set_xticks if k == 0 else ax3.set_zticks)([])           # the axis along the line of sight
         ax3.set_xlabel("x")
         ax3.set_ylabel("y")
         ax3.set_zlabel("z (spin axis)")
