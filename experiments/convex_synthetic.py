@@ -20,7 +20,7 @@ in mag² over all samples with each curve's zero point profiled. More than 1 nat
 basin itself off (pole > 5° or period beyond the resolution): *model-limited*; else *data-limited* (the best fits
 as well as the truth's basin, elsewhere).
 
-    python experiments/convex_synthetic.py --objects 24 --seed 1000 --out experiments/results/convex_synthetic
+    python experiments/convex_synthetic.py --seed 1000 --out experiments/results/convex_synthetic/tuning_1000
 """
 
 from __future__ import annotations
