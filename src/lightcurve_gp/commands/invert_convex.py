@@ -9,7 +9,8 @@ new folder ``OUT/estimates/<name>/invert_<file stem>/`` atomically (refused if i
 * ``solutions.ecsv`` and ``areas.ecsv`` (:mod:`lightcurve_gp.observed.convex_solutions`);
 * ``summary.json`` — the periodogram's minima, candidates screened and seconds per stage, settings, provenance;
 * ``periodogram.png`` (the periodogram and the coarse screen's best rms per period), ``light_curves.png`` (six
-  light curves with the best family's fit) and ``shape.png`` (the best family's Gaussian image).
+  light curves with the best family's fit) and ``shape.png`` (the best family's convex solid rebuilt from its
+  areas, :func:`~lightcurve_gp.photometry.minkowski.minkowski_polytope`, in two views, and its Gaussian image).
 
 Prints each family's pole, period and rms, and the time of each stage.
 """
@@ -24,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from matplotlib.figure import Figure
+from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 from tqdm.auto import tqdm
 
 from lightcurve_gp.commands.common import (
@@ -42,6 +44,7 @@ from lightcurve_gp.inference.convex_search import ConvexSearch, ConvexSettings, 
 from lightcurve_gp.observed.convex_solutions import areas_table, convex_solutions_table, write_convex_tables
 from lightcurve_gp.observed.damit import DEFAULT_SIGMA_MAG, is_damit_file, read_damit
 from lightcurve_gp.photometry.convex import SatelliteScattering, Scattering
+from lightcurve_gp.photometry.minkowski import minkowski_polytope
 
 __all__ = ["settings_from_config", "run"]
 
@@ -60,7 +63,14 @@ def settings_from_config(cfg, max_log_ratio: float) -> ConvexSettings:
         window=c.window, step=c.step, coarse_poles=c.coarse_poles, coarse_normals=c.coarse_normals,
         subsample=c.subsample, top_periods=c.top_periods, fine_poles=c.poles, fine_normals=c.screen_normals,
         starts=c.starts, separation_deg=c.separation_deg, polish_normals=c.normals,
-        polish_iterations=c.polish_iterations, closure=c.closure, max_log_ratio=max_log_ratio)
+        polish_iterations=c.polish_iterations, closure=c.closure, shape_degree=c.shape_degree,
+        refine_starts=c.refine_starts, refine_deg=c.refine_deg, max_log_ratio=max_log_ratio)
+
+
+def _shaded(level: np.ndarray) -> np.ndarray:
+    """RGBA rows ``(T, 4)`` of a light grey-blue scaled by ``level`` ``(T,)`` in [0, 1] (a facet's shading)."""
+    base = np.array([0.75, 0.8, 0.9])
+    return np.hstack([base[None, :] * level[:, None], np.ones((level.size, 1))])
 
 
 def _figures(folder: Path, data: ConvexData, search: ConvexSearch, settings: ConvexSettings) -> None:
@@ -111,18 +121,27 @@ def _figures(folder: Path, data: ConvexData, search: ConvexSearch, settings: Con
 
     n = search.normals.numpy()
     a = fam.areas[0].reshape(-1, n.shape[0]).sum(0)                      # every basis's areas on a normal
-    fig = Figure(figsize=(10.0, 4.5), layout="constrained")
-    ax3 = fig.add_subplot(1, 2, 1, projection="3d")
-    tips = n * (a / a.max())[:, None]
-    for tip in tips:
-        ax3.plot([0, tip[0]], [0, tip[1]], [0, tip[2]], color="tab:blue", lw=1.0)
-    ax3.scatter(tips[:, 0], tips[:, 1], tips[:, 2], c=a, cmap="viridis", s=10)
-    ax3.set_box_aspect((1, 1, 1))
-    ax3.set_xlabel("x")
-    ax3.set_ylabel("y")
-    ax3.set_zlabel("z (spin axis)")
-    ax3.set_title("Gaussian image: area × normal (relative)", fontsize=9)
-    ax = fig.add_subplot(1, 2, 2)
+    solid = minkowski_polytope(n, a)
+    fig = Figure(figsize=(13.0, 4.5), layout="constrained")
+    light = np.array([0.5, -0.6, 0.6]) / np.linalg.norm([0.5, -0.6, 0.6])
+    shade = 0.35 + 0.65 * np.clip(n[solid.facet_normal] @ light, 0.0, 1.0)
+    reach = np.abs(solid.vertices).max()
+    for k, (elev, azim, title) in enumerate(((0.0, 0.0, "equator-on (spin axis z up)"),
+                                             (90.0, -90.0, "pole-on (from +z)"))):
+        ax3 = fig.add_subplot(1, 3, k + 1, projection="3d")
+        faces = Poly3DCollection(solid.vertices[solid.triangles], facecolors=_shaded(shade), edgecolors="none")
+        ax3.add_collection3d(faces)
+        ax3.set_xlim(-reach, reach)
+        ax3.set_ylim(-reach, reach)
+        ax3.set_zlim(-reach, reach)
+        ax3.set_box_aspect((1, 1, 1))
+        ax3.view_init(elev=elev, azim=azim)
+        (ax3.set_xticks if k == 0 else ax3.set_zticks)([])           # the axis along the line of sight
+        ax3.set_xlabel("x")
+        ax3.set_ylabel("y")
+        ax3.set_zlabel("z (spin axis)")
+        ax3.set_title(f"convex solid of the areas (Minkowski), {title}", fontsize=9)
+    ax = fig.add_subplot(1, 3, 3)
     lon = np.degrees(np.arctan2(n[:, 1], n[:, 0]))
     lat = np.degrees(np.arcsin(np.clip(n[:, 2], -1, 1)))
     sc = ax.scatter(lon, lat, c=a, s=30 + 400 * a / a.max(), cmap="viridis")

@@ -78,6 +78,10 @@ class ConvexConfig:
     screen_normals: int = spec(60, lo=6, doc="facet normals of the fine screen")
     starts: int = spec(6, lo=1, doc="(pole, period) starts polished by Levenberg-Marquardt")
     normals: int = spec(120, lo=6, doc="facet normals of the polished shape")
-    polish_iterations: int = spec(60, lo=1, doc="Levenberg-Marquardt iterations of the polish")
+    polish_iterations: int = spec(80, lo=1, doc="Levenberg-Marquardt iterations of the polish")
     closure: float = spec(0.1, lo=0.0, doc="weight of |sum a_k n_k|^2 (the Gaussian image closes)")
     separation_deg: float = spec(20.0, lo=0.0, lo_open=True, hi=180.0, doc="poles closer are one family")
+    shape_degree: int = spec(0, lo=0, hi=12, doc="polished shape: 0 a free area per normal; else areas exp(real "
+                             "spherical-harmonic series) of this degree (6: convexinv's)")
+    refine_starts: int = spec(4, lo=0, doc="polish starts on each of two rings about the best pole (0: none)")
+    refine_deg: float = spec(7.0, lo=0.0, lo_open=True, hi=45.0, doc="radius of the inner ring (deg); the outer: twice")

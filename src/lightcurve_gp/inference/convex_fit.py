@@ -43,7 +43,7 @@ from lightcurve_gp.photometry.convex import (
 )
 
 __all__ = ["ConvexData", "AreaFit", "Polished", "PolishResidual", "glint_samples", "convex_data", "design", "fit_areas",
-           "relative_residuals", "polish"]
+           "relative_residuals", "magnitude_rss", "polish"]
 
 
 @dataclass(frozen=True)
@@ -234,6 +234,19 @@ def relative_residuals(data: ConvexData, normals: Tensor, scattering: Scattering
     return data.y - L / data.curve_mean(L)[:, data.curve]
 
 
+def magnitude_rss(data: ConvexData, normals: Tensor, scattering: Scattering, *, lam: Tensor, beta: Tensor,
+                  period_s: Tensor, areas: Tensor) -> Tensor:
+    """Residual sum of squares in magnitudes (mag², over all samples) of ``B`` models (areas ``(B, K)``), each
+    curve's zero point profiled (its mean residual removed): ``Σ_i (d_i − d̄_c)²`` with
+    ``d_i = −2.5 log10 ỹ_i + 2.5 log10 L_i``. With the noise's σ (mag), ``rss / (2σ²)`` is a negative
+    log-likelihood in nats up to a constant: what tells two fits apart on the data's own scale ``(B,)``."""
+    G = design(data, normals, scattering, lam=lam, beta=beta, period_s=period_s)
+    L = (G * areas[:, None, :]).sum(-1)
+    d = 2.5 * torch.log10(L.clamp_min(1e-300)) - 2.5 * torch.log10(data.y)
+    d = d - data.curve_mean(d)[:, data.curve]
+    return (d * d).sum(-1)
+
+
 @dataclass(frozen=True)
 class Polished:
     """Spin states and shapes after :func:`polish`.
@@ -256,12 +269,18 @@ class Polished:
 
 
 class PolishResidual:
-    """Whitened residuals of :func:`polish` and their Jacobian (analytic in the log areas, central differences in
-    the spin); ``x = (λ, β, x_P, log a)``."""
+    """Whitened residuals of :func:`polish` and their Jacobian (analytic in the shape, central differences in
+    the spin); ``x = (λ, β, x_P, c)`` with ``log a = basis c`` (``basis`` ``(K, J)``; ``None``: the identity,
+    ``c = log a``)."""
 
     def __init__(self, data: ConvexData, normals: Tensor, scattering: Scattering | SatelliteScattering,
-                 period0_s: Tensor, sigma: float, closure: float, smoothness: float = 0.0, neighbours: int = 6) -> None:
+                 period0_s: Tensor, sigma: float, closure: float, smoothness: float = 0.0, neighbours: int = 6,
+                 basis: Tensor | None = None) -> None:
+        if basis is not None and isinstance(scattering, SatelliteScattering):
+            raise ValueError("convex.shape_degree: a spherical-harmonic shape needs the asteroid law (one area per "
+                             "normal); the satellite law has an area per normal and basis")
         self.data, self.design_normals, self.scattering, self.p0 = data, normals, scattering, period0_s
+        self.basis = basis
         normals = area_normals(normals, scattering)                  # (M·K, 3): closure and smoothness per area
         self.normals = normals
         self.sigma, self.weight = sigma, math.sqrt(closure * len(data))
@@ -273,6 +292,11 @@ class PolishResidual:
         for row, (i, j) in enumerate(sorted(pairs) if smoothness > 0 else []):
             diff[row, i], diff[row, j] = smoothness, -smoothness
         self.diff = diff
+        self.diff_jac = diff if basis is None else diff @ basis          # the rows' Jacobian in x's shape part
+
+    def log_areas(self, x: Tensor) -> Tensor:
+        """``log a`` ``(A, K)`` of parameters ``x`` ``(A, 3 + J)``."""
+        return x[:, 3:] if self.basis is None else x[:, 3:] @ self.basis.T
 
     def spin(self, x: Tensor, rows: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         period = 1.0 / (1.0 / self.p0[rows] - x[:, 2] / (2 * math.pi * self.data.span_s))
@@ -290,7 +314,7 @@ class PolishResidual:
         return design(self.data, self.design_normals, self.scattering, lam=lam, beta=beta, period_s=period)
 
     def __call__(self, x: Tensor, rows: Tensor) -> Tensor:
-        return self._parts(self._design(x, rows), torch.exp(x[:, 3:]))[0]
+        return self._parts(self._design(x, rows), torch.exp(self.log_areas(x)))[0]
 
     def _vectors(self, x: Tensor, rows: Tensor) -> tuple[Tensor, Tensor]:
         lam, beta, period = self.spin(x, rows)
@@ -312,7 +336,7 @@ class PolishResidual:
         terms, h, norm = facet_terms(self.design_normals, sun_all[0], obs_all[0], self.data.alpha, self.scattering,
                                      derivatives=True)
         G = terms.value.flatten(-2)                                                               # (A, N, M·K)
-        a = torch.exp(x[:, 3:])
+        a = torch.exp(self.log_areas(x))
         per_basis = a.reshape(A, 1, *terms.value.shape[-2:])                                      # (A, 1, M, K)
         d_mu, d_mu0 = (terms.d_mu * per_basis).sum(-2), (terms.d_mu0 * per_basis).sum(-2)        # ∂L/∂μ_k (A, N, K)
         grad_obs, grad_sun = d_mu @ self.design_normals, d_mu0 @ self.design_normals              # (A, N, 3)
@@ -334,14 +358,21 @@ class PolishResidual:
         s = a.sum(-1, keepdim=True)
         centroid = (a @ self.normals) / s                                                   # (A, 3)
         dclose = self.weight * a[:, None, :] * (self.normals.T[None] - centroid[..., None]) / s[..., None]
-        area_jac = torch.cat([-dratio / self.sigma, dclose, self.diff.expand(A, *self.diff.shape)], 1)
+        area_jac = torch.cat([-dratio / self.sigma, dclose], 1)
+        if self.basis is not None:
+            area_jac = area_jac @ self.basis
+        area_jac = torch.cat([area_jac, self.diff_jac.expand(A, *self.diff_jac.shape)], 1)
         return r, torch.cat([spin_jac, area_jac], -1)
 
 
 def polish(data: ConvexData, normals: Tensor, scattering: Scattering | SatelliteScattering, *, lam: Tensor,
            beta: Tensor, period_s: Tensor, areas: Tensor, closure: float = 0.1, iterations: int = 30,
-           sigma: float = 0.01, area_prior_std: float = 3.0, smoothness: float = 0.0) -> Polished:
-    """Levenberg–Marquardt on ``(λ, β, P, log a)`` of ``B`` starts at once (module docstring).
+           sigma: float = 0.01, area_prior_std: float = 3.0, smoothness: float = 0.0,
+           basis: Tensor | None = None) -> Polished:
+    """Levenberg–Marquardt on ``(λ, β, P, log a)`` of ``B`` starts at once (module docstring), or with ``basis``
+    ``(K, J)`` on ``(λ, β, P, c)``, ``log a = basis c`` (e.g. :func:`~lightcurve_gp.photometry.convex.real_harmonics`:
+    convexinv's smooth shape, ``J`` parameters instead of ``K``; ``c`` starts at the least-squares fit of the
+    floored start's log areas and the prior is on ``c``; the asteroid law only).
 
     The residuals are whitened by ``sigma`` (relative intensity); a weak Gaussian prior of standard deviation
     ``area_prior_std`` on each log area about its start keeps areas that no sample sees determined;
@@ -353,26 +384,29 @@ def polish(data: ConvexData, normals: Tensor, scattering: Scattering | Satellite
     p0 = period_s.to(torch.float64)
     floor = 1e-3 * areas.max(-1, keepdim=True).values
     log_a = torch.log(torch.maximum(areas, floor) / areas.sum(-1, keepdim=True))
+    if basis is not None:
+        log_a = torch.linalg.lstsq(basis, log_a.T).solution.T
     x0 = torch.cat([lam[:, None], beta[:, None], torch.zeros_like(lam)[:, None], log_a], -1)
     precision = torch.cat([torch.zeros(3, dtype=x0.dtype, device=x0.device),
                            torch.full((log_a.shape[1],), area_prior_std ** -2, dtype=x0.dtype, device=x0.device)])
-    residual = PolishResidual(data, normals, scattering, p0, sigma, closure, smoothness)
+    residual = PolishResidual(data, normals, scattering, p0, sigma, closure, smoothness, basis=basis)
     options = LeastSquaresOptions(iterations=iterations, jacobian="provided", tolerance=1e-8,
                                   covariance="solution")
     result = batch_least_squares(residual, x0, prior=GaussianPrior.independent(x0, precision), options=options)
     rows = torch.arange(x0.shape[0], device=x0.device)
     x = result.x
     lam_, beta_, period = residual.spin(x, rows)
-    r = relative_residuals(data, normals, scattering, lam=lam_, beta=beta_, period_s=period, areas=torch.exp(x[:, 3:]))
+    r = relative_residuals(data, normals, scattering, lam=lam_, beta=beta_, period_s=period,
+                           areas=torch.exp(residual.log_areas(x)))
     rms = torch.sqrt((r * r).mean(-1))
     failed = ~torch.isfinite(rms) | ~(period > 0)         # a step that left the model (data the law cannot fit)
     if bool(failed.any()):                                 # keeps its start, its period's 1σ unknown
         x = torch.where(failed[:, None], x0, x)
         lam_, beta_, period = residual.spin(x, rows)
         r = relative_residuals(data, normals, scattering, lam=lam_, beta=beta_, period_s=period,
-                               areas=torch.exp(x[:, 3:]))
+                               areas=torch.exp(residual.log_areas(x)))
         rms = torch.sqrt((r * r).mean(-1))
-    a = torch.exp(x[:, 3:])
+    a = torch.exp(residual.log_areas(x))
     # the Laplace 1σ of x_P, rescaled from the assumed sigma to the fit's rms
     var_phase = torch.diagonal(result.covariance, dim1=1, dim2=2)[:, 2] * (rms / sigma) ** 2
     period_sigma = period * period * torch.sqrt(var_phase.clamp_min(0)) / (2 * math.pi * data.span_s)

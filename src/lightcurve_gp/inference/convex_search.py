@@ -14,7 +14,10 @@ Stages (each timed in :attr:`ConvexSearch.seconds`):
    seed and its double both go on) × a fine pole grid, on every sample and more normals.
 4. ``polish`` — the ``starts`` best (pole, period) of the fine stage (shared equally by the seeds' windows, rounded
    up) that are more than ``separation_deg`` apart in pole (or differ in period), polished by
-   Levenberg–Marquardt (:func:`~lightcurve_gp.inference.convex_fit.polish`) on the polish normals.
+   Levenberg–Marquardt (:func:`polish_starts`) on the polish normals, the shape a free area per normal
+   (``shape_degree`` 0) or log areas as a spherical-harmonic series of that degree; then ``refine_starts``
+   starts on each of two rings, ``refine_deg`` and twice that about the best's pole, at its period, polished too,
+   and again about the new best while one of them improves on it (``refine_rounds`` rounds at most; 0: none).
 5. families — polished solutions merged when their poles are within ``separation_deg`` and their periods within
    the resolution; each family's log-likelihood ratio to the best is ``N_eff (rss / rss_best − 1) / 2``: the noise
    variance is the best fit's residual variance (the format gives no 1σ) and, since the residuals of a model
@@ -28,7 +31,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 import torch
@@ -49,11 +52,12 @@ from lightcurve_gp.photometry.convex import (
     fibonacci_normals,
     pole_angles,
     pole_vector,
+    real_harmonics,
     ring_normals,
 )
 
 __all__ = ["ConvexSettings", "ConvexFamilies", "ConvexSearch", "convex_search", "effective_samples", "period_grid",
-           "pole_grid", "search_normals"]
+           "pole_grid", "polish_starts", "ring_poles", "search_normals"]
 
 HOUR_S = 3600.0
 
@@ -81,9 +85,13 @@ class ConvexSettings:
     starts: int = 6
     separation_deg: float = 20.0
     polish_normals: int = 120
-    polish_iterations: int = 60
+    polish_iterations: int = 80
     closure: float = 0.1
     smoothness: float = 0.0
+    shape_degree: int = 0
+    refine_starts: int = 4
+    refine_deg: float = 7.0
+    refine_rounds: int = 1
     area_iterations: int = 10
     area_refine: int = 0
     max_log_ratio: float = 10.0
@@ -97,6 +105,36 @@ def search_normals(count: int, ring: int) -> Tensor:
         return fibonacci_normals(count)
     poles = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]], dtype=torch.float64)
     return torch.cat([fibonacci_normals(count), ring_normals(ring), poles])
+
+
+def polish_starts(data: ConvexData, normals: Tensor, settings: ConvexSettings, *, lam: Tensor, beta: Tensor,
+                  period_s: Tensor, areas: Tensor) -> Polished:
+    """The search's polish (:func:`~lightcurve_gp.inference.convex_fit.polish`) of ``B`` starts (``lam``, ``beta``
+    rad, ``period_s`` s, each ``(B,)``; ``areas`` ``(B, K)`` on ``normals``) under ``settings``: the shape is
+    ``exp`` of a real spherical-harmonic series of degree ``shape_degree`` (0: free areas per normal)."""
+    basis = real_harmonics(normals, settings.shape_degree) if settings.shape_degree > 0 else None
+    return polish(data, normals, settings.scattering, lam=lam, beta=beta, period_s=period_s, areas=areas,
+                  closure=settings.closure, iterations=settings.polish_iterations, smoothness=settings.smoothness,
+                  basis=basis)
+
+
+def ring_poles(lam: float, beta: float, radius_rad: float, count: int) -> tuple[Tensor, Tensor]:
+    """``count`` poles at the angle ``radius_rad`` around the pole (``lam``, ``beta``) (rad), evenly in azimuth:
+    longitudes and latitudes (rad) ``(count,)``."""
+    p = pole_vector(torch.tensor(lam, dtype=torch.float64), torch.tensor(beta, dtype=torch.float64))
+    e1 = torch.linalg.cross(p, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64))
+    if float(e1.norm()) < 1e-6:                        # the pole on the ecliptic's: any tangent will do
+        e1 = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
+    e1 = e1 / e1.norm()
+    e2 = torch.linalg.cross(p, e1)
+    theta = 2 * math.pi * torch.arange(count, dtype=torch.float64) / count
+    v = (math.cos(radius_rad) * p + math.sin(radius_rad) * (torch.cos(theta)[:, None] * e1
+                                                             + torch.sin(theta)[:, None] * e2))
+    return pole_angles(v)
+
+
+def _joined(a: Polished, b: Polished) -> Polished:
+    return Polished(**{f.name: torch.cat([getattr(a, f.name), getattr(b, f.name)]) for f in fields(Polished)})
 
 
 def pole_grid(n: int, *, dtype: torch.dtype = torch.float64) -> tuple[Tensor, Tensor]:
@@ -330,9 +368,25 @@ def convex_search(data: ConvexData, settings: ConvexSettings = ConvexSettings(),
     G = design(data, normals, settings.scattering, lam=lam_all[idx], beta=beta_all[idx], period_s=per[idx])
     init = fit_areas(G, data, normals, closure=settings.closure, iterations=3 * settings.area_iterations,
                      refine=3 * settings.area_refine)
-    polished = polish(data, normals, settings.scattering, lam=lam_all[idx], beta=beta_all[idx], period_s=per[idx],
-                      areas=init.areas, closure=settings.closure, iterations=settings.polish_iterations,
-                      smoothness=settings.smoothness)
+    polished = polish_starts(data, normals, settings, lam=lam_all[idx], beta=beta_all[idx], period_s=per[idx],
+                             areas=init.areas)
+    for _ in range(settings.refine_rounds if settings.refine_starts > 0 else 0):
+        # around the best: starts on rings of refine_deg and twice that about its pole at its period (the screen's
+        # grid is coarser than the polish's minima; a neighbouring minimum can be nats better); again while the
+        # best moves
+        rss = torch.where(torch.isfinite(polished.rms), polished.rms, torch.full_like(polished.rms, math.inf))
+        b = int(rss.argmin())
+        rings = [ring_poles(float(polished.lam[b]), float(polished.beta[b]), math.radians(k * settings.refine_deg),
+                            settings.refine_starts) for k in (1, 2)]
+        lam_r, beta_r = torch.cat([r[0] for r in rings]), torch.cat([r[1] for r in rings])
+        per_r = polished.period_s[b].repeat(lam_r.numel())
+        G = design(data, normals, settings.scattering, lam=lam_r, beta=beta_r, period_s=per_r)
+        init = fit_areas(G, data, normals, closure=settings.closure, iterations=3 * settings.area_iterations,
+                         refine=3 * settings.area_refine)
+        more = polish_starts(data, normals, settings, lam=lam_r, beta=beta_r, period_s=per_r, areas=init.areas)
+        polished = _joined(polished, more)
+        if not bool((more.rms < rss[b]).any()):
+            break
     seconds["polish"] = time.perf_counter() - start
     fam, rho, n_eff = _families(polished, data, normals, settings, step_h)
     deg = lambda x: math.degrees(float(x))  # noqa: E731
@@ -344,5 +398,5 @@ def convex_search(data: ConvexData, settings: ConvexSettings = ConvexSettings(),
         f"{rho:.2f}: {n_eff:.0f} effective samples)")
     return ConvexSearch(periodogram=pg, families=fam, normals=normals, residual_correlation=rho,
                         effective_samples=n_eff, basis_names=settings.scattering.basis_names(),
-                        screened={"coarse": P * C, "fine": int(per.numel()), "polish": len(picks)},
+                        screened={"coarse": P * C, "fine": int(per.numel()), "polish": int(polished.rms.numel())},
                         seconds=seconds, coarse_periods_h=periods, coarse_rms=best_per_period)

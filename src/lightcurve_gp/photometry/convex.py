@@ -27,6 +27,10 @@ with the passive (coordinate) rotations ``R_z(θ) = [[cos θ, sin θ, 0], [−si
 ``R_y(θ) = [[cos θ, 0, −sin θ], [0, 1, 0], [sin θ, 0, cos θ]]``: the pole becomes the body ``z`` axis and the
 body turns prograde about it. It is closed form at any ``t`` (decades: the phase is formed in float64).
 
+A smooth Gaussian image (convexinv's shape): ``a_k = exp(Σ_lm c_lm Y_lm(n_k))`` with the real spherical harmonics
+``Y_lm`` up to a degree ``D`` (``(D + 1)²`` coefficients; :func:`real_harmonics` gives the basis ``Y`` with
+``log a = Y c``).
+
 Shapes: ``(B, …)`` batches of spin states, ``(N, 3)`` per-sample unit vectors, ``(K, 3)`` normals.
 """
 
@@ -36,14 +40,16 @@ import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
+import numpy as np
 import torch
+from scipy.special import sph_harm_y
 from torch import Tensor
 
 from lightcurve_gp.photometry.brdf import DIFFUSE_SCALE, exp_floor
 
 __all__ = ["Scattering", "SatelliteScattering", "Terms", "fibonacci_normals", "ring_normals", "area_normals",
-           "spin_matrices", "body_vectors", "facet_brightness", "facet_terms", "brightness", "phase_angle",
-           "pole_vector", "pole_angles"]
+           "real_harmonics", "spin_matrices", "body_vectors", "facet_brightness", "facet_terms", "brightness",
+           "phase_angle", "pole_vector", "pole_angles"]
 
 
 @dataclass(frozen=True)
@@ -177,6 +183,21 @@ def fibonacci_normals(k: int, *, dtype: torch.dtype = torch.float64, device=None
     r = torch.sqrt(torch.clamp(1.0 - z * z, min=0.0))
     phi = i * math.pi * (3.0 - math.sqrt(5.0))
     return torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], -1)
+
+
+def real_harmonics(normals: Tensor, degree: int) -> Tensor:
+    """The real orthonormal spherical harmonics up to ``degree`` at unit vectors ``normals`` ``(K, 3)``:
+    ``(K, (degree + 1)²)``, columns ordered by ``l`` then ``m = −l … l`` (``m > 0``: ``√2 Re Y_lm``, ``m < 0``:
+    ``√2 Im Y_l|m|``, ``m = 0``: ``Y_l0``, Condon–Shortley phase as scipy's). Polar angle from ``z``."""
+    n = normals.detach().cpu().numpy().astype(np.float64)
+    theta = np.arccos(np.clip(n[:, 2], -1.0, 1.0))
+    phi = np.arctan2(n[:, 1], n[:, 0])
+    cols = []
+    for lv in range(degree + 1):
+        for m in range(-lv, lv + 1):
+            y = sph_harm_y(lv, abs(m), theta, phi)
+            cols.append(y.real if m == 0 else math.sqrt(2.0) * (y.real if m > 0 else y.imag))
+    return torch.as_tensor(np.stack(cols, -1), dtype=normals.dtype, device=normals.device)
 
 
 def pole_vector(lam: Tensor, beta: Tensor) -> Tensor:
