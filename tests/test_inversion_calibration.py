@@ -18,6 +18,7 @@ from lightcurve_gp.inference.families import (
     prior_precision,
     tolerance_mass,
 )
+from lightcurve_gp.inference.inversion import entry_stages
 from lightcurve_gp.photometry.ambiguity import ambiguity_group
 from lightcurve_gp.photometry.render import Scene
 
@@ -81,3 +82,14 @@ def test_p_right_is_the_weight_times_the_mass_and_small_for_a_free_family():
     assert float(fam.mass[sharp_row]) == 1.0
     # the free family's spread is the prior's (attitude 1σ ~ 1.7 rad, rate 1σ ~ 0.06 rad/s): almost no mass
     assert float(fam.mass[1 - sharp_row]) < 1e-2
+
+
+def test_each_rate_enters_at_the_first_arc_it_turns_enough_over_and_never_at_the_polish():
+    deg = torch.tensor([2.0, 0.6, 0.3, 0.1, 0.01], dtype=F64)  # turns over 30 s: 60°, 18°, 9°, 3°, 0.3°
+    rates = torch.deg2rad(deg)[:, None] * torch.tensor([[0.0, 0.6, 0.8]], dtype=F64)
+    arcs = (30.0, 60.0, 120.0, 240.0, 0.0)
+    got = entry_stages(rates, arcs_s=arcs, span_s=600.0, turn_deg=30.0)
+    # 0.6 °/s turns 36° over 60 s, 0.3 °/s 36° over 120 s; 0.1 °/s only 24° over 240 s: the last partial arc
+    assert got.tolist() == [0, 1, 2, 3, 3]
+    assert entry_stages(rates, arcs_s=arcs, span_s=600.0, turn_deg=0.0).tolist() == [0] * 5
+    assert entry_stages(rates, arcs_s=(0.0,), span_s=600.0, turn_deg=30.0).tolist() == [0] * 5
