@@ -2,15 +2,18 @@
 
 Per seed ``s`` and noise level σ: the box-wing of ``--config`` (fixed geometry; ``--config configs/geo_pass.yaml``
 for the GEO pass, cut to ``--duration-s``), a random truth drawn from the seed alone — attitude uniform on SO(3),
-body rate of log-uniform magnitude in 0.05–5 °/s about a uniform axis, ρ ~ U[0.1, 0.9] (unknown to the inversion) —
-600 s at 1 Hz with N(0, σ²) noise. The inversion (:mod:`lightcurve_gp.inference.inversion`, ``--starts``) and its
-families (:mod:`lightcurve_gp.inference.families`) modulo the scenario's exact ambiguity group
-(:mod:`lightcurve_gp.photometry.ambiguity`), through :func:`lightcurve_gp.inference.answer.answer` (the fit test,
-one widened search when it fails unless ``--no-widen``, the ridge probe of slow rates, the verdict). A family is
-**right** when the nearest image of the truth is within 10° on every Euler axis at the first sample and its rate
-within 2 % of the true rate; scored: the top family right (top-1), a right family among those reported (top-k), the
-top family's rate error, its weight against how often it is right (calibration, binned, and the Brier score), the
-search's time; and each seed's kind against the truth's basin
+body rate of log-uniform (``--rate-law uniform``: uniform) magnitude in 0.05–5 °/s about a uniform axis,
+ρ ~ U[0.1, 0.9] (unknown to the inversion) — 600 s at 1 Hz with N(0, σ²) noise. The inversion
+(:mod:`lightcurve_gp.inference.inversion`, ``--starts``) and its families (:mod:`lightcurve_gp.inference.families`)
+modulo the scenario's exact ambiguity group (:mod:`lightcurve_gp.photometry.ambiguity`), through
+:func:`lightcurve_gp.inference.answer.answer` (the fit test, one widened search when it fails unless
+``--no-widen``, the ridge probe of slow rates, the verdict). A family is **right** when the nearest image of the
+truth is within 10° on every Euler axis at the first sample and its rate within 2 % of the true rate; scored: the
+top family right (top-1; also at ≥ 1 °/s), a right family among those reported (top-k; also over the seeds whose
+truth's basin is within the reporting ratio of the best found), the search misses, the top family's rate error,
+its probability of being right ``p_right`` (its basin's weight times the Gaussian mass of the tolerance region,
+:mod:`lightcurve_gp.inference.families`) against how often it is right (calibration, binned, and the Brier score;
+the same for the basin weight alone), the search's time; and each seed's kind against the truth's basin
 (:mod:`lightcurve_gp.evaluation.inversion_reference`: right, the truth's family reported but not first, search
 miss, data-limited), the verdict and whether the search was widened.
 
@@ -46,7 +49,7 @@ from lightcurve_gp.evaluation.inversion_reference import KINDS, inversion_refere
 from lightcurve_gp.evaluation.reporting import markdown_table, quantiles
 from lightcurve_gp.files import write_json_atomic, write_text_atomic
 from lightcurve_gp.filters.bank import bank_attitudes, run_bank
-from lightcurve_gp.inference.answer import answer
+from lightcurve_gp.inference.answer import MAX_LOG_RATIO, answer
 from lightcurve_gp.inference.families import image_distance
 from lightcurve_gp.inference.fit_test import VERDICTS
 from lightcurve_gp.inference.forward import GroupRenderer
@@ -58,24 +61,31 @@ from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
-FORMAT = 2
+FORMAT = 3
 TRUTH_STREAM = 1 << 42
 CALIBRATION_BINS = (0.0, 0.5, 0.8, 0.95, 0.99, 1.0001)
 
 
-def seed_truth(seed: int) -> tuple[torch.Tensor, torch.Tensor, float]:
-    """The seed's true initial attitude ``(4,)``, body rate ``(3,)`` (rad/s) and ρ (module docstring)."""
+RATE_LAWS = ("log-uniform", "uniform")
+
+
+def seed_truth(seed: int, rate_law: str = "log-uniform") -> tuple[torch.Tensor, torch.Tensor, float]:
+    """The seed's true initial attitude ``(4,)``, body rate ``(3,)`` (rad/s) and ρ (module docstring); the rate's
+    magnitude log-uniform or uniform over 0.05–5 °/s (``rate_law``, one of :data:`RATE_LAWS`)."""
     gen = torch.Generator().manual_seed(TRUTH_STREAM + seed)
     u = torch.rand(2, generator=gen, dtype=torch.float64)
     axis = torch.randn(3, generator=gen, dtype=torch.float64)
-    rate = math.exp(math.log(0.05) + (math.log(5.0) - math.log(0.05)) * float(u[0]))
+    if rate_law == "uniform":
+        rate = 0.05 + (5.0 - 0.05) * float(u[0])
+    else:
+        rate = math.exp(math.log(0.05) + (math.log(5.0) - math.log(0.05)) * float(u[0]))
     q0 = random_attitudes(1, seed=TRUTH_STREAM + seed, dtype=torch.float64)[0]
     return q0, math.radians(rate) * axis / axis.norm(), 0.1 + 0.8 * float(u[1])
 
 
-def scenario(cfg, seed: int, sigma: float):
+def scenario(cfg, seed: int, sigma: float, rate_law: str = "log-uniform"):
     """The seed's light curve: ``(scene, times (K,), y (K,), truth)``."""
-    q0, w0, rho = seed_truth(seed)
+    q0, w0, rho = seed_truth(seed, rate_law)
     scene = Scene.from_config(cfg)
     n = int(round(cfg.scenario.duration_s / cfg.scenario.dt_s))
     times = torch.arange(n + 1, dtype=torch.float64) * cfg.scenario.dt_s
@@ -93,7 +103,7 @@ def scenario(cfg, seed: int, sigma: float):
 
 def run_seed(cfg, seed: int, sigma: float, args) -> dict:
     """One seed's row (module docstring)."""
-    scene, times, y, (q0, w0, rho) = scenario(cfg, seed, sigma)
+    scene, times, y, (q0, w0, rho) = scenario(cfg, seed, sigma, args.rate_law)
     inertia = torch.tensor(cfg.shape.inertia_kg_m2, dtype=torch.float64)
     problem = TrajectoryProblem(GroupRenderer(scene), times, y, torch.full_like(y, sigma), inertia, q0[None])
     group = ambiguity_group(scene, times_s=times, inertia=inertia, rate_known=False)
@@ -104,9 +114,11 @@ def run_seed(cfg, seed: int, sigma: float, args) -> dict:
     seconds = time.perf_counter() - start
     inv, fam = ans.inversion, ans.families
     ref = inversion_reference(problem, group, fam, best_cost=float(inv.cost.min()), q0=q0, omega0=w0, rho=rho)
-    row = {"seed": seed, "sigma": sigma, "config": cfg.name, "rate_deg_s": math.degrees(float(w0.norm())),
-           "rho_true": rho, "families": len(fam), "top1": bool(ref.right[0]), "topk": bool(ref.right.any()),
-           "top1_weight": float(fam.weight[0]), "best_below_truth": float(inv.cost.min()) < ref.truth_cost - 1e-6,
+    row = {"seed": seed, "sigma": sigma, "config": cfg.name, "rate_law": args.rate_law,
+           "rate_deg_s": math.degrees(float(w0.norm())), "rho_true": rho, "families": len(fam),
+           "top1": bool(ref.right[0]), "topk": bool(ref.right.any()), "top1_weight": float(fam.weight[0]),
+           "top1_mass": float(fam.mass[0]), "top1_p_right": float(fam.p_right[0]),
+           "p_right_sum": float(fam.p_right.sum()), "best_below_truth": float(inv.cost.min()) < ref.truth_cost - 1e-6,
            **ref.as_dict(), "verdict": ans.verdict, "chi2_per_dof": ans.fit.chi2_per_dof, "p_value": ans.fit.p_value,
            "widened": ans.widened, "first_chi2_per_dof": ans.first_fit.chi2_per_dof, "ridge_rows": ans.ridge_rows,
            "rate_lo_deg_s": ans.rate_interval_deg_s[0], "rate_hi_deg_s": ans.rate_interval_deg_s[1],
@@ -132,9 +144,9 @@ def bank_scores(args, seed: int, sigma: float, truth, group) -> dict:
             "bank_top1_weight": float(bank.weights[bank.order[0]]), "bank_seconds": bank.seconds}
 
 
-def calibration(rows: list[dict]) -> str:
-    """Mean top-family weight against the share right, per weight bin."""
-    w = np.array([r["top1_weight"] for r in rows])
+def calibration(rows: list[dict], key: str = "top1_p_right") -> str:
+    """Mean top-family probability (``key``: its p_right, or its basin weight) against the share right, per bin."""
+    w = np.array([r[key] for r in rows])
     ok = np.array([r["top1"] for r in rows], dtype=float)
     parts = []
     for lo, hi in zip(CALIBRATION_BINS[:-1], CALIBRATION_BINS[1:]):
@@ -145,9 +157,10 @@ def calibration(rows: list[dict]) -> str:
     return "; ".join(parts)
 
 
-def brier(rows: list[dict]) -> float:
-    """The Brier score of the top family's weight as the probability that it is right: mean ``(w − right)²``."""
-    return float(np.mean([(r["top1_weight"] - float(r["top1"])) ** 2 for r in rows]))
+def brier(rows: list[dict], key: str = "top1_p_right") -> float:
+    """The Brier score of the top family's ``key`` (p_right, or basin weight) as the probability that it is right:
+    mean ``(p − right)²``."""
+    return float(np.mean([(r[key] - float(r["top1"])) ** 2 for r in rows]))
 
 
 def arc_right(row: dict, span_s: float) -> bool:
@@ -169,18 +182,40 @@ def verdicts(rows: list[dict]) -> str:
     return f"{counts}; widened {sum(r['widened'] for r in rows)}"
 
 
+def fast_right(rows: list[dict], fast_deg_s: float = 1.0) -> str:
+    """Top-1 right among the seeds at ``fast_deg_s`` or faster: ``k/n``."""
+    fast = [r for r in rows if r["rate_deg_s"] >= fast_deg_s]
+    return f"{sum(r['top1'] for r in fast)}/{len(fast)}"
+
+
+def reported_within_ratio(rows: list[dict], ratio_nats: float = MAX_LOG_RATIO) -> str:
+    """The truth's family among those reported, over the seeds whose truth's basin is within the reporting ratio
+    of the best state found (``basin − best ≤ ratio_nats``): ``k/n``."""
+    sel = [r for r in rows if r["basin_cost"] - r["best_cost"] <= ratio_nats]
+    return f"{sum(r['topk'] for r in sel)}/{len(sel)}"
+
+
+def misses(rows: list[dict]) -> str:
+    """Search misses (best found worse than the truth's basin by more than the miss margin): ``k/n (share)``."""
+    k = sum(r["kind"] == "search_miss" for r in rows)
+    return f"{k}/{len(rows)} ({100 * k / len(rows):.0f} %)"
+
+
 def report(rows: list[dict], command: str, span_s: float = 600.0) -> str:
     text = ["# Global inversion: top family against the truth (random attitude, rate 0.05-5 deg/s, rho unknown)\n",
             f"Command: `{command}`\n",
             "Right: an image of the truth within 10° on every Euler axis at the first sample and the rate within 2 %. "
             "Kinds against the truth's basin (evaluation/inversion_reference.py): right, the truth's family reported "
             "but not first, search miss (best found worse than the truth's basin by > 1 nat), data-limited (another "
-            "basin at least as good). Wrong & unique: the top family wrong and the verdict unique (weight >= 0.9, "
-            "fit passed).\n"]
-    for name in sorted({r["config"] for r in rows}):
+            "basin at least as good). Wrong & unique: the top family wrong and the verdict unique (p_right >= 0.9, "
+            "fit passed). p_right: the top family's basin weight times the Gaussian mass of the region of right "
+            "states about it (inference/families.py); calibration and Brier of p_right, and of the basin weight "
+            "alone.\n"]
+    for name, law in sorted({(r["config"], r.get("rate_law", "log-uniform")) for r in rows}):
         cells = []
-        for sigma in sorted({r["sigma"] for r in rows if r["config"] == name}):
-            sel = [r for r in rows if r["config"] == name and r["sigma"] == sigma]
+        mine = [r for r in rows if r["config"] == name and r.get("rate_law", "log-uniform") == law]
+        for sigma in sorted({r["sigma"] for r in mine}):
+            sel = [r for r in mine if r["sigma"] == sigma]
             n = len(sel)
             pct = lambda key: f"{100 * sum(bool(r.get(key)) for r in sel) / n:.0f} %"  # noqa: E731
             rate = quantiles([100 * r["top1_rate_error_rel"] for r in sel])
@@ -188,13 +223,17 @@ def report(rows: list[dict], command: str, span_s: float = 600.0) -> str:
             bank = pct("bank_top1") + " / " + pct("bank_top5") if "bank_top1" in sel[0] else "not run"
             arc = f"{100 * sum(arc_right(r, span_s) for r in sel) / n:.0f} %"
             wrong_unique = sum(not r["top1"] and r["verdict"] == "unique" for r in sel)
-            cells.append([sigma, n, pct("top1"), arc, pct("topk"), kinds(sel), verdicts(sel), wrong_unique,
+            cells.append([sigma, n, pct("top1"), fast_right(sel), arc, pct("topk"), reported_within_ratio(sel),
+                          misses(sel), kinds(sel), verdicts(sel), wrong_unique,
                           f"{rate.median:.2g} [{rate.q25:.2g}, {rate.q75:.2g}]", calibration(sel),
-                          f"{brier(sel):.3f}", f"{secs.median:.0f}", bank])
-        text.append(f"\n## {name}\n\n" + markdown_table(
-            ("σ (mag)", "seeds", "top-1 right (10°, rate 2 %)", "top-1 within 10° over the arc",
-             "right family reported", "kinds", "verdicts", "wrong & unique", "top-1 rate error %, median [IQR]",
-             "calibration (weight bin: mean weight vs share right)", "Brier", "s per seed (median)",
+                          f"{brier(sel):.3f}", calibration(sel, "top1_weight"), f"{brier(sel, 'top1_weight'):.3f}",
+                          f"{secs.median:.0f}", bank])
+        text.append(f"\n## {name}, rates {law}\n\n" + markdown_table(
+            ("σ (mag)", "seeds", "top-1 right (10°, rate 2 %)", "top-1 right at ≥ 1 °/s",
+             "top-1 within 10° over the arc", "right family reported", "reported, basin within the ratio",
+             "search misses", "kinds", "verdicts", "wrong & unique", "top-1 rate error %, median [IQR]",
+             "calibration of p_right (bin: mean p_right vs share right)", "Brier (p_right)",
+             "calibration of the basin weight", "Brier (weight)", "s per seed (median)",
              "bank top-1 / top-5 (true rate given)"), cells))
     return "\n".join(text) + "\n"
 
@@ -211,6 +250,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="rows carried into each continuation stage after the first (default "
                              f"{' '.join(map(str, InversionSettings.keep))})")
     parser.add_argument("--no-widen", action="store_true", help="no widened search when the first fit fails")
+    parser.add_argument("--rate-law", choices=RATE_LAWS, default="log-uniform",
+                        help="the truth's rate magnitude over 0.05-5 deg/s")
     parser.add_argument("--duration-s", type=float, default=600.0)
     parser.add_argument("--bank-size", type=int, default=0, help="filters of today's global start beside it (0: none)")
     parser.add_argument("--bank-config", default=str(ROOT / "configs" / "boxwing_robust.yaml"))
@@ -229,6 +270,7 @@ def main(argv: list[str] | None = None) -> int:
             if args.keep and tuple(args.keep) != InversionSettings.keep:
                 grid += "_k" + "-".join(map(str, args.keep))
             grid += "_nowiden" if args.no_widen else ""
+            grid += "_uniform" if args.rate_law == "uniform" else ""
             path = cases / f"{cfg.name}_s{sigma:g}_n{args.starts}{grid}_b{args.bank_size}_v{FORMAT}_{seed}.json"
             if path.exists():
                 rows.append(json.loads(path.read_text()))

@@ -28,6 +28,7 @@ def _solutions(path: Path, q: list[float], omega_deg_s: list[float]) -> Path:
     fam = Families(q0=f64([q, [0.0, 0.0, 0.0, 1.0]]), omega0=torch.deg2rad(f64([omega_deg_s, [0.1, 0.0, 0.0]])),
                    log_rho=f64([math.log(0.7), math.log(0.3)]), log_likelihood=f64([10.0, 5.0]),
                    log_evidence=f64([1.0, -4.0]), weight=f64([0.99, 0.01]),
+                   mass=f64([1.0, 1.0]), p_right=f64([0.99, 0.01]),
                    covariance=torch.diag_embed(torch.full((2, 7), 1e-4, dtype=torch.float64)),
                    members=torch.tensor([3, 1]), images=("body identity · inertial identity",))
     write_solutions(solutions_table(fam), path)

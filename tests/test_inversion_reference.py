@@ -3,6 +3,7 @@ right and the same seed a search miss under a starved search, a slow tumbler rep
 volume bounded by the prior's."""
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -143,9 +144,10 @@ def test_a_seed_is_right_and_a_starved_search_of_it_a_search_miss():
                               omega0=w0, rho=0.4)
     assert ref.kind == "right" and ref.truth_rank == 1 and ref.basin_right and full.verdict == "unique"
     assert ref.best_cost <= ref.basin_cost + 1e-6 <= ref.truth_cost + 1e-6
-    # every screened rate a thirtieth of the truth's, no widening: the search ends far above the truth's basin
+    # every screened rate a thirtieth of the truth's, all of them from the 30 s arc (there they turn 3°; entering
+    # at the 80 s arc instead, they reach the truth), no widening: the search ends far above the truth's basin
     starved = rate_starts([], count=24, rate_range_deg_s=(0.08, 0.1), span_s=200, shell_ratio=2.0)
-    bad = answer(problem, group, settings=SMALL, rate_grid=starved, widen=False)
+    bad = answer(problem, group, settings=replace(SMALL, entry_turn_deg=0.0), rate_grid=starved, widen=False)
     miss = inversion_reference(problem, group, bad.families, best_cost=float(bad.inversion.cost.min()), q0=q0,
                                omega0=w0, rho=0.4)
     assert miss.kind == "search_miss" and miss.truth_rank == 0

@@ -184,7 +184,8 @@ def test_the_solutions_file_has_a_unit_on_every_column(tmp_path):
     f64 = lambda v: torch.tensor(v, dtype=torch.float64)  # noqa: E731
     fam = Families(q0=f64([[0.0, 0.0, 0.0, 1.0]]), omega0=torch.deg2rad(f64([[0.1, -0.1, -0.25]])),
                    log_rho=f64([math.log(0.5)]), log_likelihood=f64([10.0]), log_evidence=f64([1.0]),
-                   weight=f64([1.0]), covariance=torch.diag_embed(torch.full((1, 7), 1e-4, dtype=torch.float64)),
+                   weight=f64([1.0]), mass=f64([1.0]), p_right=f64([1.0]),
+                   covariance=torch.diag_embed(torch.full((1, 7), 1e-4, dtype=torch.float64)),
                    members=torch.tensor([3]), images=("body identity · inertial identity",))
     write_solutions(solutions_table(fam), tmp_path / "solutions.ecsv")
     units = units_of(Table.read(tmp_path / "solutions.ecsv", format="ascii.ecsv"))

@@ -158,6 +158,7 @@ def _summary(run: InversionRun, settings: InversionSettings, record: dict) -> di
     return {**ans.as_dict(), "verdict_words": ans.words(), "families": len(fam), "polished": _polished(run),
             "converged_solutions": int(inv.q0.shape[0]), "images": list(group.labels),
             "ambiguity_images": group.as_dict(), "top_weight": float(fam.weight[0]),
+            "top_p_right": float(fam.p_right[0]),
             "rate_candidates_deg_s": [float(r) for r in inv.periodogram.rates_deg_s],
             "periodogram_detection": inv.periodogram.detection,
             "screened_rates": int(inv.rate_grid.shape[0]),

@@ -10,7 +10,9 @@
    and twice the rows carried through the continuation. Its solutions join the first search's and the families are
    formed again over both. One round only: if the fit still fails, the verdict is ``"no_fit"``.
 2. **Verdict** (:func:`~.fit_test.verdict`): ``"no_fit"`` when the best fit still fails its test; ``"unique"`` when
-   it fits and the heaviest family carries at least :data:`~.fit_test.UNIQUE_WEIGHT`; ``"ambiguous"`` otherwise.
+   it fits and the heaviest family is right (within 10° and 2 % of the truth) with probability ``p_right``
+   (:mod:`.families`: its basin's weight times the Gaussian mass of that region) of at least
+   :data:`~.fit_test.UNIQUE_WEIGHT`; ``"ambiguous"`` otherwise.
 3. **Ridge probe.** Below one turn over the arc (``|ω| · span < 2π``, the periodogram's resolution) the light curve
    need not fix the rate: the posterior can be a ridge along it that the continuation, which keeps one row per
    basin, reduces to one point. Each of the :data:`RIDGE_FAMILIES` leading families with such a rate is restarted
@@ -46,16 +48,18 @@ from torch import Tensor
 from lightcurve_gp.attitude.rotations import quat_conj, quat_mul, rotvec_to_quat
 from lightcurve_gp.inference.bridge import carry_across_gaps
 from lightcurve_gp.inference.families import Families, families
-from lightcurve_gp.inference.fit_test import INVERSION_PARAMETERS, FitTest, fit_test, verdict
+from lightcurve_gp.inference.fit_test import INVERSION_PARAMETERS, UNIQUE_WEIGHT, FitTest, fit_test, verdict
 from lightcurve_gp.inference.inversion import Inversion, InversionSettings, invert, polish, rate_starts
 from lightcurve_gp.inference.periodogram import RATE_FACTORS
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
 
-__all__ = ["WIDEN_FACTOR", "RIDGE_FACTORS", "RIDGE_FAMILIES", "RIDGE_TILTS_DEG", "RIDGE_AZIMUTHS", "Answer", "searched",
-           "sample_times", "below_one_turn", "widened_settings", "wider_rates", "merge", "tilted_rates",
-           "ridge_starts", "answer"]
+__all__ = ["MAX_LOG_RATIO", "WIDEN_FACTOR", "RIDGE_FACTORS", "RIDGE_FAMILIES", "RIDGE_TILTS_DEG", "RIDGE_AZIMUTHS",
+           "Answer", "searched", "sample_times", "below_one_turn", "widened_settings", "wider_rates", "merge",
+           "tilted_rates", "ridge_starts", "answer"]
 
+#: families within this many nats of the best are reported
+MAX_LOG_RATIO = 10.0
 #: the widened search's starts, screen attitudes, screen rates and continuation rows, each times this
 WIDEN_FACTOR = 2
 #: the ridge probe's rate factors
@@ -105,14 +109,18 @@ class Answer:
         lo, hi = self.rate_interval_deg_s
         rates = f"rate {lo:.4g} deg/s" if len(fam) == 1 else f"rates {lo:.4g}-{hi:.4g} deg/s"
         if self.verdict == "unique":
-            return (f"unique: one family carries weight {float(fam.weight[0]):.3f} ({rates}); the fit is what the "
-                    f"noise allows ({stats}){wide}")
+            return (f"unique: one family carries weight {float(fam.weight[0]):.3f} and is within 10 deg and 2 % of "
+                    f"the truth with probability {float(fam.p_right[0]):.3f} ({rates}); the fit is what the noise "
+                    f"allows ({stats}){wide}")
         what = ("the rate is not resolved over the arc (a ridge: less than one turn)" if self.ridge
                 else "the light curve does not single one out")
+        if not self.ridge and float(fam.weight[0]) >= UNIQUE_WEIGHT:
+            return (f"ambiguous: one basin carries weight {float(fam.weight[0]):.3f} ({rates}) but the light curve "
+                    f"does not pin it within 10 deg and 2 % (probability {float(fam.p_right[0]):.3f}) ({stats}){wide}")
         if len(fam) == 1:
             return (f"ambiguous: one family fits ({rates}) but {what}: other states may fit as well ({stats}){wide}")
-        return (f"ambiguous: {len(fam)} families fit ({rates}), the heaviest with weight {float(fam.weight[0]):.3f}; "
-                f"{what} ({stats}){wide}")
+        return (f"ambiguous: {len(fam)} families fit ({rates}), the heaviest with weight {float(fam.weight[0]):.3f} "
+                f"(within 10 deg and 2 % with probability {float(fam.p_right[0]):.3f}); {what} ({stats}){wide}")
 
     def as_dict(self) -> dict:
         return {"verdict": self.verdict, "fit": self.fit.as_dict(), "widened": self.widened,
@@ -234,8 +242,9 @@ def searched(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: Inv
 
 
 def answer(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: InversionSettings = InversionSettings(),
-           rate_max_rad_s: float | None = None, max_log_ratio: float = 10.0, widen: bool = True, ridge: bool = True,
-           rate_grid: Tensor | None = None, progress: Callable[[str], None] | None = None) -> Answer:
+           rate_max_rad_s: float | None = None, max_log_ratio: float = MAX_LOG_RATIO, widen: bool = True,
+           ridge: bool = True, rate_grid: Tensor | None = None,
+           progress: Callable[[str], None] | None = None) -> Answer:
     """Search ``problem`` from no initial guess and judge the answer (module docstring).
 
     Args:
@@ -279,7 +288,7 @@ def answer(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: Inver
     fit = _test(inv, problem)
     rates = torch.rad2deg(torch.linalg.vector_norm(fam.omega0, dim=-1))
     on_ridge = below_one_turn(math.radians(float(rates[0])), span_s=span_s)
-    said = verdict(fit, float(fam.weight[0]))
+    said = verdict(fit, float(fam.p_right[0]))
     return Answer(inversion=inv, families=fam, fit=fit, verdict="ambiguous" if said == "unique" and on_ridge else said,
                   widened=widened, first_fit=first, ridge_rows=ridge_rows, ridge=on_ridge,
                   rate_interval_deg_s=(float(rates.min()), float(rates.max())), seconds=seconds)

@@ -23,6 +23,14 @@ took all the weight (0.997 against families 0.06 nats better). The evidence ther
 ``Σ̃_f = (Σ_f⁻¹ + P)⁻¹``, ``P`` the precision of the Gaussian of the same volume as each block of the uniform prior
 (:func:`prior_precision`: ``(2π/p)^{d/2}`` equals the block's volume), so no direction counts for more than the
 prior allows; where the data fix every direction (``Σ_f⁻¹ ≫ P``) the weights do not change.
+
+**The probability of being right.** A weight is the posterior mass of a family's *basin*; an answer is right only
+when the truth also lies within :data:`RIGHT_ANGLE_DEG` on every Euler axis and :data:`RIGHT_RATE_REL` of the rate of
+the family's mode. Under the family's Laplace Gaussian (the bounded ``Σ̃_f``) the truth is
+``q = exp(δθ) ⊗ q_f``, ``ω = ω_f + δω`` with ``(δθ, δω) ~ N(0, Σ̃_f)``; :func:`tolerance_mass` is the probability of
+that region (Monte Carlo over fixed draws) and ``p_right_f = w_f · mass_f`` the probability that family ``f`` is the
+right answer. A wide family (a slow tumbler's ridge, a rate the arc cannot tell to 2 %) keeps its basin weight but
+not its claim to be right.
 """
 
 from __future__ import annotations
@@ -33,13 +41,21 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from lightcurve_gp.attitude.metrics import total_angle_deg
+from lightcurve_gp.attitude.metrics import attitude_errors_deg, total_angle_deg
+from lightcurve_gp.attitude.rotations import quat_mul, rotvec_to_quat
 from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
 
-__all__ = ["Families", "image_distance", "cluster", "log_prior_volume", "prior_precision", "families"]
+__all__ = ["RIGHT_ANGLE_DEG", "RIGHT_RATE_REL", "MASS_DRAWS", "Families", "image_distance", "cluster",
+           "log_prior_volume", "prior_precision", "bounded_covariance", "tolerance_mass", "families"]
 
 #: ln ρ prior range of the evidence (ρ from 1e-3 to 1)
 LOG_RHO_RANGE = math.log(1e3)
+#: a state is right when the truth is within this on every Euler axis (deg) …
+RIGHT_ANGLE_DEG = 10.0
+#: … and its rate within this share of the true rate's magnitude
+RIGHT_RATE_REL = 0.02
+#: draws of :func:`tolerance_mass`
+MASS_DRAWS = 4096
 
 
 def image_distance(group: AmbiguityGroup, q_a: Tensor, omega_a: Tensor, q_b: Tensor, omega_b: Tensor, *,
@@ -107,13 +123,45 @@ def prior_precision(rate_max_rad_s: float, *, dtype: torch.dtype = torch.float64
     return torch.tensor(values, dtype=dtype, device=device)
 
 
+def bounded_covariance(covariance: Tensor, rate_max_rad_s: float) -> Tensor:
+    """``Σ̃ = (Σ⁻¹ + P)⁻¹ = (I + Σ P)⁻¹ Σ`` ``(..., 7, 7)`` of Laplace covariances ``(..., 7, 7)`` and the prior's
+    precision ``P`` (:func:`prior_precision`), symmetrised; no inverse of a nearly singular ``Σ``."""
+    eye = torch.eye(covariance.shape[-1], dtype=covariance.dtype, device=covariance.device)
+    p = prior_precision(rate_max_rad_s, dtype=covariance.dtype, device=covariance.device)
+    out = torch.linalg.solve(eye + covariance * p, covariance)
+    return 0.5 * (out + out.transpose(-1, -2))
+
+
+def tolerance_mass(q0: Tensor, omega0: Tensor, covariance: Tensor, *, angle_deg: float = RIGHT_ANGLE_DEG,
+                   rate_rel: float = RIGHT_RATE_REL, draws: int = MASS_DRAWS, seed: int = 0) -> Tensor:
+    """The Gaussian mass ``(F,)`` of the states "right" about modes ``q0 (F, 4)``, ``omega0 (F, 3)`` (rad/s) under
+    covariances ``(F, 6+, 6+)`` of ``[θ, ω, …]`` (rad, rad/s; the block ``[:6, :6]`` is used): the share of
+    ``draws`` states ``q = exp(δθ) ⊗ q_f``, ``ω = ω_f + δω`` whose Euler errors ``q ⊗ q_f⁻¹`` are within
+    ``angle_deg`` on every axis and ``|δω| < rate_rel · |ω|`` (module docstring). The same standard normal draws
+    (``seed``) serve every family; a covariance that is not positive semi-definite has its negative eigenvalues
+    taken as zero."""
+    gen = torch.Generator(device="cpu").manual_seed(seed)
+    z = torch.randn(draws, 6, generator=gen, dtype=q0.dtype).to(q0.device)
+    vals, vecs = torch.linalg.eigh(covariance[:, :6, :6])
+    root = vecs * vals.clamp_min(0.0).sqrt().unsqueeze(-2)  # (F, 6, 6): root rootᵀ = Σ
+    delta = torch.einsum("fij,nj->fni", root, z)  # (F, n, 6)
+    q = quat_mul(rotvec_to_quat(delta[..., :3]), q0.unsqueeze(1).expand(-1, draws, 4))
+    omega = omega0.unsqueeze(1) + delta[..., 3:]
+    axes_ok = (attitude_errors_deg(q, q0.unsqueeze(1).expand(-1, draws, 4)).abs() < angle_deg).all(-1)
+    rate_ok = torch.linalg.vector_norm(delta[..., 3:], dim=-1) < rate_rel * torch.linalg.vector_norm(omega, dim=-1)
+    return (axes_ok & rate_ok).to(q0.dtype).mean(-1)
+
+
 @dataclass(frozen=True)
 class Families:
     """The families within the likelihood-ratio cut, best weight first.
 
     Attributes:
         q0: initial attitudes ``(F, 4)``; omega0: initial body rates ``(F, 3)`` (rad/s); log_rho: ``ln ρ̂ (F,)``.
-        log_likelihood: ``ℓ (F,)`` (nats); log_evidence: ``ln Z (F,)``; weight: ``(F,)`` summing to 1.
+        log_likelihood: ``ℓ (F,)`` (nats); log_evidence: ``ln Z (F,)``; weight: ``(F,)`` summing to 1 (the
+            posterior mass of each basin).
+        mass: the Gaussian mass of the tolerance region about each mode ``(F,)`` (:func:`tolerance_mass`);
+        p_right: ``weight · mass (F,)``, the probability that each family is the right answer.
         covariance: Laplace covariances of ``[θ, ω, ln ρ]`` ``(F, 7, 7)`` (rad², (rad/s)², …).
         members: solutions in each family ``(F,)``.
         images: the labels of the group the families were taken modulo.
@@ -125,6 +173,8 @@ class Families:
     log_likelihood: Tensor
     log_evidence: Tensor
     weight: Tensor
+    mass: Tensor
+    p_right: Tensor
     covariance: Tensor
     members: Tensor
     images: tuple[str, ...]
@@ -158,6 +208,8 @@ def families(group: AmbiguityGroup, *, q0: Tensor, omega0: Tensor, log_rho: Tens
     order = torch.argsort(weight, descending=True, stable=True)
     members = torch.bincount(labels, minlength=int(labels.max()) + 1)[torch.nonzero(keep).squeeze(-1)]
     pick = lambda t: t[heads][order]  # noqa: E731
+    mass = tolerance_mass(pick(q0), pick(omega0), bounded_covariance(cov[order], rate_max_rad_s))
+    mass = torch.where(torch.isfinite(mass), mass, torch.zeros_like(mass))
     return Families(q0=pick(q0), omega0=pick(omega0), log_rho=pick(log_rho), log_likelihood=ll[order],
-                    log_evidence=log_z[order], weight=weight[order], covariance=cov[order], members=members[order],
-                    images=tuple(group.labels))
+                    log_evidence=log_z[order], weight=weight[order], mass=mass, p_right=weight[order] * mass,
+                    covariance=cov[order], members=members[order], images=tuple(group.labels))

@@ -71,8 +71,9 @@ def fit_test(cost: float, *, samples: int, parameters: int = INVERSION_PARAMETER
 
 
 def verdict(test: FitTest, top_weight: float) -> str:
-    """``"no_fit"`` when the fit fails its test, else ``"unique"`` when the heaviest family's weight is at least
-    :data:`UNIQUE_WEIGHT`, else ``"ambiguous"`` (module docstring)."""
+    """``"no_fit"`` when the fit fails its test, else ``"unique"`` when the heaviest family's weight (for the global
+    inversion its probability of being right, ``Families.p_right``) is at least :data:`UNIQUE_WEIGHT`, else
+    ``"ambiguous"`` (module docstring)."""
     if not test.fits:
         return "no_fit"
     return "unique" if top_weight >= UNIQUE_WEIGHT else "ambiguous"
