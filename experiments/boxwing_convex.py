@@ -27,8 +27,8 @@ the true pole and period (and at the image) ends ``Δ`` nats from the search's b
 ``N_eff (rss/rss_best − 1)/2``); ``Δ > 1`` (the truth fits better by more than 1 nat) is a search miss, else the
 data do not decide.
 
-    python experiments/boxwing_convex.py --seed 100 --count 10 --out experiments/results/boxwing_convex  # tuning
-    python experiments/boxwing_convex.py --seed 200 --count 20 --out experiments/results/boxwing_convex  # held out
+    python -m experiments.boxwing_convex --seed 100 --count 10 --out experiments/results/boxwing_convex  # tuning
+    python -m experiments.boxwing_convex --seed 200 --count 20 --out experiments/results/boxwing_convex  # held out
 """
 
 from __future__ import annotations
@@ -44,8 +44,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from experiments.common import append_row, seed_rows
 from lightcurve_gp.attitude.rotations import matrix_to_quat
 from lightcurve_gp.config.load import load_config
+from lightcurve_gp.files import write_json_atomic
 from lightcurve_gp.inference.convex_fit import convex_data, design, fit_areas, polish
 from lightcurve_gp.inference.convex_search import ConvexSettings, convex_search
 from lightcurve_gp.observations.observations import CurveInfo, Observations
@@ -264,23 +266,21 @@ def main(argv: list[str] | None = None) -> int:
         settings = replace(settings, scattering=SatelliteScattering(f0=0.5, exponents=lobes))
     args.out.mkdir(parents=True, exist_ok=True)
     rows_path = args.out / args.rows
-    done = {json.loads(line)["seed"] for line in rows_path.read_text().splitlines()} if rows_path.exists() else set()
+    done = {r["seed"] for r in seed_rows(rows_path)}
     for seed in range(args.seed, args.seed + args.count):
         if seed in done:
             continue
         row = run_seed(seed, args, settings)
-        with open(rows_path, "a") as fh:
-            fh.write(json.dumps(row) + "\n")
+        append_row(rows_path, row)
         print(f"seed {seed}: axis {row['spin_axis']}, P {row['period_min']:.2f} min, {row['samples']} samples "
               f"({row['glints_dropped']} glints dropped), phase {row['phase_deg'][0]:.0f}-{row['phase_deg'][1]:.0f} "
               f"deg -> pole error {row['pole_error_deg']:.1f} deg (image {row['image_error_deg']:.1f}, misfit "
               f"{row['image_misfit_mag']:.2g} mag), period error {row['period_error_h'] * 3600:.2g} s (resolution "
               f"{row['resolution_h'] * 3600:.2g} s), {row['kind']}, truth {row['truth_nats']:+.1f} nats, "
               f"{row['seconds']:.0f} s", flush=True)
-    rows = [json.loads(line) for line in rows_path.read_text().splitlines()]
-    rows = [r for r in rows if args.seed <= r["seed"] < args.seed + args.count]
+    rows = seed_rows(rows_path, range(args.seed, args.seed + args.count))
     summary = summarise(rows)
-    (args.out / rows_path.with_suffix(".summary.json").name).write_text(json.dumps(summary, indent=1) + "\n")
+    write_json_atomic(summary, args.out / rows_path.with_suffix(".summary.json").name)
     print(json.dumps(summary))
     return 0
 

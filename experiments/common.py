@@ -8,6 +8,7 @@ another. Finished cases are kept through the sweep's case store (:func:`lightcur
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import operator
 from dataclasses import dataclass
@@ -70,6 +71,20 @@ def command_line(script: str, argv: Sequence[str]) -> str:
 
 
 # ----------------------------------------------------------------------------------------------- seeds and lists
+
+def seed_rows(path: Path, seeds: range | None = None) -> list[dict]:
+    """The rows of a resumable JSON-lines file ``path`` (one object with a ``"seed"`` per line; none if it does not
+    exist), those of ``seeds`` only when given."""
+    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.exists() else []
+    return rows if seeds is None else [r for r in rows if r["seed"] in seeds]
+
+
+def append_row(path: Path, row: dict) -> None:
+    """One row appended to the JSON-lines file ``path`` and flushed (a run stopped between seeds loses none)."""
+    with open(path, "a") as fh:
+        fh.write(json.dumps(row) + "\n")
+        fh.flush()
+
 
 def seed_range(text: str) -> range:
     """``"2000:2300"`` → ``range(2000, 2300)``."""

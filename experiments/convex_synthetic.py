@@ -20,7 +20,7 @@ in mag² over all samples with each curve's zero point profiled. More than 1 nat
 basin itself off (pole > 5° or period beyond the resolution): *model-limited*; else *data-limited* (the best fits
 as well as the truth's basin, elsewhere).
 
-    python experiments/convex_synthetic.py --seed 1000 --out experiments/results/convex_synthetic/tuning_1000
+    python -m experiments.convex_synthetic --seed 1000 --out experiments/results/convex_synthetic/tuning_1000
 """
 
 from __future__ import annotations
@@ -37,6 +37,8 @@ import numpy as np
 import torch
 from scipy.spatial import ConvexHull
 
+from experiments.common import append_row, seed_rows
+from lightcurve_gp.files import write_json_atomic
 from lightcurve_gp.inference.convex_fit import convex_data, design, fit_areas, magnitude_rss
 from lightcurve_gp.inference.convex_search import ConvexSettings, convex_search, polish_starts
 from lightcurve_gp.observations.observations import CurveInfo, Observations
@@ -213,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
                                  for k, v in (item.split("=", 1) for item in args.setting)})
     args.out.mkdir(parents=True, exist_ok=True)
     rows_path = args.out / "rows.jsonl"
-    done = {json.loads(line)["seed"] for line in rows_path.read_text().splitlines()} if rows_path.exists() else set()
+    done = {r["seed"] for r in seed_rows(rows_path)}
     for seed in range(args.seed, args.seed + args.objects):
         if seed in done:
             continue
@@ -231,16 +233,14 @@ def main(argv: list[str] | None = None) -> int:
             areas=torch.as_tensor(fam.areas[:1]))[0])
         row.update(basin(data, truth, search.normals, settings))
         row.update(judge(row))
-        with open(rows_path, "a") as fh:
-            fh.write(json.dumps(row) + "\n")
+        append_row(rows_path, row)
         print(f"seed {seed}: {truth['curves']} curves, {truth['samples']} samples, noise {truth['noise_mag']:.3f}, "
               f"P {truth['period_h']:.4f} h -> pole error {row['pole_error_deg']:.1f} deg, period error "
               f"{row['period_error_h']:.1e} h (resolution {row['resolution_h']:.1e}), ok {row['best_ok']}, rms "
               f"{row['rms']:.4f} (the truth's basin {row['basin_rms']:.4f}, pole error "
               f"{row['basin_pole_error_deg']:.1f} deg), {row['dnats']:+.1f} nats: {row['kind']}, "
               f"{row['seconds']:.0f} s", flush=True)
-    rows = [json.loads(line) for line in rows_path.read_text().splitlines()]
-    rows = [r for r in rows if args.seed <= r["seed"] < args.seed + args.objects]
+    rows = seed_rows(rows_path, range(args.seed, args.seed + args.objects))
     ok = sum(r["best_ok"] for r in rows)
     any_ok = sum(r["any_ok"] for r in rows)
     kinds = {k: sum(r["kind"] == k for r in rows) for k in ("ok", "search_miss", "data_limited", "model_limited")}
@@ -252,7 +252,7 @@ def main(argv: list[str] | None = None) -> int:
                "median_basin_pole_error_deg": float(np.median([r["basin_pole_error_deg"] for r in rows])),
                "median_seconds": float(np.median([r["seconds"] for r in rows])),
                "median_pole_error_deg": float(np.median([r["pole_error_deg"] for r in rows]))}
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    write_json_atomic(summary, args.out / "summary.json")
     print(json.dumps(summary))
     return 0
 
