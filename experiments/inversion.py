@@ -51,7 +51,7 @@ from lightcurve_gp.files import write_json_atomic, write_text_atomic
 from lightcurve_gp.filters.bank import bank_attitudes, run_bank
 from lightcurve_gp.inference.answer import MAX_LOG_RATIO, answer
 from lightcurve_gp.inference.families import image_distance
-from lightcurve_gp.inference.fit_test import VERDICTS
+from lightcurve_gp.inference.fit_verdict import VERDICTS
 from lightcurve_gp.inference.forward import GroupRenderer
 from lightcurve_gp.inference.inversion import InversionSettings
 from lightcurve_gp.inference.trajectory import TrajectoryProblem

@@ -17,7 +17,7 @@ from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.commands.invert import main as invert_main
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.inference.answer import answer, widened_settings
-from lightcurve_gp.inference.fit_test import P_NO_FIT, fit_test, verdict
+from lightcurve_gp.inference.fit_verdict import P_NO_FIT, fit_test, verdict
 from lightcurve_gp.inference.forward import GroupRenderer
 from lightcurve_gp.inference.inversion import InversionSettings, rate_starts
 from lightcurve_gp.inference.trajectory import TrajectoryProblem

@@ -12,7 +12,7 @@ from lightcurve_gp.attitude.metrics import attitude_error_vector, nees
 from lightcurve_gp.commands import simulate
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.evaluation.registry import map_solution
-from lightcurve_gp.inference.fit_test import P_NO_FIT, fit_test, verdict
+from lightcurve_gp.inference.fit_verdict import P_NO_FIT, fit_test, verdict
 from lightcurve_gp.observations import CurveInfo, Observations, ObservationsError
 from lightcurve_gp.observed.arc_run import estimate_arc
 from lightcurve_gp.observed.lightcurve_file import LightCurveFileError, read_light_curve, write_light_curve

@@ -31,7 +31,7 @@ from torch import Tensor
 
 from lightcurve_gp.attitude.metrics import attitude_errors_deg
 from lightcurve_gp.inference.families import Families, image_distance
-from lightcurve_gp.inference.fit_test import FitTest, fit_test
+from lightcurve_gp.inference.fit_verdict import FitTest, fit_test
 from lightcurve_gp.inference.inversion import polish
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import AmbiguityGroup

@@ -1,18 +1,18 @@
 """The global inversion's answer: the search, its families, the fit test, and what it does when the fit fails.
 
 :func:`answer` runs :func:`~.inversion.invert` and :func:`~.families.families` and judges the best fit by its χ²
-(:mod:`.fit_test`: ``χ² = 2 c`` against ``χ²_ν``, ``ν = N − 7``). Three rules make the answer honest:
+(:mod:`.fit_verdict`: ``χ² = 2 c`` against ``χ²_ν``, ``ν = N − 7``). Three rules make the answer honest:
 
-1. **Widening.** A best fit whose p-value is below :data:`~.fit_test.P_NO_FIT` is never reported as found: the
+1. **Widening.** A best fit whose p-value is below :data:`~.fit_verdict.P_NO_FIT` is never reported as found: the
    search runs once more, wider (:func:`widened_settings`): twice the starts, twice the Sobol' attitudes of the
    first-arc screen (a new scramble), a rate grid twice as fine (shell ratio ``√1.5`` instead of 1.5) with shells
    at the periodogram's candidates and the best families' rates and their harmonics ½× and 2× (:func:`wider_rates`),
    and twice the rows carried through the continuation. Its solutions join the first search's and the families are
    formed again over both. One round only: if the fit still fails, the verdict is ``"no_fit"``.
-2. **Verdict** (:func:`~.fit_test.verdict`): ``"no_fit"`` when the best fit still fails its test; ``"unique"`` when
+2. **Verdict** (:func:`~.fit_verdict.verdict`): ``"no_fit"`` when the best fit still fails its test; ``"unique"`` when
    it fits and the heaviest family is right (within 10° and 2 % of the truth) with probability ``p_right``
    (:mod:`.families`: its basin's weight times the Gaussian mass of that region) of at least
-   :data:`~.fit_test.UNIQUE_WEIGHT`; ``"ambiguous"`` otherwise.
+   :data:`~.fit_verdict.UNIQUE_WEIGHT`; ``"ambiguous"`` otherwise.
 3. **Ridge probe.** Below one turn over the arc (``|ω| · span < 2π``, the periodogram's resolution) the light curve
    need not fix the rate: the posterior can be a ridge along it that the continuation, which keeps one row per
    basin, reduces to one point. Each of the :data:`RIDGE_FAMILIES` leading families with such a rate is restarted
@@ -48,7 +48,7 @@ from torch import Tensor
 from lightcurve_gp.attitude.rotations import quat_conj, quat_mul, rotvec_to_quat
 from lightcurve_gp.inference.bridge import carry_across_gaps
 from lightcurve_gp.inference.families import Families, families
-from lightcurve_gp.inference.fit_test import INVERSION_PARAMETERS, UNIQUE_WEIGHT, FitTest, fit_test, verdict
+from lightcurve_gp.inference.fit_verdict import INVERSION_PARAMETERS, UNIQUE_WEIGHT, FitTest, fit_test, verdict
 from lightcurve_gp.inference.inversion import Inversion, InversionSettings, invert, polish, rate_starts
 from lightcurve_gp.inference.periodogram import RATE_FACTORS
 from lightcurve_gp.inference.trajectory import TrajectoryProblem

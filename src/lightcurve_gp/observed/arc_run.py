@@ -10,7 +10,7 @@ fitted light curve.
 
 The fit is judged as any least-squares fit: its ``χ² = Σ r_k²`` over the ``n`` samples it uses (the first sets the
 surface prior) against ``χ²_ν``, ``ν = n − 7 − C_rel`` (attitude 3, surface state 4, one offset per relative
-curve), with the inversion's rule and words (:mod:`lightcurve_gp.inference.fit_test`): ``"no_fit"`` when the
+curve), with the inversion's rule and words (:mod:`lightcurve_gp.inference.fit_verdict`): ``"no_fit"`` when the
 p-value is below ``P_NO_FIT`` (1e-3: the shape, the spin or the start is wrong, and the answer is not one),
 ``"ambiguous"`` when it fits but the best mode carries less than ``UNIQUE_WEIGHT`` (0.9) of the evidence, else
 ``"unique"``.
@@ -33,7 +33,7 @@ from lightcurve_gp.evaluation.registry import arc_estimate, map_solution
 from lightcurve_gp.evaluation.scoring import Estimate
 from lightcurve_gp.inference.arc import ArcSolution
 from lightcurve_gp.inference.arc_search import arc_setup
-from lightcurve_gp.inference.fit_test import P_NO_FIT, FitTest, fit_test, verdict
+from lightcurve_gp.inference.fit_verdict import P_NO_FIT, FitTest, fit_test, verdict
 from lightcurve_gp.inference.forward import rate_sensitivity
 from lightcurve_gp.observation.surface_state import surface_from_state
 from lightcurve_gp.observations.observations import Observations
@@ -62,7 +62,7 @@ class ArcRun:
         fitted: the fitted magnitudes ``(N,)`` (the relative curves' offsets included).
         offsets: the relative light curves' fitted magnitude offsets ``(C_rel,)`` (mag), or ``None``.
         used: the samples the fit uses ``(N,)`` (bool).
-        fit: the fit's χ² against ``χ²_ν`` (:func:`lightcurve_gp.inference.fit_test.fit_test`).
+        fit: the fit's χ² against ``χ²_ν`` (:func:`lightcurve_gp.inference.fit_verdict.fit_test`).
         seconds: the run's wall time.
     """
 
@@ -93,7 +93,7 @@ class ArcRun:
 
     @property
     def verdict(self) -> str:
-        """``"unique"``, ``"ambiguous"`` or ``"no_fit"`` (:func:`lightcurve_gp.inference.fit_test.verdict`, the best
+        """``"unique"``, ``"ambiguous"`` or ``"no_fit"`` (:func:`lightcurve_gp.inference.fit_verdict.verdict`, the best
         mode's evidence weight as the heaviest family's)."""
         return verdict(self.fit, float(self.solution.weight_best[0]))
 
