@@ -34,7 +34,7 @@ from lightcurve_gp.attitude.torque_free import torque_free_motion
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.files import write_json_atomic, write_text_atomic
 from lightcurve_gp.inference.crb import cramer_rao_bound
-from lightcurve_gp.inference.families import image_distance
+from lightcurve_gp.inference.families import RIGHT_ANGLE_DEG, RIGHT_RATE_REL, image_distance
 from lightcurve_gp.inference.inversion import InversionSettings
 from lightcurve_gp.observations import Observations
 from lightcurve_gp.observed.inversion_run import invert_observations
@@ -92,7 +92,7 @@ def score(run, q_ref, w_ref, bound: float) -> dict:
     _, rate_err, img = image_distance(group, fam.q0, fam.omega0, q_ref, w_ref)
     axes = attitude_errors_deg(group.attitudes(q_ref)[img], fam.q0).abs().amax(-1)
     rel = rate_err / math.degrees(float(w_ref.norm()))
-    right = (axes < 10.0) & (rel < 0.02)
+    right = (axes < RIGHT_ANGLE_DEG) & (rel < RIGHT_RATE_REL)
     x = torch.cat([torch.zeros(3, dtype=torch.float64), w_ref, torch.tensor([math.log(RHO)], dtype=torch.float64)])
     truth_cost = float(0.5 * run.problem.with_anchors(q_ref[None]).residual(x[None], torch.zeros(1, dtype=torch.long))
                        .square().sum())

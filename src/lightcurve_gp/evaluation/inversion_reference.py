@@ -30,21 +30,17 @@ import torch
 from torch import Tensor
 
 from lightcurve_gp.attitude.metrics import attitude_errors_deg
-from lightcurve_gp.inference.families import Families, image_distance
+from lightcurve_gp.inference.families import RIGHT_ANGLE_DEG, RIGHT_RATE_REL, Families, image_distance
 from lightcurve_gp.inference.fit_verdict import FitTest, fit_test
 from lightcurve_gp.inference.inversion import polish
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
 
-__all__ = ["KINDS", "RIGHT_ANGLE_DEG", "RIGHT_RATE_REL", "MISS_NATS", "InversionReference", "truth_basin",
+__all__ = ["KINDS", "MISS_NATS", "InversionReference", "truth_basin",
            "state_errors", "answer_kind", "inversion_reference"]
 
 #: the kinds of an answer (module docstring)
 KINDS = ("right", "ambiguous_reported", "search_miss", "data_limited")
-#: a family is the truth's when an image of the truth is within this on every Euler axis (deg) …
-RIGHT_ANGLE_DEG = 10.0
-#: … and the rate's difference is within this share of the true rate's magnitude
-RIGHT_RATE_REL = 0.02
 #: a best state worse than the truth's basin by more than this (nats) is a search miss
 MISS_NATS = 1.0
 
