@@ -47,7 +47,7 @@ from torch import Tensor
 
 from lightcurve_gp.attitude.rotations import quat_conj, quat_mul, rotvec_to_quat
 from lightcurve_gp.inference.bridge import carry_across_gaps
-from lightcurve_gp.inference.families import Families, families
+from lightcurve_gp.inference.families import RIGHT_ANGLE_DEG, RIGHT_RATE_REL, Families, families
 from lightcurve_gp.inference.fit_verdict import INVERSION_PARAMETERS, UNIQUE_WEIGHT, FitTest, fit_test, verdict
 from lightcurve_gp.inference.inversion import Inversion, InversionSettings, invert, polish, rate_starts
 from lightcurve_gp.inference.periodogram import RATE_FACTORS
@@ -108,19 +108,20 @@ class Answer:
                     "answer); the families below are not an answer")
         lo, hi = self.rate_interval_deg_s
         rates = f"rate {lo:.4g} deg/s" if len(fam) == 1 else f"rates {lo:.4g}-{hi:.4g} deg/s"
+        tolerance = f"{RIGHT_ANGLE_DEG:g} deg and {100 * RIGHT_RATE_REL:g} %"
         if self.verdict == "unique":
-            return (f"unique: one family carries weight {float(fam.weight[0]):.3f} and is within 10 deg and 2 % of "
+            return (f"unique: one family carries weight {float(fam.weight[0]):.3f} and is within {tolerance} of "
                     f"the truth with probability {float(fam.p_right[0]):.3f} ({rates}); the fit is what the noise "
                     f"allows ({stats}){wide}")
         what = ("the rate is not resolved over the arc (a ridge: less than one turn)" if self.ridge
                 else "the light curve does not single one out")
         if not self.ridge and float(fam.weight[0]) >= UNIQUE_WEIGHT:
             return (f"ambiguous: one basin carries weight {float(fam.weight[0]):.3f} ({rates}) but the light curve "
-                    f"does not pin it within 10 deg and 2 % (probability {float(fam.p_right[0]):.3f}) ({stats}){wide}")
+                    f"does not pin it within {tolerance} (probability {float(fam.p_right[0]):.3f}) ({stats}){wide}")
         if len(fam) == 1:
             return (f"ambiguous: one family fits ({rates}) but {what}: other states may fit as well ({stats}){wide}")
         return (f"ambiguous: {len(fam)} families fit ({rates}), the heaviest with weight {float(fam.weight[0]):.3f} "
-                f"(within 10 deg and 2 % with probability {float(fam.p_right[0]):.3f}); {what} ({stats}){wide}")
+                f"(within {tolerance} with probability {float(fam.p_right[0]):.3f}); {what} ({stats}){wide}")
 
     def as_dict(self) -> dict:
         return {"verdict": self.verdict, "fit": self.fit.as_dict(), "widened": self.widened,

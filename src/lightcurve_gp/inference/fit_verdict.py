@@ -4,8 +4,10 @@ With residuals whitened by the given 1σ (``r_k = (ỹ_k − m_k) / σ_k``) and 
 ``χ² = Σ r_k² = 2 c`` (``c = ½ Σ r²``, the solvers' cost) of a right model is ``χ²_ν``-distributed, ``ν = N − p``.
 Its p-value (the probability of a χ² at least as large) below :data:`P_NO_FIT` says that no state of the model
 explains the light curve within its noise (a wrong shape, a wrong noise level, or a search that never reached the
-right basin): the fit is no answer. A fit that passes is ``"unique"`` when its heaviest family carries at least
-:data:`UNIQUE_WEIGHT` of the evidence and ``"ambiguous"`` otherwise (:func:`verdict`).
+right basin): the fit is no answer. A fit that passes is ``"unique"`` when its leading answer holds at least
+:data:`UNIQUE_WEIGHT` of the probability — the global inversion's top family its ``p_right`` (the probability of
+being within the tolerances of "right", :mod:`.families`), the file estimator's leading mode its evidence weight —
+and ``"ambiguous"`` otherwise (:func:`verdict`).
 
 These constants are the one definition for every estimator that judges its fit this way.
 """
@@ -21,7 +23,7 @@ __all__ = ["P_NO_FIT", "UNIQUE_WEIGHT", "INVERSION_PARAMETERS", "VERDICTS", "Fit
 
 #: a fit whose χ² has a p-value below this is no answer
 P_NO_FIT = 1e-3
-#: a fit is unique when its heaviest family (mode) carries at least this share of the evidence
+#: a fit is unique when its leading answer holds at least this probability (module docstring)
 UNIQUE_WEIGHT = 0.9
 #: the global inversion's free parameters: attitude 3, body rate 3, ln ρ
 INVERSION_PARAMETERS = 7

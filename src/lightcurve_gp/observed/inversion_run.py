@@ -25,7 +25,7 @@ from typing import Callable
 import torch
 
 from lightcurve_gp.config.load import Config
-from lightcurve_gp.inference.answer import Answer, answer
+from lightcurve_gp.inference.answer import MAX_LOG_RATIO, Answer, answer
 from lightcurve_gp.inference.families import Families
 from lightcurve_gp.inference.forward import GroupRenderer
 from lightcurve_gp.inference.inversion import Inversion, InversionSettings
@@ -83,8 +83,9 @@ def trajectory_problem(cfg: Config, obs: Observations) -> tuple[TrajectoryProble
     return problem, scene
 
 
-def invert_observations(cfg: Config, obs: Observations, *, settings: InversionSettings, max_log_ratio: float = 10.0,
-                        polish: int = 3, progress: Callable[[str], None] | None = None) -> InversionRun:
+def invert_observations(cfg: Config, obs: Observations, *, settings: InversionSettings,
+                        max_log_ratio: float = MAX_LOG_RATIO, polish: int = 3,
+                        progress: Callable[[str], None] | None = None) -> InversionRun:
     """The global inversion of ``obs`` and the whole-arc MAP of its ``polish`` leading families (module docstring).
     The periodogram's one-line errors come out as ``ValueError``."""
     problem, scene = trajectory_problem(cfg, obs)
