@@ -48,7 +48,8 @@ from experiments.common import append_row, seed_rows
 from lightcurve_gp.attitude.rotations import matrix_to_quat
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.files import write_json_atomic
-from lightcurve_gp.inference.convex_fit import convex_data, design, fit_areas, polish
+from lightcurve_gp.inference.convex_fit import convex_data, design, fit_areas
+from lightcurve_gp.inference.convex_polish import polish
 from lightcurve_gp.inference.convex_search import ConvexSettings, convex_search
 from lightcurve_gp.observations.observations import CurveInfo, Observations
 from lightcurve_gp.observed.damit import equatorial_to_ecliptic

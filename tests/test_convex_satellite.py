@@ -14,7 +14,8 @@ from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.commands.invert_convex import settings_from_config
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.config.schema import ConfigError
-from lightcurve_gp.inference.convex_fit import PolishResidual, convex_data, design, fit_areas, relative_residuals
+from lightcurve_gp.inference.convex_fit import convex_data, design, fit_areas, relative_residuals
+from lightcurve_gp.inference.convex_polish import PolishResidual
 from lightcurve_gp.inference.convex_search import search_normals
 from lightcurve_gp.inference.jacobian import jacobian
 from lightcurve_gp.observations.observations import CurveInfo, Observations

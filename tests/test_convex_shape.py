@@ -9,13 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from lightcurve_gp.inference.convex_fit import (
-    PolishResidual,
-    convex_data,
-    design,
-    magnitude_rss,
-    polish,
-)
+from lightcurve_gp.inference.convex_fit import convex_data, design, magnitude_rss
+from lightcurve_gp.inference.convex_polish import PolishResidual, polish
 from lightcurve_gp.inference.convex_search import ring_poles
 from lightcurve_gp.inference.jacobian import jacobian
 from lightcurve_gp.observations.observations import CurveInfo, Observations

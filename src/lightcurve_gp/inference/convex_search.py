@@ -37,15 +37,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from lightcurve_gp.inference.convex_fit import (
-    ConvexData,
-    Polished,
-    design,
-    fit_areas,
-    polish,
-    relative_residuals,
-)
+from lightcurve_gp.inference.convex_fit import ConvexData, design, fit_areas, relative_residuals
 from lightcurve_gp.inference.convex_periodogram import ConvexPeriodogram, multiterm_periodogram
+from lightcurve_gp.inference.convex_polish import Polished, polish
 from lightcurve_gp.photometry.convex import (
     SatelliteScattering,
     Scattering,
@@ -109,7 +103,7 @@ def search_normals(count: int, ring: int) -> Tensor:
 
 def polish_starts(data: ConvexData, normals: Tensor, settings: ConvexSettings, *, lam: Tensor, beta: Tensor,
                   period_s: Tensor, areas: Tensor) -> Polished:
-    """The search's polish (:func:`~lightcurve_gp.inference.convex_fit.polish`) of ``B`` starts (``lam``, ``beta``
+    """The search's polish (:func:`~lightcurve_gp.inference.convex_polish.polish`) of ``B`` starts (``lam``, ``beta``
     rad, ``period_s`` s, each ``(B,)``; ``areas`` ``(B, K)`` on ``normals``) under ``settings``: the shape is
     ``exp`` of a real spherical-harmonic series of degree ``shape_degree`` (0: free areas per normal)."""
     basis = real_harmonics(normals, settings.shape_degree) if settings.shape_degree > 0 else None
