@@ -43,6 +43,8 @@ def test_invert_writes_solutions_that_round_trip_and_hold_the_truth(observed):
     assert list(table["rank"]) == list(range(1, len(table) + 1))
     assert abs(float(np.sum(table["weight"])) - 1.0) < 1e-9 and len(table.meta["images"]) == 16
     summary = json.loads((run / "summary.json").read_text())
+    np.testing.assert_allclose(np.asarray(table["p_right"]), np.asarray(table["weight"]) * np.asarray(table["mass"]))
+    assert float(table[0]["p_right"]) == pytest.approx(summary["top_p_right"], rel=1e-12)
     assert summary["ambiguity_images"]["labels"] == table.meta["images"] and summary["periodogram_detection"]
     assert summary["ambiguity_images"]["source"].startswith("derived by") and not summary["ambiguity_images"][
         "rate_known"]

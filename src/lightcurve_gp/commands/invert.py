@@ -209,8 +209,9 @@ def _run(args: argparse.Namespace) -> int:
     best = table[0]
     print(f"{source}: {obs.describe()}")
     print(f"{len(fam)} families within {args.max_log_ratio:g} nats (modulo {len(run.group)} exact images); "
-          f"best weight {float(best['weight']):.3f}, rate {math.hypot(*(float(best[f'omega_{a}']) for a in 'xyz')):.4g}"
-          f" deg/s, rho {float(best['rho']):.3g}; {sum(inv.seconds.values()) + run.seconds:.1f} s")
+          f"best weight {float(best['weight']):.3f} (p_right {float(best['p_right']):.3f}), "
+          f"rate {math.hypot(*(float(best[f'omega_{a}']) for a in 'xyz')):.4g} deg/s, "
+          f"rho {float(best['rho']):.3g}; {sum(inv.seconds.values()) + run.seconds:.1f} s")
     print(f"verdict: {run.answer.words()}")
     for k, arc in enumerate(run.polished):
         print(f"family {k + 1} polished by the whole-arc MAP (surface unknown): chi2/dof {arc.chi2 / arc.dof:.2f}, "

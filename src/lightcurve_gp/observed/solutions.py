@@ -1,13 +1,16 @@
 """The solutions file of an inversion (``solutions.ecsv``): one row per family of the light curve, ranked by weight.
 
-Columns: ``rank`` (1 = the heaviest), ``weight`` (Laplace-evidence weight, the rows sum to 1), ``log_likelihood``
-and ``log_evidence`` (nats), ``q_x, q_y, q_z, q_w`` (the attitude at the first sample, scalar last, inertial → body),
+Columns: ``rank`` (1 = the heaviest), ``weight`` (Laplace-evidence weight, the rows sum to 1), ``log_likelihood`` and
+``log_evidence`` (nats), ``q_x, q_y, q_z, q_w`` (the attitude at the first sample, scalar last, inertial → body),
 ``omega_x, omega_y, omega_z`` (body rate at the first sample, deg/s), ``rho`` (ρ̂), ``members`` (converged starts in
-the family), and the 1σ of the Laplace covariance: ``sigma_att_x, sigma_att_y, sigma_att_z`` (deg, body-side
-rotation of the first attitude), ``sigma_omega_x, …`` (deg/s), ``sigma_rho``. Metadata: ``images`` (the exact
-ambiguity images the families were taken modulo; every row stands for all of them), ``light_curve``, ``config``
-and, from ``invert``, ``verdict`` (``unique``, ``ambiguous`` or ``no_fit``: then no row is an answer), ``chi2_per_dof``
-and ``p_value`` of the best fit.
+the family), and the 1σ of the Laplace covariance: ``sigma_att_x, sigma_att_y, sigma_att_z`` (deg, body-side rotation
+of the first attitude), ``sigma_omega_x, …`` (deg/s), ``sigma_rho``; then ``mass`` (the Gaussian mass of the region
+of "right" states about the family's mode: every Euler axis within 10° and the rate within 2 %,
+:func:`~lightcurve_gp.inference.families.tolerance_mass`) and ``p_right = weight · mass``, the probability that the
+family is the right answer (these two are optional on reading: files written before them lack them). Metadata:
+``images`` (the exact ambiguity images the families were taken modulo; every row stands for all of them),
+``light_curve``, ``config`` and, from ``invert``, ``verdict`` (``unique``, ``ambiguous`` or ``no_fit``: then no row
+is an answer), ``chi2_per_dof`` and ``p_value`` of the best fit.
 """
 
 from __future__ import annotations
@@ -28,10 +31,12 @@ __all__ = ["SolutionsFileError", "solutions_table", "write_solutions", "read_sol
 COLUMNS = ("rank", "weight", "log_likelihood", "log_evidence", "q_x", "q_y", "q_z", "q_w", "omega_x", "omega_y",
            "omega_z", "rho", "members", "sigma_att_x", "sigma_att_y", "sigma_att_z", "sigma_omega_x", "sigma_omega_y",
            "sigma_omega_z", "sigma_rho")
+#: columns written since the families carry ``p_right``; checked when present, not required
+OPTIONAL_COLUMNS = ("mass", "p_right")
 
 #: every column's unit (:mod:`~lightcurve_gp.observed.table_units`): rates deg/s, the attitude's 1σ deg, the rest
 #: dimensionless (the log-likelihood and evidence in nats, said in their descriptions)
-UNITS = {**{c: "" for c in COLUMNS}, **{f"omega_{a}": "deg / s" for a in "xyz"},
+UNITS = {**{c: "" for c in COLUMNS + OPTIONAL_COLUMNS}, **{f"omega_{a}": "deg / s" for a in "xyz"},
          **{f"sigma_att_{a}": "deg" for a in "xyz"}, **{f"sigma_omega_{a}": "deg / s" for a in "xyz"}}
 
 
@@ -51,7 +56,7 @@ def solutions_table(fam: Families, meta: dict | None = None) -> Table:
             "members": fam.members.cpu().numpy(),
             **{f"sigma_att_{a}": np.degrees(sd[:, i]) for i, a in enumerate("xyz")},
             **{f"sigma_omega_{a}": np.degrees(sd[:, 3 + i]) for i, a in enumerate("xyz")},
-            "sigma_rho": rho * sd[:, 6]}
+            "sigma_rho": rho * sd[:, 6], "mass": fam.mass.cpu().numpy(), "p_right": fam.p_right.cpu().numpy()}
     table = set_units(Table(cols), UNITS, {"log_likelihood": "nats", "log_evidence": "nats"})
     table.meta.update({"images": list(fam.images), **(meta or {})})
     return table
@@ -77,7 +82,7 @@ def read_solutions(path: str | Path) -> Table:
                                  f"python -m lightcurve_gp.invert has {', '.join(COLUMNS)})")
     if len(table) == 0:
         raise SolutionsFileError(f"{path}: no rows")
-    for name in COLUMNS:
+    for name in COLUMNS + tuple(c for c in OPTIONAL_COLUMNS if c in table.colnames):
         values = np.asarray(table[name], dtype=np.float64)
         if not np.all(np.isfinite(values)) and not name.startswith("sigma"):
             row = int(np.flatnonzero(~np.isfinite(values))[0])
@@ -89,6 +94,12 @@ def read_solutions(path: str | Path) -> Table:
     if abs(float(np.sum(table["weight"])) - 1.0) > 1e-6:
         raise SolutionsFileError(f"{path}: column weight: the weights sum to {float(np.sum(table['weight'])):.6g}, "
                                  "not 1")
+    for name in (c for c in OPTIONAL_COLUMNS if c in table.colnames):
+        values = np.asarray(table[name], dtype=np.float64)
+        if np.any((values < 0.0) | (values > 1.0 + 1e-9)):
+            row = int(np.flatnonzero((values < 0.0) | (values > 1.0 + 1e-9))[0])
+            raise SolutionsFileError(f"{path}: column {name}, row {row + 1}: {float(values[row]):.6g} is not a "
+                                     "probability in [0, 1]")
     return table
 
 
