@@ -143,6 +143,7 @@ def test_a_seed_is_right_and_a_starved_search_of_it_a_search_miss():
     ref = inversion_reference(problem, group, full.families, best_cost=float(full.inversion.cost.min()), q0=q0,
                               omega0=w0, rho=0.4)
     assert ref.kind == "right" and ref.truth_rank == 1 and ref.basin_right and full.verdict == "unique"
+    assert ref.basin_rank == 1  # the top family is the truth's basin's
     assert ref.best_cost <= ref.basin_cost + 1e-6 <= ref.truth_cost + 1e-6
     # every screened rate a thirtieth of the truth's, all of them from the 30 s arc (there they turn 3°; entering
     # at the 80 s arc instead, they reach the truth), no widening: the search ends far above the truth's basin
@@ -150,7 +151,7 @@ def test_a_seed_is_right_and_a_starved_search_of_it_a_search_miss():
     bad = answer(problem, group, settings=replace(SMALL, entry_turn_deg=0.0), rate_grid=starved, widen=False)
     miss = inversion_reference(problem, group, bad.families, best_cost=float(bad.inversion.cost.min()), q0=q0,
                                omega0=w0, rho=0.4)
-    assert miss.kind == "search_miss" and miss.truth_rank == 0
+    assert miss.kind == "search_miss" and miss.truth_rank == 0 and miss.basin_rank == 0
     assert miss.best_cost > miss.basin_cost + 100.0
     assert miss.basin_cost == pytest.approx(ref.basin_cost, abs=1e-6)
     assert bad.verdict == "no_fit"  # and the verdict says so

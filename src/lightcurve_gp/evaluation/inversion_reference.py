@@ -19,6 +19,11 @@ Every answer is of one kind (:data:`KINDS`, in this order of precedence):
   :data:`MISS_NATS`), or the truth's basin itself lies outside the limits of ``right`` (measured: a 2 °/s tumbler
   over 200 s at 0.05 mag, whose basin is 3.2 % off in rate): the light curve does not single out the truth and no
   search could. ``basin_right`` says which.
+
+Beside the kind, ``basin_rank`` says where the **truth's own family** is among those reported: the first family
+whose state lies within the limits of ``right`` of the truth's basin (modulo the exact images), the truth's family
+even where the basin itself is beyond the limits of the truth (a slow tumbler whose rate the light curve leaves
+free).
 """
 
 from __future__ import annotations
@@ -55,7 +60,8 @@ class InversionReference:
         basin_right: whether the truth's basin itself is within the limits of ``right``.
         axis_error_deg: each family's largest Euler error to its nearest image of the truth ``(F,)`` (deg);
         rate_error_rel: its rate difference over the true rate ``(F,)``; right: both within the limits ``(F,)``.
-        truth_rank: the rank (1 = top) of the first family that is the truth's, 0 when none is.
+        truth_rank: the rank (1 = top) of the first family that is right, 0 when none is.
+        basin_rank: the rank of the first family within the limits of ``right`` of the truth's basin, 0 when none is.
         kind: one of :data:`KINDS`.
     """
 
@@ -68,10 +74,12 @@ class InversionReference:
     rate_error_rel: Tensor
     right: Tensor
     truth_rank: int
+    basin_rank: int
     kind: str
 
     def as_dict(self) -> dict:
-        return {"kind": self.kind, "truth_rank": self.truth_rank, "truth_cost": self.truth_cost,
+        return {"kind": self.kind, "truth_rank": self.truth_rank, "basin_rank": self.basin_rank,
+                "truth_cost": self.truth_cost,
                 "basin_cost": self.basin_cost, "best_cost": self.best_cost,
                 "best_minus_basin": self.best_cost - self.basin_cost, "basin_chi2_per_dof": self.basin_fit.chi2_per_dof,
                 "basin_right": self.basin_right,
@@ -124,10 +132,13 @@ def inversion_reference(problem: TrajectoryProblem, group: AmbiguityGroup, fam: 
     right = (axes < RIGHT_ANGLE_DEG) & (rel < RIGHT_RATE_REL)
     basin_axes, basin_rel = state_errors(group, basin_q[None], basin_w[None], q0=q0, omega0=omega0)
     rank = int(torch.nonzero(right)[0, 0]) + 1 if bool(right.any()) else 0
+    fam_axes, fam_rel = state_errors(group, fam.q0, fam.omega0, q0=basin_q, omega0=basin_w)
+    near_basin = (fam_axes < RIGHT_ANGLE_DEG) & (fam_rel < RIGHT_RATE_REL)
+    basin_rank = int(torch.nonzero(near_basin)[0, 0]) + 1 if bool(near_basin.any()) else 0
     samples = int(torch.isfinite(problem.y).sum())
     return InversionReference(truth_cost=raw, basin_cost=basin, best_cost=float(best_cost),
                               basin_fit=fit_test(basin, samples=samples),
                               basin_right=bool(basin_axes[0] < RIGHT_ANGLE_DEG) and bool(basin_rel[0] < RIGHT_RATE_REL),
                               axis_error_deg=axes, rate_error_rel=rel,
-                              right=right, truth_rank=rank,
+                              right=right, truth_rank=rank, basin_rank=basin_rank,
                               kind=answer_kind(right=right, best_cost=float(best_cost), basin_cost=basin))
