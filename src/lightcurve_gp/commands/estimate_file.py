@@ -63,7 +63,7 @@ from lightcurve_gp.observed.arc_run import (
 )
 from lightcurve_gp.observed.information import flat_light_curve
 from lightcurve_gp.observed.inversion_run import invert_observations
-from lightcurve_gp.observed.lightcurve_file import read_light_curve, write_table
+from lightcurve_gp.observed.lightcurve_file import read_light_curve
 from lightcurve_gp.observed.observations_file import read_observations
 from lightcurve_gp.observed.plots import attitude_with_uncertainty, fit_with_residuals, light_curve_band
 from lightcurve_gp.observed.result import finish
@@ -82,6 +82,7 @@ from lightcurve_gp.observed.solutions import (
     solutions_table,
     write_solutions,
 )
+from lightcurve_gp.observed.table_write import write_table
 from lightcurve_gp.observed.verdict import ambiguity_images
 
 __all__ = ["BANK_DEFAULTS", "FILE_DEFAULT", "FILE_ESTIMATORS", "add_file_arguments", "check_options", "file_estimators",

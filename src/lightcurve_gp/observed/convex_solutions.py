@@ -27,7 +27,7 @@ from astropy.table import Table
 
 from lightcurve_gp.files import atomic_path
 from lightcurve_gp.inference.convex_search import ConvexSearch
-from lightcurve_gp.observed.lightcurve_file import write_table
+from lightcurve_gp.observed.table_write import write_table
 
 __all__ = ["convex_solutions_table", "areas_table", "write_convex_tables"]
 

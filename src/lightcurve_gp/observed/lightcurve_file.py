@@ -42,6 +42,7 @@ from sgp4.api import Satrec
 
 from lightcurve_gp.files import atomic_path
 from lightcurve_gp.observed.table_units import ISO_UTC, set_units
+from lightcurve_gp.observed.table_write import write_table
 from lightcurve_gp.observed.text_tables import DECIMAL_COMMA, csv_dialect, data_line_numbers, decimal_points, text_lines
 from lightcurve_gp.observed.times import (
     MAX_SPAN_DAYS,
@@ -57,7 +58,7 @@ from lightcurve_gp.passes.orbit import check_tle
 
 __all__ = ["LightCurve", "LightCurveFileError", "GEOMETRY_COLUMNS", "MAG_LIMIT", "MAX_SPAN_DAYS",
            "TLE_VALIDITY_DAYS", "YEARS", "iso_times", "light_curve_format", "light_curve_table", "read_light_curve",
-           "tle_epoch", "write_table", "write_light_curve"]
+           "tle_epoch", "write_light_curve"]
 
 GEOMETRY_COLUMNS = ("sun_x", "sun_y", "sun_z", "obs_x", "obs_y", "obs_z", "range_km")
 #: the units a written light-curve file gives its columns (:mod:`~lightcurve_gp.observed.table_units`); ``time``'s
@@ -159,20 +160,6 @@ def light_curve_table(lc: LightCurve, time_format: str = "iso") -> Table:
     table.meta.update(meta)
     unit, description = TIME_UNITS[time_format]
     return set_units(table, {"time": unit, **LIGHT_CURVE_UNITS}, {"time": description})
-
-
-def write_table(table: Table, path: str | Path, *, fmt: str) -> None:
-    """Write a table in the astropy format ``fmt`` (not atomic: give it a temporary path); CSV metadata becomes
-    ``# key: value`` comment lines."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # FITS: long metadata keys become HIERARCH cards, as intended
-        if fmt == "ascii.csv":
-            table = table.copy(copy_data=False)
-            table.meta = {"comments": [f"{k}: {yaml.safe_dump(v, default_flow_style=True).strip()}"
-                                       .removesuffix("\n...") for k, v in table.meta.items()]}
-            table.write(path, format=fmt, comment="# ", overwrite=True)
-        else:
-            table.write(path, format=fmt, overwrite=True)
 
 
 def write_light_curve(lc: LightCurve, path: str | Path, *, time_format: str = "iso") -> Path:

@@ -23,8 +23,8 @@ import torch
 from astropy.table import Table
 
 from lightcurve_gp.inference.families import Families
-from lightcurve_gp.observed.lightcurve_file import write_table
 from lightcurve_gp.observed.table_units import set_units
+from lightcurve_gp.observed.table_write import write_table
 
 __all__ = ["SolutionsFileError", "solutions_table", "write_solutions", "read_solutions", "best_solution", "rate_sigma"]
 
@@ -63,7 +63,8 @@ def solutions_table(fam: Families, meta: dict | None = None) -> Table:
 
 
 def write_solutions(table: Table, path: str | Path) -> None:
-    """Write the table as ECSV (atomically, :func:`~.lightcurve_file.write_table`)."""
+    """Write the table as ECSV (:func:`~.table_write.write_table`; not atomic by itself: `invert` writes it inside
+    its run folder, renamed into place when the run ends)."""
     write_table(table, path, fmt="ascii.ecsv")
 
 
