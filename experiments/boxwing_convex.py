@@ -36,6 +36,7 @@ fits as well as the truth's basin, elsewhere).
 
     python -m experiments.boxwing_convex --seed 100 --count 4 --rows tuning_rows.jsonl   # tuning
     python -m experiments.boxwing_convex --seed 200 --count 10                            # held out
+    python -m experiments.boxwing_convex --seed 102 --diagnose                            # a tuning miss
 """
 
 from __future__ import annotations
@@ -56,7 +57,14 @@ from lightcurve_gp.attitude.rotations import matrix_to_quat
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.files import write_json_atomic
 from lightcurve_gp.inference.convex_fit import convex_data, design, fit_areas, magnitude_rss
-from lightcurve_gp.inference.convex_search import ConvexSettings, convex_search, polish_starts
+from lightcurve_gp.inference.convex_search import (
+    ConvexSettings,
+    convex_search,
+    pole_grid,
+    polish_starts,
+    ring_poles,
+    search_normals,
+)
 from lightcurve_gp.observations.observations import CurveInfo, Observations
 from lightcurve_gp.observed.damit import OBLIQUITY_J2000_RAD, equatorial_to_ecliptic
 from lightcurve_gp.passes.geometry import pass_geometry
@@ -207,6 +215,16 @@ def polish_from(data, normals: torch.Tensor, settings: ConvexSettings, *, lam_de
             "beta_deg": math.degrees(float(p.beta[0])), "period_h": float(p.period_s[0]) / 3600.0}
 
 
+def best_rss(data, search, settings: ConvexSettings) -> float:
+    """The magnitude rss (mag², zero points profiled) of the search's best family on the data."""
+    fam = search.families
+    return float(magnitude_rss(data, search.normals, settings.scattering,
+                               lam=torch.tensor([math.radians(fam.lam_deg[0])], dtype=torch.float64),
+                               beta=torch.tensor([math.radians(fam.beta_deg[0])], dtype=torch.float64),
+                               period_s=torch.tensor([fam.period_h[0] * 3600.0], dtype=torch.float64),
+                               areas=torch.as_tensor(fam.areas[:1], dtype=torch.float64))[0])
+
+
 def matched_image(images: list[dict], lam_deg: float, beta_deg: float, period_h: float, span_h: float
                   ) -> str | None:
     """The name of the first image whose pole is within :data:`POLE_TOL_DEG` of ``(lam_deg, beta_deg)`` and whose
@@ -229,11 +247,7 @@ def score(truth: dict, search, data, settings: ConvexSettings) -> dict:
     best = matched_image(images, fam.lam_deg[0], fam.beta_deg[0], fam.period_h[0], span_h)
     any_ok = any(matched_image(images, fam.lam_deg[k], fam.beta_deg[k], fam.period_h[k], span_h) is not None
                  for k in range(len(fam)))
-    rss_best = float(magnitude_rss(data, search.normals, settings.scattering,
-                                   lam=torch.tensor([math.radians(fam.lam_deg[0])], dtype=torch.float64),
-                                   beta=torch.tensor([math.radians(fam.beta_deg[0])], dtype=torch.float64),
-                                   period_s=torch.tensor([fam.period_h[0] * 3600.0], dtype=torch.float64),
-                                   areas=torch.as_tensor(fam.areas[:1], dtype=torch.float64))[0])
+    rss_best = best_rss(data, search, settings)
     # the truth's basin: the polish started at every image, the best of them in magnitude rss
     starts = [polish_from(data, search.normals, settings, lam_deg=im["lam_deg"], beta_deg=im["beta_deg"],
                           period_h=im["period_min"] / 60.0) for im in images]
@@ -282,6 +296,64 @@ def summarise(rows: list[dict]) -> dict:
             "median_seconds": float(np.median([r["seconds"] for r in rows]))}
 
 
+def fine_screen(data, settings: ConvexSettings, lam: torch.Tensor, beta: torch.Tensor, period_h: float) -> np.ndarray:
+    """The fine stage's screen rms ``(B,)`` (its normals, float32 design, the search's area fit) at one period."""
+    normals = search_normals(settings.fine_normals, settings.ring)
+    out = []
+    for s in range(0, lam.numel(), settings.chunk):
+        sl = slice(s, s + settings.chunk)
+        G = design(data, normals, settings.scattering, lam=lam[sl], beta=beta[sl],
+                   period_s=torch.full((lam[sl].numel(),), period_h * 3600.0, dtype=torch.float64), dtype=torch.float32)
+        out.append(fit_areas(G, data, normals, closure=settings.closure, iterations=settings.area_iterations,
+                             refine=settings.area_refine).rms.numpy())
+    return np.concatenate(out)
+
+
+def diagnose(seed: int, args, settings: ConvexSettings) -> None:
+    """Where a tuning seed's search miss is lost (``--diagnose``): the search with its stages reported, then, at each
+    image's period, the fine stage's screen over its pole grid and at the true pole (where the truth ranks against
+    the grid and the polish starts), and the polish from the grid poles nearest the truth and from rings of 10° and
+    20° about it (how far from the truth a start still ends in its basin)."""
+    obs, truth, _ = simulate(seed, nights=args.nights, hours=args.hours, cadence=args.cadence,
+                             gap_days=args.gap_days)
+    data = convex_data(obs, glint_clip=args.glint_clip)
+    search = convex_search(data, settings, progress=lambda m: print("  search:", m, flush=True))
+    fam = search.families
+    rss_best = best_rss(data, search, settings)
+    print(f"seed {seed}: truth {truth['lam_deg']:.1f}/{truth['beta_deg']:.1f} deg, P {truth['period_min']:.4f} "
+          f"min; best {fam.lam_deg[0]:.1f}/{fam.beta_deg[0]:.1f} deg {fam.period_h[0] * 60:.4f} min, rss "
+          f"{rss_best:.3f} mag^2")
+    lam_g, beta_g = pole_grid(settings.fine_poles)
+    sep = np.array([separation_deg(math.degrees(float(a)), math.degrees(float(b)), truth["lam_deg"],
+                                   truth["beta_deg"]) for a, b in zip(lam_g, beta_g)])
+    near = np.argsort(sep)[:3]
+    for image in truth["images"]:
+        period_h = image["period_min"] / 60.0
+        rms = fine_screen(data, settings, lam_g, beta_g, period_h)
+        lam_t = torch.tensor([math.radians(image["lam_deg"])], dtype=torch.float64)
+        beta_t = torch.tensor([math.radians(image["beta_deg"])], dtype=torch.float64)
+        at_truth = float(fine_screen(data, settings, lam_t, beta_t, period_h)[0])
+        print(f"{image['name']} ({image['period_min']:.4f} min): screen rms at the true pole {at_truth:.4f}, grid "
+              f"best {rms.min():.4f} at {sep[rms.argmin()]:.0f} deg from the truth; the true pole would rank "
+              f"{int((rms < at_truth).sum()) + 1} of {rms.size + 1}; the grid poles nearest the truth "
+              + ", ".join(f"{sep[k]:.0f} deg: rms {rms[k]:.4f} (rank {int((rms < rms[k]).sum()) + 1})"
+                          for k in near), flush=True)
+        starts = [(f"grid {sep[k]:.0f} deg", math.degrees(float(lam_g[k])), math.degrees(float(beta_g[k])))
+                  for k in near]
+        for radius in (10.0, 20.0):
+            lr, br = ring_poles(math.radians(image["lam_deg"]), math.radians(image["beta_deg"]),
+                                math.radians(radius), 4)
+            starts += [(f"ring {radius:.0f} deg", math.degrees(float(a)), math.degrees(float(b)))
+                       for a, b in zip(lr, br)]
+        starts.append(("truth", image["lam_deg"], image["beta_deg"]))
+        for name, lam, beta in starts:
+            p = polish_from(data, search.normals, settings, lam_deg=lam, beta_deg=beta, period_h=period_h)
+            off = separation_deg(p["lam_deg"], p["beta_deg"], image["lam_deg"], image["beta_deg"])
+            gain = (rss_best - p["rss_mag"]) / (2 * NOISE_MAG ** 2)
+            print(f"  polish from {name}: ends {off:.1f} deg from the truth, period {p['period_h'] * 60:.4f} min, "
+                  f"{gain:+.1f} nats better than the search's best", flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=200, help="first seed")
@@ -299,13 +371,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--setting", action="append", default=[], metavar="NAME=NUMBER",
                         help="a ConvexSettings field other than this study's (repeatable), e.g. ring=36")
+    parser.add_argument("--diagnose", action="store_true", help="where --seed's search is lost (a tuning seed, "
+                                                                    "< 200): the stages replayed at the truth")
     args = parser.parse_args(argv)
+    if args.diagnose and args.seed >= 200:
+        parser.error("--diagnose: held-out seeds (>= 200) are not diagnosed; use a tuning seed")
     torch.set_num_threads(args.threads)
     settings = ConvexSettings(**{**SETTINGS, **{k: (int(v) if v.lstrip("-").isdigit() else float(v))
                                                 for k, v in (item.split("=", 1) for item in args.setting)}})
     if args.lobes is not None:
         lobes = tuple(float(v) for v in args.lobes.split(",") if v.strip())
         settings = replace(settings, scattering=SatelliteScattering(f0=0.5, exponents=lobes))
+    if args.diagnose:
+        diagnose(args.seed, args, settings)
+        return 0
     args.out.mkdir(parents=True, exist_ok=True)
     rows_path = args.out / args.rows
     done = {r["seed"] for r in seed_rows(rows_path)}

@@ -52,3 +52,10 @@ def test_one_seed_runs_into_a_row_and_a_summary(tmp_path, capsys):
     assert "seed 7:" in capsys.readouterr().out
     assert boxwing_convex.main(args) == 0                       # resumes: the seed is not run again
     assert len((tmp_path / "rows.jsonl").read_text().splitlines()) == 1
+
+
+def test_diagnose_refuses_held_out_seeds(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        boxwing_convex.main(["--seed", "200", "--diagnose"])
+    assert exit_info.value.code == 2
+    assert "--diagnose: held-out seeds (>= 200) are not diagnosed; use a tuning seed" in capsys.readouterr().err
