@@ -153,3 +153,11 @@ def test_image_group_of_the_box_wing_in_a_plane_and_of_a_lumpy_body():
     images, nats = image_group(lumpy_scene(), A=A, axis=e, curve=curve, sigma_mag=SIGMA,
                                mirror_normals={"mirror": normal})
     assert [im.name for im in images] == ["identity"] and min(nats.values()) > 1.0
+
+
+def test_image_group_refuses_mirrors_about_an_oblique_axis():
+    e = torch.tensor([0.6, 0.8, 0.0], dtype=torch.float64)
+    A = spin(torch.linspace(0.0, 600.0, 20, dtype=torch.float64), e, random_rotation(8))
+    with pytest.raises(ValueError, match=r"image_group: the spin axis \[0\.6.* is not a body coordinate axis"):
+        image_group(boxwing_scene(0.0, T=20), A=A, axis=e, curve=torch.zeros(20, dtype=torch.long), sigma_mag=SIGMA,
+                    mirror_normals={"mirror": torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)})

@@ -14,7 +14,8 @@ rigid motion of the same body:
   body turning at ``P/2`` does not render them; a different shape at ``P/2`` may, and the period the data show
   is ``P/2``.)
 * **mirror** through the plane of unit normal ``n`` (:func:`reflection` ``M = I − 2 n nᵀ``): ``S A(t) M`` with
-  ``S`` a body reflection through a coordinate plane — the one of the three that renders closest. ``S A(t) M =
+  ``S`` a body reflection through a coordinate plane — the one of the three that renders closest. With ``e`` a
+  body coordinate axis (``S e = ±e``; the principal axes of a diagonal inertia), ``S A(t) M =
   R_e(∓θ) S A_0 M`` is a uniform rotation about the body axis ``e`` again, of pole ``−M p`` and period ``P``
   (:func:`mirror_pole`). It renders the truth's curves when ``S`` maps the body onto itself and every Sun and
   observer direction lies in the plane (``M ŝ = ŝ``); :func:`nearest_plane_normal` gives the plane nearest every
@@ -126,7 +127,7 @@ def image_group(scene: Scene, *, A: Tensor, axis: Tensor, curve: Tensor, sigma_m
     Args:
         scene: the renderer with the scenario's per-sample geometry (``T`` samples).
         A: the truth's inertial → body matrices at the samples; its pole is ``A[0]ᵀ axis``.
-        axis: the body spin axis (unit, a principal axis).
+        axis: the body spin axis (unit, a principal axis; a body coordinate axis when ``mirror_normals`` are given).
         curve: relative-curve label per sample ``(T,)``; sigma_mag: the noise (mag).
         mirror_normals: the candidate mirror planes by name (inertial unit normals ``(3,)``).
         tol_nats: an image is exact below this misfit.
@@ -136,6 +137,9 @@ def image_group(scene: Scene, *, A: Tensor, axis: Tensor, curve: Tensor, sigma_m
         (``"half turn"`` and each mirror's).
     """
     axis = axis.to(A) / torch.linalg.vector_norm(axis.to(A))
+    if mirror_normals and not bool((axis.abs().max() - 1.0).abs() < 1e-12):
+        raise ValueError(f"image_group: the spin axis {axis.tolist()} is not a body coordinate axis; the mirror "
+                         "motions keep it only when it is")
     pole = A[0].T @ axis
     nats = {"half turn": half_turn_nats(scene, A=A, axis=axis, curve=curve, sigma_mag=sigma_mag)}
     for name, normal in mirror_normals.items():
