@@ -371,6 +371,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--setting", action="append", default=[], metavar="NAME=NUMBER",
                         help="a ConvexSettings field other than this study's (repeatable), e.g. ring=36")
+    parser.add_argument("--period-range-min", type=float, nargs=2, default=None, metavar=("LOW", "HIGH"),
+                        help="the searched periods (min; default this study's 1.5-25)")
     parser.add_argument("--diagnose", action="store_true", help="where --seed's search is lost (a tuning seed, "
                                                                     "< 200): the stages replayed at the truth")
     args = parser.parse_args(argv)
@@ -379,6 +381,8 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(args.threads)
     settings = ConvexSettings(**{**SETTINGS, **{k: (int(v) if v.lstrip("-").isdigit() else float(v))
                                                 for k, v in (item.split("=", 1) for item in args.setting)}})
+    if args.period_range_min is not None:
+        settings = replace(settings, period_range_h=tuple(v / 60.0 for v in args.period_range_min))
     if args.lobes is not None:
         lobes = tuple(float(v) for v in args.lobes.split(",") if v.strip())
         settings = replace(settings, scattering=SatelliteScattering(f0=0.5, exponents=lobes))
