@@ -5,5 +5,6 @@
 * :mod:`.render` — :class:`~.render.Scene`: flux and apparent magnitude for batches of attitudes, fixed geometry or
   one per sample.
 * :mod:`.symmetry` — body rotations mapping a facet model onto itself; :mod:`.ambiguity` — the exact ambiguity group
-  of a scenario (body × inertial images), derived by rendering.
+  of a scenario (body × inertial images), derived by rendering; :mod:`.spin_images` — the images of a principal-axis
+  spin (pole, period): the half turn and mirror motions, in nats at the noise.
 """
