@@ -166,7 +166,8 @@ def basin(data, truth: dict, normals: torch.Tensor, settings: ConvexSettings) ->
         spin = dict(lam=torch.tensor([math.radians(lam)], dtype=torch.float64),
                     beta=torch.tensor([math.radians(truth["beta_deg"])], dtype=torch.float64),
                     period_s=torch.tensor([truth["period_h"] * 3600.0], dtype=torch.float64))
-        init = fit_areas(design(data, normals, settings.scattering, **spin), data, normals, iterations=30)
+        fitted = data.magnitude_weighted() if settings.magnitude_weights else data
+        init = fit_areas(design(data, normals, settings.scattering, **spin), fitted, normals, iterations=30)
         p = polish_starts(data, normals, settings, **spin, areas=init.areas)
         rss = float(magnitude_rss(data, normals, settings.scattering, lam=p.lam, beta=p.beta, period_s=p.period_s,
                                   areas=p.areas)[0])
