@@ -21,6 +21,13 @@ basin itself off (pole > 5° or period beyond the resolution): *model-limited*; 
 as well as the truth's basin, elsewhere).
 
     python -m experiments.convex_synthetic --seed 1000 --out experiments/results/convex_synthetic/tuning_1000
+
+**The bound** (:func:`bound_columns`): the Cramér–Rao bound of the pole and period at the truth's basin
+(:func:`~lightcurve_gp.inference.convex_bound.convex_bound`: the shape's free areas and the curves' zero points
+profiled out, the known noise σ), and at the truth itself with its own faces as the shape model. Columns
+``pole_crb_deg`` (rms angular error at the bound), ``pole_crb95_deg`` (the radius holding 95 %), ``pole_crb_p5``
+(the chance of an error below 5°), ``period_crb_h``, and the same with ``_true``. ``--bound`` adds them to a
+folder's stored rows (``bound.jsonl``) without running the search: the basin is polished again from the truth.
 """
 
 from __future__ import annotations
@@ -39,8 +46,9 @@ from scipy.spatial import ConvexHull
 
 from experiments.common import append_row, seed_rows
 from lightcurve_gp.files import write_json_atomic
+from lightcurve_gp.inference.convex_bound import convex_bound
 from lightcurve_gp.inference.convex_fit import convex_data, design, fit_areas, magnitude_rss
-from lightcurve_gp.inference.convex_search import ConvexSettings, convex_search, polish_starts
+from lightcurve_gp.inference.convex_search import ConvexSettings, convex_search, polish_starts, search_normals
 from lightcurve_gp.observations.observations import CurveInfo, Observations
 from lightcurve_gp.photometry.convex import Scattering, body_vectors, brightness, phase_angle
 
@@ -132,7 +140,8 @@ def random_observations(rng: np.random.Generator, seed: int,
                        observer=obs_u, range_m=f64(np.linalg.norm(obs_v, axis=1) * 1.496e11),
                        epoch="2000-01-01T00:00:00")
     alpha = np.degrees(phase_angle(sun_u, obs_u).numpy())
-    truth = {"seed": seed, "lam_deg": math.degrees(lam), "beta_deg": math.degrees(beta), "period_h": period_h,
+    truth = {"seed": seed, "phi0": float(spin["phi0"][0]),
+             "lam_deg": math.degrees(lam), "beta_deg": math.degrees(beta), "period_h": period_h,
              "noise_mag": noise, "curves": c, "samples": int(t.size), "apparitions": apparitions,
              "span_years": float((t[-1] - t[0]) / YEAR), "max_phase_deg": float(alpha.max()), "faces": len(areas)}
     return obs, truth
@@ -160,13 +169,15 @@ def score(truth: dict, fam, span_s: float) -> dict:
 def basin(data, truth: dict, normals: torch.Tensor, settings: ConvexSettings) -> dict:
     """The truth's basin: the polish started at the true pole and period and at its mirror (λ + 180°, β), the
     better of the two in magnitude rss (mag², zero points profiled): what this shape model reaches near the truth.
-    Its pole and period errors say whether the basin itself is within the goal."""
+    Its pole and period errors say whether the basin itself is within the goal; ``"state"`` holds its polish (not a
+    column: :func:`bound_columns` takes it)."""
     best: dict = {"basin_rss_mag": math.inf}
     for lam in (truth["lam_deg"], truth["lam_deg"] + 180.0):
         spin = dict(lam=torch.tensor([math.radians(lam)], dtype=torch.float64),
                     beta=torch.tensor([math.radians(truth["beta_deg"])], dtype=torch.float64),
                     period_s=torch.tensor([truth["period_h"] * 3600.0], dtype=torch.float64))
-        init = fit_areas(design(data, normals, settings.scattering, **spin), data, normals, iterations=30)
+        fitted = data.magnitude_weighted() if settings.magnitude_weights else data
+        init = fit_areas(design(data, normals, settings.scattering, **spin), fitted, normals, iterations=30)
         p = polish_starts(data, normals, settings, **spin, areas=init.areas)
         rss = float(magnitude_rss(data, normals, settings.scattering, lam=p.lam, beta=p.beta, period_s=p.period_s,
                                   areas=p.areas)[0])
@@ -176,8 +187,52 @@ def basin(data, truth: dict, normals: torch.Tensor, settings: ConvexSettings) ->
                     "basin_pole_error_deg": min(separation_deg(lam_deg, beta_deg, truth["lam_deg"], truth["beta_deg"]),
                                                 separation_deg(lam_deg, beta_deg, truth["lam_deg"] + 180,
                                                                truth["beta_deg"])),
-                    "basin_period_error_h": abs(float(p.period_s[0]) / 3600.0 - truth["period_h"])}
+                    "basin_period_error_h": abs(float(p.period_s[0]) / 3600.0 - truth["period_h"]),
+                    "basin_lam_deg": lam_deg, "basin_beta_deg": beta_deg,
+                    "basin_period_h": float(p.period_s[0]) / 3600.0, "state": p}
     return best
+
+
+def _bound_row(bound, suffix: str) -> dict:
+    return {f"pole_crb{suffix}_deg": bound.pole_sigma_deg, f"pole_crb95{suffix}_deg": bound.pole_radius95_deg,
+            f"pole_crb_p5{suffix}": bound.within(5.0), f"period_crb{suffix}_h": bound.period_sigma_s / 3600.0,
+            f"pole_crb_axes{suffix}_deg": [float(a) for a in bound.pole_axes_deg]}
+
+
+def bound_columns(data, truth: dict, normals: torch.Tensor, settings: ConvexSettings, state) -> dict:
+    """The Cramér–Rao bound's columns (module docstring) at the truth's basin (``state``, a one-row polish on
+    ``normals``) and at the truth with its own faces and areas (:func:`random_shape` of the seed)."""
+    at_basin = convex_bound(data, normals, settings.scattering, lam=float(state.lam[0]), beta=float(state.beta[0]),
+                            period_s=float(state.period_s[0]), areas=state.areas[0], sigma_mag=truth["noise_mag"])
+    faces, areas = random_shape(np.random.default_rng(truth["seed"]))
+    at_truth = convex_bound(data, torch.as_tensor(faces), settings.scattering, lam=math.radians(truth["lam_deg"]),
+                            beta=math.radians(truth["beta_deg"]), period_s=truth["period_h"] * 3600.0,
+                            areas=torch.as_tensor(areas), sigma_mag=truth["noise_mag"], phi0=truth["phi0"])
+    return {**_bound_row(at_basin, ""), "crb_free_areas": at_basin.free_areas, **_bound_row(at_truth, "_true")}
+
+
+def add_bounds(folder: Path, settings: ConvexSettings, sampling: Sampling) -> list[dict]:
+    """The bound's columns for every stored row of ``folder/rows.jsonl`` (the search not run again: the truth's
+    basin polished again, its rss checked against the row's), written to ``folder/bound.jsonl``."""
+    out = folder / "bound.jsonl"
+    done = {r["seed"] for r in seed_rows(out)}
+    for row in sorted(seed_rows(folder / "rows.jsonl"), key=lambda r: r["seed"]):
+        if row["seed"] in done:
+            continue
+        obs, truth = random_observations(np.random.default_rng(row["seed"]), row["seed"], sampling)
+        data = convex_data(obs)
+        normals = search_normals(settings.polish_normals, settings.ring)
+        again = basin(data, truth, normals, settings)
+        keep = ("seed", "kind", "best_ok", "pole_error_deg", "period_error_h", "resolution_h", "dnats", "noise_mag",
+                "samples", "curves", "apparitions", "basin_pole_error_deg", "basin_rss_mag")
+        new = {**{k: row[k] for k in keep}, "basin_rss_mag_again": again["basin_rss_mag"],
+               **bound_columns(data, truth, normals, settings, again["state"])}
+        append_row(out, new)
+        print(f"seed {row['seed']} ({row['kind']}): pole bound {new['pole_crb_deg']:.2f} deg rms, 95 % within "
+              f"{new['pole_crb95_deg']:.2f} deg, P(< 5 deg) {new['pole_crb_p5']:.2f}; with the true faces "
+              f"{new['pole_crb_true_deg']:.2f} deg; basin rss {again['basin_rss_mag']:.5f} (stored "
+              f"{row['basin_rss_mag']:.5f})", flush=True)
+    return seed_rows(out)
 
 
 def judge(row: dict) -> dict:
@@ -199,6 +254,21 @@ def judge(row: dict) -> dict:
     return {"dnats": dnats, "basin_ok": basin_ok, "kind": kind}
 
 
+def bound_summary(rows: list[dict]) -> dict:
+    """How many seeds the bound alone rules out of "within 5°" (95 % radius > 5°), the expected successes at the
+    bound (Σ P(< 5°)), and those per kind of row."""
+    kinds = sorted({r["kind"] for r in rows})
+    out: dict = {"objects": len(rows), "crb95_over_5deg": sum(r["pole_crb95_deg"] > 5.0 for r in rows),
+                 "expected_within_5deg_at_bound": float(sum(r["pole_crb_p5"] for r in rows)),
+                 "median_pole_crb_deg": float(np.median([r["pole_crb_deg"] for r in rows])),
+                 "median_pole_crb_true_deg": float(np.median([r["pole_crb_true_deg"] for r in rows]))}
+    for k in kinds:
+        sub = [r for r in rows if r["kind"] == k]
+        out[k] = {"objects": len(sub), "crb95_over_5deg": sum(r["pole_crb95_deg"] > 5.0 for r in sub),
+                  "median_pole_crb_deg": float(np.median([r["pole_crb_deg"] for r in sub]))}
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--objects", type=int, default=24)
@@ -209,11 +279,18 @@ def main(argv: list[str] | None = None) -> int:
                         help="dense sampling: 3-5 min steps and nights up to 100 d from opposition (Sampling)")
     parser.add_argument("--setting", action="append", default=[], metavar="NAME=NUMBER",
                         help="a ConvexSettings field other than its default (repeatable), e.g. polish_normals=60")
+    parser.add_argument("--bound", action="store_true",
+                        help="add the Cramer-Rao bound's columns to the folder's stored rows (bound.jsonl) without "
+                             "running the search")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     settings = ConvexSettings(**{k: (int(v) if v.lstrip("-").isdigit() else float(v))
                                  for k, v in (item.split("=", 1) for item in args.setting)})
     args.out.mkdir(parents=True, exist_ok=True)
+    if args.bound:
+        rows = add_bounds(args.out, settings, DENSE if args.dense else Sampling())
+        print(json.dumps(bound_summary(rows)))
+        return 0
     rows_path = args.out / "rows.jsonl"
     done = {r["seed"] for r in seed_rows(rows_path)}
     for seed in range(args.seed, args.seed + args.objects):
@@ -232,6 +309,7 @@ def main(argv: list[str] | None = None) -> int:
             beta=torch.tensor([math.radians(fam.beta_deg[0])]), period_s=torch.tensor([fam.period_h[0] * 3600.0]),
             areas=torch.as_tensor(fam.areas[:1]))[0])
         row.update(basin(data, truth, search.normals, settings))
+        row.update(bound_columns(data, truth, search.normals, settings, row.pop("state")))
         row.update(judge(row))
         append_row(rows_path, row)
         print(f"seed {seed}: {truth['curves']} curves, {truth['samples']} samples, noise {truth['noise_mag']:.3f}, "
@@ -252,6 +330,8 @@ def main(argv: list[str] | None = None) -> int:
                "median_basin_pole_error_deg": float(np.median([r["basin_pole_error_deg"] for r in rows])),
                "median_seconds": float(np.median([r["seconds"] for r in rows])),
                "median_pole_error_deg": float(np.median([r["pole_error_deg"] for r in rows]))}
+    if all("pole_crb_deg" in r for r in rows):
+        summary["bound"] = bound_summary(rows)
     write_json_atomic(summary, args.out / "summary.json")
     print(json.dumps(summary))
     return 0

@@ -2,6 +2,7 @@
 decades, the areas of a box recovered from its noiseless light curves, the closed-form Jacobian, the periodogram."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -160,6 +161,33 @@ def test_box_areas_recovered_from_noiseless_relative_curves():
     assert wrong.rms.item() > 1e-3
 
 
+def test_weighted_area_fit_matches_scipy_nnls():
+    """With the weights 1/ỹ the fit minimises Σ w_i² ((G a)_i − t_c ỹ_i)² over a ≥ 0 and the scales, the scale of
+    ``a`` fixed by the mean of the scales' optima ``t_c = Σ_{i∈c} w_i² ỹ_i (G a)_i / Σ_{i∈c} w_i² ỹ_i²`` being 1:
+    the same minimum as scipy's NNLS on the weighted rows, that mean held by a stiff extra row."""
+    from scipy.optimize import nnls
+
+    data, normals, _, spin = _box_problem(3)
+    noise = 1 + 0.05 * torch.randn(len(data), generator=torch.Generator().manual_seed(6), dtype=F64)
+    data = replace(data, y=data.y * noise).magnitude_weighted()
+    G = design(data, normals, Scattering(), **{k: v for k, v in spin.items() if k != "phi0"})
+    fit = fit_areas(G, data, normals, closure=0.0, iterations=60)
+    w, y, curve = data.weight.numpy(), data.y.numpy(), data.curve.numpy()
+    scales = np.zeros((len(data), data.curves))
+    scales[np.arange(len(data)), curve] = -w * y
+    Gw, yw = w[:, None] * G[0].numpy(), w * y
+    mean_scale = np.mean([Gw[curve == k].T @ yw[curve == k] / (yw[curve == k] @ yw[curve == k])
+                          for k in range(data.curves)], axis=0)
+    stiff = 1e5
+    rows = np.vstack([np.hstack([Gw, scales]), np.hstack([stiff * mean_scale, np.zeros(data.curves)])])
+    x, _ = nnls(rows, np.concatenate([np.zeros(len(data)), [stiff]]), maxiter=5000)
+    expected = float(((rows[:-1] @ x) ** 2).sum())
+    assert expected > 1e-3                                                 # the noise is not fitted away
+    assert fit.rss.item() == pytest.approx(expected, rel=1e-6)
+    unweighted = fit_areas(G, replace(data, weight=None), normals, closure=0.0, iterations=60)
+    assert abs(unweighted.rss.item() / expected - 1) > 1e-3               # the weights change the problem
+
+
 def test_polish_returns_to_the_truth_from_a_nearby_start():
     data, normals, truth, spin = _box_problem(1)
     start = dict(lam=spin["lam"] + 0.02, beta=spin["beta"] - 0.02, period_s=spin["period_s"] * (1 + 2e-6))
@@ -173,8 +201,25 @@ def test_polish_returns_to_the_truth_from_a_nearby_start():
     assert abs(p.period_s.item() / spin["period_s"].item() - 1) < 1e-7
 
 
-def test_polish_jacobian_matches_central_differences():
+def test_polish_state_past_the_ecliptic_pole_reproduces_its_rms():
+    """A state past β = 90° is returned as it is: (λ + 180°, 180° − β) is the same axis in a body frame turned by
+    180° about it, where the areas on these normals make another light curve."""
+    data, normals, _, _ = _box_problem(4)
+    spin = {k: v for k, v in _spin(120.0, 95.0, 7.3).items() if k != "phi0"}   # the axis (300°, 85°) past the pole
+    areas = torch.rand(1, 60, generator=torch.Generator().manual_seed(5), dtype=F64) + 0.1   # no symmetry
+    p = polish(data, normals, Scattering(), **spin, areas=areas, iterations=2, closure=0.0)
+    assert p.beta.item() > math.pi / 2
+    r = relative_residuals(data, normals, Scattering(), lam=p.lam, beta=p.beta, period_s=p.period_s, areas=p.areas)
+    assert torch.sqrt((r * r).mean()).item() == pytest.approx(p.rms.item(), rel=1e-12)
+    folded = relative_residuals(data, normals, Scattering(), lam=p.lam + math.pi, beta=math.pi - p.beta,
+                                period_s=p.period_s, areas=p.areas)
+    assert (folded - r).abs().max().item() > 1e-2                         # the folded state is another light curve
+
+
+@pytest.mark.parametrize("weighted", [False, True])
+def test_polish_jacobian_matches_central_differences(weighted):
     data, normals, _, _ = _box_problem(2)
+    data = data.magnitude_weighted() if weighted else data
     res = PolishResidual(data, normals[:20], Scattering(), torch.tensor([7.0 * 3600, 5.5 * 3600], dtype=F64),
                          0.01, 0.1, smoothness=0.5)
     assert res.diff.shape[0] >= 60 and bool((res.diff.sum(-1) == 0).all())  # ≥ 20·6/2 neighbour differences

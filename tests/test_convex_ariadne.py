@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 from astropy.table import Table
 
+from lightcurve_gp.commands.invert_convex import settings_from_config
 from lightcurve_gp.config.load import ConfigError, load_config
 
 REPO = Path(__file__).resolve().parents[1]
@@ -35,6 +36,11 @@ def test_convex_section_is_checked(tmp_path):
     cfg = load_config(REPO / "configs" / "convex.yaml", [])
     assert cfg.convex is not None and cfg.convex.poles == 200
     assert load_config(REPO / "configs" / "boxwing.yaml", []).convex is None
+    with pytest.raises(ConfigError, match=r"^convex.magnitude_weights: expected true or false, got 'yes'$"):
+        load_config(REPO / "configs" / "convex.yaml", ["convex.magnitude_weights='yes'"])
+    weighted = load_config(REPO / "configs" / "convex.yaml", ["convex.magnitude_weights=true"])
+    assert settings_from_config(weighted, 10.0).magnitude_weights
+    assert not settings_from_config(cfg, 10.0).magnitude_weights
 
 
 @pytest.mark.slow

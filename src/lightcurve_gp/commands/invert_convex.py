@@ -64,7 +64,8 @@ def settings_from_config(cfg, max_log_ratio: float) -> ConvexSettings:
         subsample=c.subsample, top_periods=c.top_periods, fine_poles=c.poles, fine_normals=c.screen_normals,
         starts=c.starts, separation_deg=c.separation_deg, polish_normals=c.normals,
         polish_iterations=c.polish_iterations, closure=c.closure, shape_degree=c.shape_degree,
-        refine_starts=c.refine_starts, refine_deg=c.refine_deg, max_log_ratio=max_log_ratio)
+        refine_starts=c.refine_starts, refine_deg=c.refine_deg, max_log_ratio=max_log_ratio,
+        magnitude_weights=c.magnitude_weights)
 
 
 def _shaded(level: np.ndarray) -> np.ndarray:

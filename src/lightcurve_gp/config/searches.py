@@ -85,3 +85,7 @@ class ConvexConfig:
                              "spherical-harmonic series) of this degree (6: convexinv's)")
     refine_starts: int = spec(4, lo=0, doc="polish starts on each of two rings about the best pole (0: none)")
     refine_deg: float = spec(7.0, lo=0.0, lo_open=True, hi=45.0, doc="radius of the inner ring (deg); the outer: twice")
+    magnitude_weights: bool = spec(False, omit_default=True,
+                                   doc="weight every fit's intensity residuals by 1/I (true): they become magnitude "
+                                       "residuals to first order, the scale of magnitude noise; false: convexinv's "
+                                       "plain relative intensities")

@@ -49,6 +49,9 @@ class ConvexData:
         curve: light curve of each sample ``(N,)`` (int64); curves: their number ``C``.
         counts: samples per curve ``(C,)``.
         span_s: time from the first to the last sample (s).
+        weight: per-sample weights ``(N,)`` on the intensity residuals of the fits (:func:`fit_areas`, the polish),
+            or ``None`` (all 1): ``1/ỹ`` (:meth:`magnitude_weighted`) makes them magnitude residuals to first
+            order, ``Δm ≈ −1.0857 Δỹ/ỹ``, the scale of magnitude noise.
     """
 
     t_s: Tensor
@@ -60,6 +63,7 @@ class ConvexData:
     curves: int
     counts: Tensor
     span_s: float
+    weight: Tensor | None = None
 
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
@@ -67,7 +71,16 @@ class ConvexData:
     def with_dtype(self, dtype: torch.dtype) -> ConvexData:
         """The same data with ``y``, ``alpha`` and the vectors in ``dtype`` (times stay float64)."""
         return replace(self, y=self.y.to(dtype), alpha=self.alpha.to(dtype), sun=self.sun.to(dtype),
-                       observer=self.observer.to(dtype))
+                       observer=self.observer.to(dtype), weight=None if self.weight is None else self.weight.to(dtype))
+
+    def magnitude_weighted(self) -> ConvexData:
+        """The same data with the weights ``1/ỹ`` (``weight``): intensity residuals ``Δỹ`` weighted into relative
+        ones ``Δỹ/ỹ ≈ −Δm/1.0857``, so that a fit minimises what magnitude noise makes Gaussian."""
+        return replace(self, weight=1.0 / self.y)
+
+    def weights(self) -> Tensor:
+        """The weights ``(N,)`` (ones when ``weight`` is ``None``)."""
+        return torch.ones_like(self.y) if self.weight is None else self.weight
 
     def curve_mean(self, values: Tensor) -> Tensor:
         """Per-curve means ``(…, C)`` of per-sample values ``(…, N)``."""
@@ -134,11 +147,15 @@ class AreaFit:
 
 
 def _quadratic(G: Tensor, data: ConvexData, normals: Tensor, closure: float) -> tuple[Tensor, Tensor]:
-    """``M`` ``(B, K, K)`` and ``c`` ``(B, K)`` of the profiled problem (module docstring)."""
+    """``M`` ``(B, K, K)`` and ``c`` ``(B, K)`` of the profiled problem (module docstring), each residual
+    weighted by ``data.weight`` (its rows of ``G`` and ``ỹ`` scaled)."""
     B, _, K = G.shape
+    y = data.y
+    if data.weight is not None:
+        G, y = G * data.weight[:, None], y * data.weight
     U = torch.zeros(B, data.curves, K, dtype=G.dtype, device=G.device)
-    U.index_add_(1, data.curve, G * data.y[:, None])                            # Σ_{i∈c} ỹ_i G_ik
-    yy = torch.zeros(data.curves, dtype=G.dtype, device=G.device).index_add_(0, data.curve, data.y * data.y)
+    U.index_add_(1, data.curve, G * y[:, None])                                 # Σ_{i∈c} ỹ_i G_ik
+    yy = torch.zeros(data.curves, dtype=G.dtype, device=G.device).index_add_(0, data.curve, y * y)
     W = U / yy[:, None]
     M = G.transpose(1, 2) @ G - U.transpose(1, 2) @ W
     if closure > 0:
@@ -168,7 +185,8 @@ def _refine(M: Tensor, c: Tensor, a: Tensor, steps: int) -> Tensor:
 
 def fit_areas(G: Tensor, data: ConvexData, normals: Tensor, *, closure: float = 0.1,
               iterations: int = 12, refine: int = 0) -> AreaFit:
-    """Non-negative areas of ``B`` spin states at once (module docstring), from their ``G`` ``(B, N, M·K)`` (float32
+    """Non-negative areas of ``B`` spin states at once (module docstring; each residual times ``data.weight``
+    when it is given: ``Σ_i w_i² ((G a)_i − t_c ỹ_i)²``), from their ``G`` ``(B, N, M·K)`` (float32
     or float64; the quadratic program is solved in float64) on ``normals`` ``(K, 3)``, ``M`` the law's bases (the
     closure term sums every basis's areas).
 

@@ -4,7 +4,8 @@
 normalised by its model mean, ``r_i = ỹ_i − L_i / L̄_c``, over ``x = (λ, β, P, log a)`` by the project's
 Levenberg–Marquardt core (:func:`~lightcurve_gp.inference.solver.batch_least_squares`) with a Jacobian in closed
 form, the closure term as three more residuals and a weak prior on the log areas. Its rms, ``sqrt(Σ r² / N)``, is
-convexinv's "rms".
+convexinv's "rms". With the data's weights (:attr:`~lightcurve_gp.inference.convex_fit.ConvexData.weight`, e.g.
+``1/ỹ``: magnitude-consistent) each residual is ``w_i r_i`` and ``fit_rms`` is their rms.
 """
 
 from __future__ import annotations
@@ -27,9 +28,13 @@ class Polished:
     """Spin states and shapes after :func:`polish`.
 
     Attributes:
-        lam, beta: pole (rad) ``(B,)``; period_s: sidereal period (s) ``(B,)``.
+        lam, beta: pole (rad) ``(B,)``, ``λ`` in [0, 2π), ``β`` as the polish ended (past ±π/2 when it crossed the
+            ecliptic's pole: folding it would turn the body frame by π about the axis and leave ``areas`` another
+            body's); period_s: sidereal period (s) ``(B,)``.
         areas: ``(B, M·K)`` areas (relative units, summing to 1; basis-major).
         rms: convexinv's rms of the relative-intensity residuals ``(B,)``.
+        fit_rms: the rms of the weighted residuals ``w_i r_i``, what the polish minimised ``(B,)`` (``rms`` when the
+            data have no weights).
         period_sigma_s: the period's 1σ from the Laplace approximation with the residuals' rms as noise ``(B,)``.
         iterations: Levenberg–Marquardt iterations taken ``(B,)``.
     """
@@ -39,6 +44,7 @@ class Polished:
     period_s: Tensor
     areas: Tensor
     rms: Tensor
+    fit_rms: Tensor
     period_sigma_s: Tensor
     iterations: Tensor
 
@@ -59,6 +65,7 @@ class PolishResidual:
         normals = area_normals(normals, scattering)                  # (M·K, 3): closure and smoothness per area
         self.normals = normals
         self.sigma, self.weight = sigma, math.sqrt(closure * len(data))
+        self.inv_scale = data.weights() / sigma                       # (N,): whitening of each data residual
         # smoothness: smoothness · (log a_i − log a_j) for each normal and its nearest neighbours (whitened rows)
         K = normals.shape[0]
         near = torch.topk(normals @ normals.T, min(neighbours + 1, K), dim=-1).indices[:, 1:]
@@ -80,7 +87,7 @@ class PolishResidual:
     def _parts(self, G: Tensor, a: Tensor) -> tuple[Tensor, Tensor]:
         L = (G * a[:, None, :]).sum(-1)
         mean = self.data.curve_mean(L)[:, self.data.curve]
-        r = (self.data.y - L / mean) / self.sigma
+        r = (self.data.y - L / mean) * self.inv_scale
         closing = self.weight * (a @ self.normals) / a.sum(-1, keepdim=True)
         return torch.cat([r, closing, torch.log(a) @ self.diff.T], -1), mean
 
@@ -125,7 +132,7 @@ class PolishResidual:
         L = (G * a[:, None, :]).sum(-1)
         ratio = (L / mean)[..., None]
         dL_mean = self.data.curve_mean(dL.transpose(1, 2)).transpose(1, 2)[:, self.data.curve]
-        spin_jac = -(dL - ratio * dL_mean) / mean[..., None] / self.sigma
+        spin_jac = -(dL - ratio * dL_mean) / mean[..., None] * self.inv_scale[:, None]
         spin_jac = torch.cat([spin_jac, torch.zeros(A, 3 + self.diff.shape[0], 3, dtype=x.dtype, device=x.device)], 1)
         # ∂(L_i / L̄_c)/∂log a_k = a_k (G_ik − (L_i / L̄_c) Ḡ_ck) / L̄_c, Ḡ_ck the curve mean of G_·k
         Gbar = self.data.curve_mean(G.transpose(1, 2)).transpose(1, 2)[:, self.data.curve]  # (A, N, K)
@@ -133,7 +140,7 @@ class PolishResidual:
         s = a.sum(-1, keepdim=True)
         centroid = (a @ self.normals) / s                                                   # (A, 3)
         dclose = self.weight * a[:, None, :] * (self.normals.T[None] - centroid[..., None]) / s[..., None]
-        area_jac = torch.cat([-dratio / self.sigma, dclose], 1)
+        area_jac = torch.cat([-dratio * self.inv_scale[:, None], dclose], 1)
         if self.basis is not None:
             area_jac = area_jac @ self.basis
         area_jac = torch.cat([area_jac, self.diff_jac.expand(A, *self.diff_jac.shape)], 1)
@@ -149,8 +156,9 @@ def polish(data: ConvexData, normals: Tensor, scattering: Scattering | Satellite
     convexinv's smooth shape, ``J`` parameters instead of ``K``; ``c`` starts at the least-squares fit of the
     floored start's log areas and the prior is on ``c``; the asteroid law only).
 
-    The residuals are whitened by ``sigma`` (relative intensity); a weak Gaussian prior of standard deviation
-    ``area_prior_std`` on each log area about its start keeps areas that no sample sees determined;
+    The residuals are whitened by ``sigma`` (relative intensity; times the data's weights when given); a weak
+    Gaussian prior of standard deviation ``area_prior_std`` on each log area about its start keeps areas that no
+    sample sees determined;
     ``smoothness`` > 0 adds ``smoothness · (log a_i − log a_j)`` for every normal and its six nearest (whitened
     rows: a Laplacian-like prior that makes the Gaussian image smooth, as a low-degree expansion does). The period is
     scaled to a phase change over the data's span, ``x_P = 2π span (1/P₀ − 1/P)`` (rad), so every coordinate is
@@ -182,14 +190,14 @@ def polish(data: ConvexData, normals: Tensor, scattering: Scattering | Satellite
                                areas=torch.exp(residual.log_areas(x)))
         rms = torch.sqrt((r * r).mean(-1))
     a = torch.exp(residual.log_areas(x))
+    rw = r * data.weights()
+    fit_rms = torch.sqrt((rw * rw).mean(-1))
     # the Laplace 1σ of x_P, rescaled from the assumed sigma to the fit's rms
-    var_phase = torch.diagonal(result.covariance, dim1=1, dim2=2)[:, 2] * (rms / sigma) ** 2
+    var_phase = torch.diagonal(result.covariance, dim1=1, dim2=2)[:, 2] * (fit_rms / sigma) ** 2
     period_sigma = period * period * torch.sqrt(var_phase.clamp_min(0)) / (2 * math.pi * data.span_s)
     period_sigma = torch.where(failed, torch.full_like(period_sigma, math.nan), period_sigma)
-    # a pole past a geographic pole of the grid: fold β back into [−π/2, π/2]
-    flip = beta_.abs() > math.pi / 2
-    lam_ = torch.where(flip, lam_ + math.pi, lam_)
-    beta_ = torch.where(flip, torch.sign(beta_) * math.pi - beta_, beta_)
+    # β is left as the polish ended, past ±π/2 when it crossed the ecliptic's pole: (λ + π, π − β) is the same axis
+    # but a body frame turned by π about it, in which these areas on these normals are another body
     return Polished(lam=torch.remainder(lam_, 2 * math.pi), beta=beta_, period_s=period,
-                    areas=a / a.sum(-1, keepdim=True), rms=rms, period_sigma_s=period_sigma,
+                    areas=a / a.sum(-1, keepdim=True), rms=rms, fit_rms=fit_rms, period_sigma_s=period_sigma,
                     iterations=result.iterations)

@@ -61,7 +61,10 @@ class ConvexSettings:
     """What :func:`convex_search` does (module docstring); periods in hours, angles in degrees. ``ring`` > 0 adds
     that many normals on the body equator (:func:`~lightcurve_gp.photometry.convex.ring_normals`: faces parallel to
     the spin axis) and the two poles ``±z`` to every stage's Fibonacci normals; ``area_refine`` > 0 adds that many
-    accelerated projected-gradient steps to every area fit (three times that many before the polish)."""
+    accelerated projected-gradient steps to every area fit (three times that many before the polish);
+    ``magnitude_weights`` weights every fit's intensity residuals by ``1/ỹ``
+    (:meth:`~lightcurve_gp.inference.convex_fit.ConvexData.magnitude_weighted`: magnitude-consistent, as magnitude
+    noise is Gaussian), the screen, the polish and the families' ratios alike."""
 
     scattering: Scattering | SatelliteScattering = field(default_factory=Scattering)
     ring: int = 0
@@ -89,6 +92,7 @@ class ConvexSettings:
     area_iterations: int = 10
     area_refine: int = 0
     max_log_ratio: float = 10.0
+    magnitude_weights: bool = False
     chunk: int = 128
 
 
@@ -105,8 +109,10 @@ def polish_starts(data: ConvexData, normals: Tensor, settings: ConvexSettings, *
                   period_s: Tensor, areas: Tensor) -> Polished:
     """The search's polish (:func:`~lightcurve_gp.inference.convex_polish.polish`) of ``B`` starts (``lam``, ``beta``
     rad, ``period_s`` s, each ``(B,)``; ``areas`` ``(B, K)`` on ``normals``) under ``settings``: the shape is
-    ``exp`` of a real spherical-harmonic series of degree ``shape_degree`` (0: free areas per normal)."""
+    ``exp`` of a real spherical-harmonic series of degree ``shape_degree`` (0: free areas per normal); the data
+    weighted by ``1/ỹ`` with ``magnitude_weights``."""
     basis = real_harmonics(normals, settings.shape_degree) if settings.shape_degree > 0 else None
+    data = data.magnitude_weighted() if settings.magnitude_weights else data
     return polish(data, normals, settings.scattering, lam=lam, beta=beta, period_s=period_s, areas=areas,
                   closure=settings.closure, iterations=settings.polish_iterations, smoothness=settings.smoothness,
                   basis=basis)
@@ -151,7 +157,9 @@ class ConvexFamilies:
     mirror pole of the best (λ + 180°, β) when it lies beyond the ratio (last, weight 0, ``within_ratio`` false).
 
     Attributes:
-        lam_deg, beta_deg: pole (deg) ``(F,)``; period_h: sidereal period ``(F,)`` (h); period_sigma_h: its 1σ.
+        lam_deg, beta_deg: pole (deg) ``(F,)`` (``β`` past ±90° where the polish crossed the ecliptic's pole: the
+            state that reproduces the fit, :class:`~lightcurve_gp.inference.convex_polish.Polished`); period_h:
+            sidereal period ``(F,)`` (h); period_sigma_h: its 1σ.
         rms: convexinv's rms (relative intensity) ``(F,)``; log_ratio: nats below the best ``(F,)``;
         weight: ``exp(−log_ratio)`` normalised over the families within the ratio ``(F,)``; areas: ``(F, K)``
         (relative, summing to 1); within_ratio: ``(F,)`` bool.
@@ -224,7 +232,8 @@ def _subsample(data: ConvexData, every: int) -> ConvexData:
     curve = data.curve[idx]
     return ConvexData(t_s=data.t_s[idx], sun=data.sun[idx], observer=data.observer[idx], alpha=data.alpha[idx],
                       y=data.y[idx], curve=curve, curves=data.curves,
-                      counts=torch.bincount(curve, minlength=data.curves), span_s=data.span_s)
+                      counts=torch.bincount(curve, minlength=data.curves), span_s=data.span_s,
+                      weight=None if data.weight is None else data.weight[idx])
 
 
 def _distinct(order: np.ndarray, lam: np.ndarray, beta: np.ndarray, period: np.ndarray, count: int,
@@ -262,7 +271,7 @@ def effective_samples(r: Tensor, curve: Tensor, *, max_lag: int = 50) -> tuple[f
 
 def _families(p: Polished, data: ConvexData, normals: Tensor, settings: ConvexSettings,
               resolution_h: float) -> tuple[ConvexFamilies, float, float]:
-    rss = (p.rms ** 2 * len(data)).numpy()
+    rss = (p.fit_rms ** 2 * len(data)).numpy()
     rss = np.where(np.isfinite(rss), rss, np.inf)                       # a polish that failed ranks last
     lam, beta = np.degrees(p.lam.numpy()), np.degrees(p.beta.numpy())
     period = p.period_s.numpy() / HOUR_S
@@ -271,7 +280,7 @@ def _families(p: Polished, data: ConvexData, normals: Tensor, settings: ConvexSe
                      resolution_h)
     b = keep[0]
     r = relative_residuals(data, normals, settings.scattering, lam=p.lam[b:b + 1], beta=p.beta[b:b + 1],
-                           period_s=p.period_s[b:b + 1], areas=p.areas[b:b + 1])[0]
+                           period_s=p.period_s[b:b + 1], areas=p.areas[b:b + 1])[0] * data.weights()
     rho, n_eff = effective_samples(r, data.curve)
     ratio_all = 0.5 * n_eff * (rss[keep] / rss[b] - 1.0)
     within = [k for k, q in zip(keep, ratio_all) if q <= settings.max_log_ratio or k == b]
@@ -300,6 +309,7 @@ def convex_search(data: ConvexData, settings: ConvexSettings = ConvexSettings(),
         progress: ``progress(message)`` after each stage, or ``None``.
     """
     say = progress or (lambda message: None)
+    data = data.magnitude_weighted() if settings.magnitude_weights else data
     seconds: dict[str, float] = {}
     start = time.perf_counter()
     pg = multiterm_periodogram(data.t_s, data.y, data.curve, data.curves, period_range_h=settings.period_range_h,
@@ -368,7 +378,8 @@ def convex_search(data: ConvexData, settings: ConvexSettings = ConvexSettings(),
         # around the best: starts on rings of refine_deg and twice that about its pole at its period (the screen's
         # grid is coarser than the polish's minima; a neighbouring minimum can be nats better); again while the
         # best moves
-        rss = torch.where(torch.isfinite(polished.rms), polished.rms, torch.full_like(polished.rms, math.inf))
+        rss = torch.where(torch.isfinite(polished.fit_rms), polished.fit_rms,
+                          torch.full_like(polished.fit_rms, math.inf))
         b = int(rss.argmin())
         rings = [ring_poles(float(polished.lam[b]), float(polished.beta[b]), math.radians(k * settings.refine_deg),
                             settings.refine_starts) for k in (1, 2)]
@@ -379,7 +390,7 @@ def convex_search(data: ConvexData, settings: ConvexSettings = ConvexSettings(),
                          refine=3 * settings.area_refine)
         more = polish_starts(data, normals, settings, lam=lam_r, beta=beta_r, period_s=per_r, areas=init.areas)
         polished = _joined(polished, more)
-        if not bool((more.rms < rss[b]).any()):
+        if not bool((more.fit_rms < rss[b]).any()):
             break
     seconds["polish"] = time.perf_counter() - start
     fam, rho, n_eff = _families(polished, data, normals, settings, step_h)

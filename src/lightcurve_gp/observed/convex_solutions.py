@@ -2,12 +2,13 @@
 (``areas.ecsv``).
 
 ``solutions.ecsv`` — one row per family, best first: ``rank``, ``pole_lambda_deg``, ``pole_beta_deg`` (ecliptic
-J2000, deg), ``period_h`` and ``period_sigma_h`` (sidereal period and its Laplace 1σ, h), ``rms`` (convexinv's: the
-relative-intensity residuals, each curve normalised by its mean), ``chi2_per_sample`` (with the 1σ the
-observations carry, converted to relative intensity), ``log_ratio`` (nats below the best), ``weight`` (the rows
-sum to 1) and ``within_ratio`` (false for the one extra row: the best solution at the best family's mirror pole
-λ + 180° when it lies beyond the likelihood ratio; weight 0); astropy units on the columns. Metadata:
-``light_curve``, ``config``, ``samples``, ``light_curves``,
+J2000, deg; ``β`` beyond ±90° where the polish crossed the ecliptic's pole: the axis is (λ + 180°, ±180° − β), and
+the state as written is the one whose body frame the areas belong to), ``period_h`` and ``period_sigma_h``
+(sidereal period and its Laplace 1σ, h), ``rms`` (convexinv's: the relative-intensity residuals, each curve
+normalised by its mean), ``chi2_per_sample`` (with the 1σ the observations carry, converted to relative intensity),
+``log_ratio`` (nats below the best), ``weight`` (the rows sum to 1) and ``within_ratio`` (false for the one extra
+row: the best solution at the best family's mirror pole λ + 180° when it lies beyond the likelihood ratio; weight
+0); astropy units on the columns. Metadata: ``light_curve``, ``config``, ``samples``, ``light_curves``,
 ``effective_samples``, ``residual_correlation``.
 
 ``areas.ecsv`` — one row per facet normal: ``n_x, n_y, n_z`` (body frame: ``z`` the spin axis) and ``area_1``,
