@@ -19,6 +19,7 @@ from lightcurve_gp.photometry.convex import (
     body_vectors,
     brightness,
     fibonacci_normals,
+    folded_pole,
     phase_angle,
     pole_angles,
     pole_vector,
@@ -267,3 +268,21 @@ def test_period_grid_steps_and_effective_samples():
     rho, n_eff = effective_samples(torch.tensor([1.0, -1.0] * 500, dtype=F64), curve)
     assert rho == 0.0 and n_eff == 1000
     assert isinstance(_box_problem()[0], ConvexData)
+
+
+def test_a_pole_past_the_ecliptic_pole_folds_to_the_same_body_frame():
+    rng = np.random.default_rng(7)
+    lam, beta = rng.uniform(-30.0, 400.0, 64), rng.uniform(-260.0, 260.0, 64)
+    lam_f, beta_f, phase = folded_pole(lam, beta)
+    assert np.all(np.abs(beta_f) <= 90.0) and np.all((lam_f >= 0.0) & (lam_f < 360.0))
+    assert set(np.unique(phase)) <= {0.0, 180.0} and np.any(phase == 180.0) and np.any(phase == 0.0)
+    t = torch.linspace(0.0, 7200.0, 5, dtype=torch.float64)
+    f64 = lambda v: torch.as_tensor(np.radians(v), dtype=torch.float64)  # noqa: E731
+    period = torch.full((64,), 3600.0, dtype=torch.float64)
+    before = spin_matrices(lam=f64(lam), beta=f64(beta), period_s=period, phi0=torch.zeros(64, dtype=torch.float64),
+                           t_s=t)
+    after = spin_matrices(lam=f64(lam_f), beta=f64(beta_f), period_s=period, phi0=f64(phase), t_s=t)
+    torch.testing.assert_close(after, before, rtol=0.0, atol=1e-12)
+    # the pole itself is unchanged
+    torch.testing.assert_close(pole_vector(f64(lam_f), f64(beta_f)), pole_vector(f64(lam), f64(beta)), rtol=0.0,
+                               atol=1e-12)

@@ -74,6 +74,8 @@ def test_convex_invert_finds_the_spin_and_writes_its_files(damit_file, tmp_path,
     table = Table.read(folder / "solutions.ecsv")
     best = table[0]
     assert bool(best["within_ratio"]) and float(best["weight"]) > 0
+    assert np.all(np.abs(np.asarray(table["pole_beta_deg"])) <= 90.0)             # written folded, with its phase
+    assert set(np.asarray(table["phase0_deg"]).tolist()) <= {0.0, 180.0}
     truth = pole_vector(torch.tensor(math.radians(TRUTH["lam"])), torch.tensor(math.radians(TRUTH["beta"])))
     mirror = pole_vector(torch.tensor(math.radians(TRUTH["lam"] + 180)), torch.tensor(math.radians(TRUTH["beta"])))
     found = pole_vector(torch.tensor(math.radians(float(best["pole_lambda_deg"]))),

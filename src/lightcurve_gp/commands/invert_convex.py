@@ -43,7 +43,7 @@ from lightcurve_gp.inference.convex_fit import ConvexData, convex_data, relative
 from lightcurve_gp.inference.convex_search import ConvexSearch, ConvexSettings, convex_search
 from lightcurve_gp.observed.convex_solutions import areas_table, convex_solutions_table, write_convex_tables
 from lightcurve_gp.observed.damit import DEFAULT_SIGMA_MAG, is_damit_file, read_damit
-from lightcurve_gp.photometry.convex import SatelliteScattering, Scattering
+from lightcurve_gp.photometry.convex import SatelliteScattering, Scattering, folded_pole
 from lightcurve_gp.photometry.minkowski import minkowski_polytope
 
 __all__ = ["settings_from_config", "run"]
@@ -149,7 +149,8 @@ def _figures(folder: Path, data: ConvexData, search: ConvexSearch, settings: Con
     fig.colorbar(sc, ax=ax, label="relative area")
     ax.set_xlabel("normal's body longitude [deg]")
     ax.set_ylabel("normal's body latitude [deg]")
-    ax.set_title(f"family 1: pole ({fam.lam_deg[0]:.1f}°, {fam.beta_deg[0]:.1f}°), P {fam.period_h[0]:.7f} h",
+    lam, beta, _ = folded_pole(fam.lam_deg[:1], fam.beta_deg[:1])
+    ax.set_title(f"family 1: pole ({lam[0]:.1f}°, {beta[0]:.1f}°), P {fam.period_h[0]:.7f} h",
                  fontsize=9)
     save_figure(fig, folder / "shape.png")
 
@@ -200,15 +201,16 @@ def run(cfg, args: argparse.Namespace) -> int:
         write_json_atomic(summary, tmp / "summary.json")
         _figures(tmp, data, search, settings)
     fam = search.families
+    lam, beta, _ = folded_pole(fam.lam_deg, fam.beta_deg)  # the axis as readers write it (β within ±90°)
     count = int(fam.within_ratio.sum())
     print(f"{path.name}: {len(data)} samples in {data.curves} light curves; {count} pole/period "
           f"famil{'y' if count == 1 else 'ies'} within {settings.max_log_ratio:g} nats")
     for k in range(len(fam)):
         if not fam.within_ratio[k]:
-            print(f"  beyond the ratio, the mirror pole: ({fam.lam_deg[k]:.1f}°, {fam.beta_deg[k]:+.1f}°), "
+            print(f"  beyond the ratio, the mirror pole: ({lam[k]:.1f}°, {beta[k]:+.1f}°), "
                   f"P = {fam.period_h[k]:.8f} h, rms {fam.rms[k]:.4f}, {fam.log_ratio[k]:.1f} nats below the best")
             continue
-        print(f"  family {k + 1}: pole (λ, β) = ({fam.lam_deg[k]:.1f}°, {fam.beta_deg[k]:+.1f}°), "
+        print(f"  family {k + 1}: pole (λ, β) = ({lam[k]:.1f}°, {beta[k]:+.1f}°), "
               f"P = {fam.period_h[k]:.8f} ± {fam.period_sigma_h[k]:.1e} h, rms {fam.rms[k]:.4f}, "
               f"{fam.log_ratio[k]:.1f} nats below the best, weight {fam.weight[k]:.3f}")
     stages = ", ".join(f"{k} {v:.1f} s" + (f" ({search.screened[k]} candidates)" if k in search.screened else "")

@@ -2,8 +2,9 @@
 (``areas.ecsv``).
 
 ``solutions.ecsv`` — one row per family, best first: ``rank``, ``pole_lambda_deg``, ``pole_beta_deg`` (ecliptic
-J2000, deg; ``β`` beyond ±90° where the polish crossed the ecliptic's pole: the axis is (λ + 180°, ±180° − β), and
-the state as written is the one whose body frame the areas belong to), ``period_h`` and ``period_sigma_h``
+J2000, deg, ``λ`` in [0°, 360°), ``β`` in [−90°, 90°]), ``phase0_deg`` (the rotation phase ``φ0`` at the epoch whose
+body frame the areas belong to: 0°, or 180° where the polish crossed the ecliptic's pole and the pole is written
+folded, :func:`~lightcurve_gp.photometry.convex.folded_pole`), ``period_h`` and ``period_sigma_h``
 (sidereal period and its Laplace 1σ, h), ``rms`` (convexinv's: the relative-intensity residuals, each curve
 normalised by its mean), ``chi2_per_sample`` (with the 1σ the observations carry, converted to relative intensity),
 ``log_ratio`` (nats below the best), ``weight`` (the rows sum to 1) and ``within_ratio`` (false for the one extra
@@ -29,6 +30,7 @@ from astropy.table import Table
 from lightcurve_gp.files import atomic_path
 from lightcurve_gp.inference.convex_search import ConvexSearch
 from lightcurve_gp.observed.table_write import write_table
+from lightcurve_gp.photometry.convex import folded_pole
 
 __all__ = ["convex_solutions_table", "areas_table", "write_convex_tables"]
 
@@ -42,8 +44,10 @@ def convex_solutions_table(search: ConvexSearch, *, sigma_mag: float, samples: i
     sigma_rel = MAG_TO_RELATIVE * sigma_mag
     table = Table()
     table["rank"] = np.arange(1, len(fam) + 1)
-    table["pole_lambda_deg"] = fam.lam_deg * u.deg
-    table["pole_beta_deg"] = fam.beta_deg * u.deg
+    lam, beta, phase0 = folded_pole(fam.lam_deg, fam.beta_deg)
+    table["pole_lambda_deg"] = lam * u.deg
+    table["pole_beta_deg"] = beta * u.deg
+    table["phase0_deg"] = phase0 * u.deg
     table["period_h"] = fam.period_h * u.h
     table["period_sigma_h"] = fam.period_sigma_h * u.h
     table["rms"] = fam.rms * u.dimensionless_unscaled

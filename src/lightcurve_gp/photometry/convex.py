@@ -49,7 +49,7 @@ from lightcurve_gp.photometry.brdf import DIFFUSE_SCALE, exp_floor
 
 __all__ = ["Scattering", "SatelliteScattering", "Terms", "fibonacci_normals", "ring_normals", "area_normals",
            "real_harmonics", "spin_matrices", "body_vectors", "facet_brightness", "facet_terms", "brightness",
-           "phase_angle", "pole_vector", "pole_angles"]
+           "phase_angle", "pole_vector", "pole_angles", "folded_pole"]
 
 
 @dataclass(frozen=True)
@@ -230,6 +230,19 @@ def spin_matrices(*, lam: Tensor, beta: Tensor, period_s: Tensor, phi0: Tensor, 
     turns = torch.remainder(t_s.to(torch.float64)[None, :] / period_s.to(torch.float64)[:, None], 1.0)
     phase = (2 * math.pi * turns).to(lam.dtype) + phi0[:, None]                  # (B, N)
     return _rz(phase) @ pole[:, None]
+
+
+def folded_pole(lam_deg, beta_deg):
+    """The same spin state written with ``β`` in [−90°, 90°]: ``(λ', β', φ0')`` (deg, numpy arrays of the inputs'
+    shape). A state past the ecliptic's pole, ``|β| > 90°``, is the axis ``(λ + 180°, ±180° − β)`` whose body frame
+    is turned by 180° about it, ``R_y(90° − β') R_z(λ') = R_z(180°) R_y(90° − β) R_z(λ)``, so the same areas need the
+    rotation phase ``φ0' = 180°`` there (0° elsewhere); ``λ'`` in [0°, 360°)."""
+    lam, beta = np.asarray(lam_deg, dtype=np.float64), np.asarray(beta_deg, dtype=np.float64)
+    beta = (beta + 180.0) % 360.0 - 180.0
+    past = np.abs(beta) > 90.0
+    lam_f = np.where(past, lam + 180.0, lam) % 360.0
+    beta_f = np.where(past, np.sign(beta) * 180.0 - beta, beta)
+    return lam_f, beta_f, np.where(past, 180.0, 0.0)
 
 
 def body_vectors(v: Tensor, *, lam: Tensor, beta: Tensor, period_s: Tensor, phi0: Tensor, t_s: Tensor) -> Tensor:
