@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 import torch
 
+from lightcurve_gp.inference.convex_families import effective_samples
 from lightcurve_gp.inference.convex_fit import ConvexData, convex_data, design, fit_areas, relative_residuals
 from lightcurve_gp.inference.convex_periodogram import apparitions, multiterm_periodogram
 from lightcurve_gp.inference.convex_polish import PolishResidual, polish
-from lightcurve_gp.inference.convex_search import effective_samples, period_grid
+from lightcurve_gp.inference.convex_search import period_grid
 from lightcurve_gp.inference.jacobian import jacobian
 from lightcurve_gp.observations.observations import CurveInfo, Observations
 from lightcurve_gp.photometry.convex import (
