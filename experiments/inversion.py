@@ -109,7 +109,8 @@ def run_seed(cfg, seed: int, sigma: float, args) -> dict:
     group = ambiguity_group(scene, times_s=times, inertia=inertia, rate_known=False)
     start = time.perf_counter()
     settings = InversionSettings(starts=args.starts, attitudes=args.attitudes,
-                                 keep=tuple(args.keep) if args.keep else InversionSettings.keep)
+                                 keep=tuple(args.keep) if args.keep else InversionSettings.keep,
+                                 early_arcs=args.early_arcs, cohort_quotas=not args.shared_pruning)
     ans = answer(problem, group, settings=settings, rate_max_rad_s=math.radians(5.0), widen=not args.no_widen)
     seconds = time.perf_counter() - start
     inv, fam = ans.inversion, ans.families
@@ -257,6 +258,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--keep", type=int, nargs="+", default=None,
                         help="rows carried into each continuation stage after the first (default "
                              f"{' '.join(map(str, InversionSettings.keep))})")
+    parser.add_argument("--early-arcs", type=int, default=InversionSettings.early_arcs,
+                        help="arcs before its entry arc that each rate is also screened on (0: the entry arc alone)")
+    parser.add_argument("--shared-pruning", action="store_true",
+                        help="all rows compete for the stage's keep (no per-cohort quotas)")
     parser.add_argument("--no-widen", action="store_true", help="no widened search when the first fit fails")
     parser.add_argument("--rate-law", choices=RATE_LAWS, default="log-uniform",
                         help="the truth's rate magnitude over 0.05-5 deg/s")
@@ -278,6 +283,8 @@ def main(argv: list[str] | None = None) -> int:
             if args.keep and tuple(args.keep) != InversionSettings.keep:
                 grid += "_k" + "-".join(map(str, args.keep))
             grid += "_nowiden" if args.no_widen else ""
+            grid += f"_e{args.early_arcs}" if args.early_arcs != InversionSettings.early_arcs else ""
+            grid += "_shared" if args.shared_pruning else ""
             grid += "_uniform" if args.rate_law == "uniform" else ""
             path = cases / f"{cfg.name}_s{sigma:g}_n{args.starts}{grid}_b{args.bank_size}_v{FORMAT}_{seed}.json"
             if path.exists():

@@ -13,10 +13,15 @@ within a likelihood ratio of the best kept) in batched tensors, on one :class:`.
    grid points enter the continuation at that arc; the starts are shared among the entry arcs in proportion to
    their grid points (measured on tuning seeds at 0.35–0.6 °/s, σ = 0.1 mag: on the 30 s arc a state of such a
    rate turns 10–18°, every one of the 4000 starts fitted that arc better than the truth, the truth's rows ranked
-   600–1600th and the pruning to 1000 and 300 rows lost them: 3 search misses in 4 seeds, up to 2100 nats).
+   600–1600th and the pruning to 1000 and 300 rows lost them: 3 search misses in 4 seeds, up to 2100 nats). Each
+   rate is also screened on the arc before its entry arc (``early_arcs``): fast tumblers were found from a slower
+   shell's start on the shorter arc (tuning seed 13, 1.47 °/s, from a 0.85 °/s start on 30 s), lost when that
+   shell entered at 60 s alone.
 3. **Continuation.** Levenberg–Marquardt (:func:`.solver.batch_least_squares`, the problem's closed-form
-   Jacobian) on arcs of growing length (``arcs_s``), each stage on the best ``keep`` rows of the previous one (one
-   row per solution modulo the exact group) and the rows entering at its arc, with a Gaussian prior of standard
+   Jacobian) on arcs of growing length (``arcs_s``), each stage on the best rows of the previous one (one row per
+   solution modulo the exact group) and the rows entering at its arc; the rows screened on one arc (a cohort) are
+   pruned among themselves to their quota (:func:`cohort_quotas`: the largest cohort ``keep``, the others in
+   proportion to their starts), so rows entering later never crowd out those carried; with a Gaussian prior of standard
    deviation ``turn_rad / arc`` on the change of the rate (a short arc cannot tell the rate better; without it the
    rate wanders along the short arc's flat directions) except on the whole light curve.
 4. The survivors, polished on the whole light curve, with their Laplace covariance, go to :mod:`.families`.
@@ -42,7 +47,8 @@ from lightcurve_gp.inference.solver import GaussianPrior, LeastSquaresOptions, b
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
 
-__all__ = ["InversionSettings", "Inversion", "rate_starts", "entry_stages", "screen", "invert", "polish"]
+__all__ = ["InversionSettings", "Inversion", "rate_starts", "entry_stages", "screened_at", "cohort_quotas",
+           "prune_rows", "screen", "invert", "polish"]
 
 
 @dataclass(frozen=True)
@@ -61,6 +67,11 @@ class InversionSettings:
         turn_rad: the rate prior of a stage on an arc of ``L`` s has the standard deviation ``turn_rad / L``.
         entry_turn_deg: a screened rate enters at the first arc over which it turns by at least this (deg; 0: every
             rate at the first arc).
+        early_arcs: a rate is also screened on, and enters at, this many arcs before its entry arc (0: its entry arc
+            alone).
+        cohort_quotas: the rows that entered at one arc (a cohort) are pruned among themselves, to
+            :func:`cohort_quotas` of ``keep``, so rows entering later never crowd out those carried; False: all rows
+            compete for ``keep``.
         cluster_angle_deg, cluster_rate_deg_s: solutions this close modulo the group are one.
         seed: of the Sobol' attitudes.
         nterms: Fourier terms of the periodogram.
@@ -77,6 +88,8 @@ class InversionSettings:
     final_iterations: int = 8
     turn_rad: float = 0.35
     entry_turn_deg: float = 30.0
+    early_arcs: int = 1
+    cohort_quotas: bool = True
     cluster_angle_deg: float = 5.0
     cluster_rate_deg_s: float = 0.05
     seed: int = 0
@@ -88,6 +101,8 @@ class InversionSettings:
         lo, hi = self.rate_range_deg_s
         if not 0.0 < lo < hi:
             raise ValueError(f"rate range: need 0 < min < max (deg/s), got {lo:g} to {hi:g}")
+        if self.early_arcs < 0:
+            raise ValueError(f"early_arcs: {self.early_arcs} must be >= 0")
         if len(self.keep) != len(self.arcs_s) - 1 or not self.arcs_s:
             raise ValueError(f"keep: {len(self.keep)} values for {len(self.arcs_s)} stages; need one per stage after "
                              "the first")
@@ -151,6 +166,13 @@ def entry_stages(rates: Tensor, *, arcs_s: tuple[float, ...], span_s: float, tur
     return turned.to(torch.int8).argmax(-1)
 
 
+def screened_at(entry: Tensor, *, stages: int, early_arcs: int) -> Tensor:
+    """Which rates are screened on each stage's arc ``(S, R)`` (bool), from their entry stages ``entry (R,)``
+    (:func:`entry_stages`): the entry arc and the ``early_arcs`` arcs before it."""
+    stage = torch.arange(stages, device=entry.device)[:, None]
+    return (entry[None] >= stage) & (entry[None] <= stage + early_arcs)
+
+
 def screen(problem: TrajectoryProblem, *, rates: Tensor, attitudes: Tensor, starts: int) -> tuple[Tensor, Tensor]:
     """The ``starts`` best points of the grid ``rates (R, 3)`` × ``attitudes (A, 4)`` on ``problem``'s arc, ρ
     profiled: their anchors ``(N, 4)`` and states ``x (N, 7)`` (``θ = 0``)."""
@@ -183,14 +205,32 @@ def _reanchor(problem: TrajectoryProblem, x: Tensor) -> tuple[Tensor, Tensor]:
     return anchors, torch.cat([torch.zeros_like(x[:, :3]), x[:, 3:]], -1)
 
 
-def _prune(group: AmbiguityGroup, anchors: Tensor, x: Tensor, cost: Tensor, keep: int,
-           settings: InversionSettings) -> tuple[Tensor, Tensor]:
-    """The best ``keep`` rows, one per solution modulo ``group`` (the best ``4 keep`` by cost clustered)."""
-    top = torch.topk(cost, min(4 * keep, cost.numel()), largest=False).indices
-    _, heads = cluster(group, anchors[top], x[top, 3:6], cost[top], angle_deg=settings.cluster_angle_deg,
-                       rate_deg_s=settings.cluster_rate_deg_s)
-    rows = top[heads[:keep]]
-    return anchors[rows], x[rows]
+def cohort_quotas(keep: int, starts: list[int]) -> list[int]:
+    """Rows kept of each cohort (the rows that entered at one arc, ``starts[c]`` of them screened in) when a stage
+    keeps ``keep``: the largest cohort keeps ``keep``, each other its starts' share of it, ``⌈keep · n_c / max n⌉``
+    (a cohort of no starts none)."""
+    most = max(starts, default=0)
+    return [math.ceil(keep * n / most) if n else 0 for n in starts]
+
+
+def prune_rows(group: AmbiguityGroup, anchors: Tensor, omega: Tensor, cost: Tensor, *, keep: int,
+               cohort: Tensor | None = None, quotas: list[int] | None = None, angle_deg: float = 5.0,
+               rate_deg_s: float = 0.05) -> Tensor:
+    """Indices of the rows kept of ``anchors (N, 4)``, ``omega (N, 3)`` (rad/s), ``cost (N,)``: the best ``keep``,
+    one per solution modulo ``group`` (the best ``4 keep`` by cost clustered within ``angle_deg`` and
+    ``rate_deg_s``); with ``cohort (N,)`` (each row's cohort index) and ``quotas`` (rows per cohort), the same
+    within each cohort on its own, ``quotas[c]`` rows of cohort ``c``."""
+    if cohort is None:
+        top = torch.topk(cost, min(4 * keep, cost.numel()), largest=False).indices
+        _, heads = cluster(group, anchors[top], omega[top], cost[top], angle_deg=angle_deg, rate_deg_s=rate_deg_s)
+        return top[heads[:keep]]
+    parts = []
+    for c, quota in enumerate(quotas):
+        mine = torch.nonzero(cohort == c).flatten()
+        if quota and mine.numel():
+            parts.append(mine[prune_rows(group, anchors[mine], omega[mine], cost[mine], keep=quota,
+                                         angle_deg=angle_deg, rate_deg_s=rate_deg_s)])
+    return torch.cat(parts) if parts else cohort.new_zeros(0)
 
 
 def _arc_samples(problem: TrajectoryProblem, arc_s: float) -> int:
@@ -217,25 +257,35 @@ def invert(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: Inver
     seconds["periodogram"], tick = time.perf_counter() - tick, time.perf_counter()
     entry = entry_stages(rates, arcs_s=settings.arcs_s, span_s=float(t_s[-1] - t_s[0]),
                          turn_deg=settings.entry_turn_deg)
-    entering = []
+    screened = screened_at(entry, stages=len(settings.arcs_s), early_arcs=settings.early_arcs)
+    points = int(screened.sum())
+    entering, cohort_starts = [], []
     for stage, arc_s in enumerate(settings.arcs_s):
-        mine = entry == stage
+        mine = screened[stage]
         n = int(mine.sum())
         if not n:
             entering.append(None)
+            cohort_starts.append(0)
             continue
         part = problem.arc(_arc_samples(problem, arc_s))
-        starts = max(1, round(settings.starts * n / rates.shape[0]))
+        starts = max(1, round(settings.starts * n / points))
         say(f"screening {n} rates x {attitudes.shape[0]} attitudes on {part.samples} samples")
         entering.append(screen(part, rates=rates[mine], attitudes=attitudes, starts=starts))
+        cohort_starts.append(entering[-1][0].shape[0])
     seconds["screening"], tick = time.perf_counter() - tick, time.perf_counter()
     anchors, x = problem.anchors.new_zeros(0, 4), problem.y.new_zeros(0, 7)
-    cost = problem.y.new_zeros(0)
+    cost, cohort = problem.y.new_zeros(0), torch.zeros(0, dtype=torch.long, device=x.device)
     for stage, arc_s in enumerate(settings.arcs_s):
         if stage and x.shape[0]:
-            anchors, x = _prune(group, anchors, x, cost, settings.keep[stage - 1], settings)
+            keep = settings.keep[stage - 1]
+            rows = prune_rows(group, anchors, x[:, 3:6], cost, keep=keep,
+                              cohort=cohort if settings.cohort_quotas else None,
+                              quotas=cohort_quotas(keep, cohort_starts[:stage]),
+                              angle_deg=settings.cluster_angle_deg, rate_deg_s=settings.cluster_rate_deg_s)
+            anchors, x, cohort = anchors[rows], x[rows], cohort[rows]
         if entering[stage] is not None:
             anchors, x = torch.cat([anchors, entering[stage][0]]), torch.cat([x, entering[stage][1]])
+            cohort = torch.cat([cohort, cohort.new_full((entering[stage][0].shape[0],), stage)])
         if not x.shape[0]:
             continue
         part = problem.arc(_arc_samples(problem, arc_s))
