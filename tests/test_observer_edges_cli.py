@@ -179,7 +179,13 @@ def test_the_solutions_file_has_a_unit_on_every_column(tmp_path):
     from astropy.table import Table
 
     from lightcurve_gp.inference.families import Families
-    from lightcurve_gp.observed.solutions import COLUMNS, read_solutions, solutions_table, write_solutions
+    from lightcurve_gp.observed.solutions import (
+        COLUMNS,
+        OPTIONAL_COLUMNS,
+        read_solutions,
+        solutions_table,
+        write_solutions,
+    )
 
     f64 = lambda v: torch.tensor(v, dtype=torch.float64)  # noqa: E731
     fam = Families(q0=f64([[0.0, 0.0, 0.0, 1.0]]), omega0=torch.deg2rad(f64([[0.1, -0.1, -0.25]])),
@@ -190,7 +196,8 @@ def test_the_solutions_file_has_a_unit_on_every_column(tmp_path):
     write_solutions(solutions_table(fam), tmp_path / "solutions.ecsv")
     units = units_of(Table.read(tmp_path / "solutions.ecsv", format="ascii.ecsv"))
     rates = {f"{p}omega_{a}" for p in ("", "sigma_") for a in "xyz"}
-    assert units == {c: "deg / s" if c in rates else "deg" if c.startswith("sigma_att") else "" for c in COLUMNS}
+    assert units == {c: "deg / s" if c in rates else "deg" if c.startswith("sigma_att") else ""
+                     for c in COLUMNS + OPTIONAL_COLUMNS}
     assert float(read_solutions(tmp_path / "solutions.ecsv")["omega_z"][0]) == pytest.approx(-0.25, rel=1e-12)
 
 

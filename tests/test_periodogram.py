@@ -82,3 +82,17 @@ def test_the_detection_threshold_holds_its_false_alarm_rate_on_white_noise():
     assert np.mean(peaks > detection_power(t.size, 2, independent, false_alarm=0.1)) <= 0.16
     assert np.mean(peaks > detection_power(t.size, 2, independent, false_alarm=0.9)) >= 0.2
     assert detection_power(300, 2, 150.0, FALSE_ALARM) > detection_power(300, 2, 150.0, 0.1)
+
+
+def test_a_slow_trend_puts_no_peak_where_a_harmonic_aliases():
+    # a tumbler far below one turn over the arc: a ramp of 0.5 mag over 600 s and white noise of 0.1 mag at 1 Hz.
+    # A 2-term model near 0.5 Hz has its second harmonic near 1 Hz, which the 1 Hz samples alias onto ~0 Hz: it fits
+    # the ramp and made a "peak" at 180 deg/s as strong as the trend's, and with the rate range below it, a refusal.
+    # The grid now stops where the highest harmonic meets the Nyquist frequency (0.25 Hz, 90 deg/s)
+    rng = np.random.default_rng(1058)
+    t = np.arange(601.0)
+    y = 0.5 * t / 600.0 + 0.1 * rng.standard_normal(t.size)
+    pg = periodogram(t, y, np.full(t.size, 0.1), rate_range_deg_s=(0.05, 5.0), nterms=2)
+    assert float(pg.frequency_hz.max()) <= 0.25 + float(pg.frequency_hz[0])
+    assert np.all(360.0 * pg.peak_frequency_hz < 90.5)
+    assert 360.0 * float(pg.peak_frequency_hz[0]) < 1.0                     # the strongest peak is the trend

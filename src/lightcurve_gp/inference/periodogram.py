@@ -112,9 +112,14 @@ def lstsq_power(t: np.ndarray, y: np.ndarray, dy: np.ndarray | None, frequency: 
 
 
 def _local_maxima(power: np.ndarray) -> np.ndarray:
-    """Indices of the interior local maxima of ``power``, strongest first."""
+    """Indices of the local maxima of ``power``, strongest first: the interior ones and the grid's first point when
+    the power falls from it (a variation slower than one cycle over the span: a slow tumbler's light curve, whose
+    strongest "peak" is then its trend, not the noise's interior maxima a trend lifts over the white-noise
+    threshold)."""
     inner = np.flatnonzero((power[1:-1] > power[:-2]) & (power[1:-1] >= power[2:])) + 1
-    return inner[np.argsort(power[inner])[::-1]]
+    if power.size > 1 and power[0] > power[1]:
+        inner = np.concatenate([[0], inner])
+    return inner[np.argsort(power[inner], kind="stable")[::-1]]
 
 
 def periodogram(t_s: np.ndarray, mag: np.ndarray, mag_err: np.ndarray | None = None, *,
@@ -126,7 +131,8 @@ def periodogram(t_s: np.ndarray, mag: np.ndarray, mag_err: np.ndarray | None = N
         t_s: sample times ``(T,)`` (s), any order of spacing; NaN magnitudes are dropped with their times.
         mag: magnitudes ``(T,)``; mag_err: their 1σ errors ``(T,)`` (mag) or ``None`` (equal weights).
         rate_range_deg_s: the rates searched (°/s): the candidates are kept inside it. The grid itself does not
-            depend on it (from ``1 / span`` to the sampling's pseudo-Nyquist frequency ``1 / (2 median Δt)``), so
+            depend on it (from ``1 / span`` to ``1 / (2 nterms median Δt)``, where the highest harmonic reaches the
+            sampling's pseudo-Nyquist frequency), so
             a range that misses the light curve's strongest peaks is an error, not a search of the noise (when the
             strongest peak is a detection; module docstring).
         nterms: Fourier terms of the Lomb–Scargle model (the box-wing's curve is far from a sinusoid).
@@ -148,7 +154,9 @@ def periodogram(t_s: np.ndarray, mag: np.ndarray, mag_err: np.ndarray | None = N
         raise ValueError(f"periodogram: {t.size} finite samples are too few for {nterms} Fourier terms")
     span = float(t.max() - t.min())
     df = 1.0 / (span * samples_per_peak)
-    f_hi = max(0.5 / float(np.median(np.diff(np.sort(t)))), hi / 90.0)  # the sampling's pseudo-Nyquist frequency
+    # the highest harmonic at the sampling's pseudo-Nyquist frequency: above it a harmonic aliases onto a low
+    # frequency and the model fits a slow trend at a fast "peak" (a 2-term model near 0.5 Hz at 1 Hz sampling)
+    f_hi = max(0.5 / float(np.median(np.diff(np.sort(t)))) / nterms, hi / 90.0)
     frequency = np.arange(df, f_hi + df, df)
     try:
         power = LombScargle(t, y, dy, nterms=nterms).power(frequency)
