@@ -293,7 +293,7 @@ def test_a_harmonic_on_the_nyquist_frequency_is_the_model_without_its_sine():
 
 SEVEN = ("rate range 0.05-5 deg/s excludes every periodogram candidate: no rate in it fits the light curve, whose "
          "periodogram's strongest peak is at 51.3 deg/s (the light curve repeats every 7.02 s; other peaks at 26.1, "
-         "154 deg/s), and the candidates are 0.5, 1 and 2 times a peak; widen the range to 25.7-103 deg/s if the "
+         "37.8 deg/s), and the candidates are 0.5, 1 and 2 times a peak; widen the range to 25.7-103 deg/s if the "
          "object may spin that fast")
 
 
