@@ -56,12 +56,12 @@ from lightcurve_gp.inference.forward import GroupRenderer
 from lightcurve_gp.inference.inversion import InversionSettings
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.passes.geometry import pass_geometry
-from lightcurve_gp.photometry.ambiguity import ambiguity_group
+from lightcurve_gp.photometry.ambiguity import ambiguity_group, near_image_turns
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
-FORMAT = 4
+FORMAT = 5
 TRUTH_STREAM = 1 << 42
 CALIBRATION_BINS = (0.0, 0.5, 0.8, 0.95, 0.99, 1.0001)
 
@@ -111,7 +111,8 @@ def run_seed(cfg, seed: int, sigma: float, args) -> dict:
     settings = InversionSettings(starts=args.starts, attitudes=args.attitudes,
                                  keep=tuple(args.keep) if args.keep else InversionSettings.keep,
                                  early_arcs=args.early_arcs, cohort_quotas=not args.shared_pruning)
-    ans = answer(problem, group, settings=settings, rate_max_rad_s=math.radians(5.0), widen=not args.no_widen)
+    ans = answer(problem, group, settings=settings, rate_max_rad_s=math.radians(5.0), widen=not args.no_widen,
+                 image_turns=near_image_turns(scene))
     seconds = time.perf_counter() - start
     inv, fam = ans.inversion, ans.families
     ref = inversion_reference(problem, group, fam, best_cost=float(inv.cost.min()), q0=q0, omega0=w0, rho=rho)
@@ -122,6 +123,7 @@ def run_seed(cfg, seed: int, sigma: float, args) -> dict:
            "p_right_sum": float(fam.p_right.sum()), "best_below_truth": float(inv.cost.min()) < ref.truth_cost - 1e-6,
            **ref.as_dict(), "verdict": ans.verdict, "chi2_per_dof": ans.fit.chi2_per_dof, "p_value": ans.fit.p_value,
            "widened": ans.widened, "first_chi2_per_dof": ans.first_fit.chi2_per_dof, "ridge_rows": ans.ridge_rows,
+           "image_rows": ans.image_rows,
            "rate_lo_deg_s": ans.rate_interval_deg_s[0], "rate_hi_deg_s": ans.rate_interval_deg_s[1],
            "seconds": seconds, "stage_seconds": {**inv.seconds, **ans.seconds}, "starts": args.starts,
            "images": len(group),

@@ -32,7 +32,7 @@ from lightcurve_gp.inference.inversion import Inversion, InversionSettings
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.observations.observations import Observations
 from lightcurve_gp.observed.arc_run import ArcRun, estimate_arc, file_scene
-from lightcurve_gp.photometry.ambiguity import AmbiguityGroup, ambiguity_group
+from lightcurve_gp.photometry.ambiguity import AmbiguityGroup, ambiguity_group, near_image_turns
 from lightcurve_gp.photometry.render import Scene
 
 __all__ = ["InversionRun", "trajectory_problem", "invert_observations"]
@@ -91,7 +91,7 @@ def invert_observations(cfg: Config, obs: Observations, *, settings: InversionSe
     problem, scene = trajectory_problem(cfg, obs)
     group = ambiguity_group(scene, times_s=problem.times, inertia=problem.inertia, rate_known=False)
     ans = answer(problem, group, settings=settings, rate_max_rad_s=math.radians(settings.rate_range_deg_s[1]),
-                 max_log_ratio=max_log_ratio, progress=progress)
+                 max_log_ratio=max_log_ratio, image_turns=near_image_turns(scene), progress=progress)
     fam = ans.families
     start = time.perf_counter()
     polished = []

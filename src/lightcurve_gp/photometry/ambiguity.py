@@ -40,8 +40,8 @@ from lightcurve_gp.attitude.torque_free import torque_free_motion
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.photometry.symmetry import cube_rotations, symmetry_rotations
 
-__all__ = ["INERTIAL_TURNS", "GROUP_SOURCE", "AmbiguityGroup", "inertial_turns", "ambiguity_group",
-           "config_ambiguity_group"]
+__all__ = ["INERTIAL_TURNS", "GROUP_SOURCE", "AmbiguityGroup", "inertial_turns", "near_image_turns",
+           "ambiguity_group", "config_ambiguity_group"]
 
 #: names of the inertial candidates, in the order of :func:`inertial_turns`
 INERTIAL_TURNS = ("identity", "plane normal", "bisector", "in-plane perpendicular")
@@ -65,6 +65,18 @@ def inertial_turns(sun: Tensor, observer: Tensor) -> Tensor:
     eye = torch.eye(3, dtype=sun.dtype, device=sun.device)
     turns = [2.0 * torch.outer(a, a) - eye for a in (n, h, p)]
     return torch.stack([eye, *turns])
+
+
+def near_image_turns(scene: Scene) -> Tensor:
+    """The 180° inertial turns that make near-exact images along a pass, as quaternions ``q_C (C, 4)``: under a
+    moving geometry the three turns of the first sample's Sun–observer pair (:func:`inertial_turns` less the
+    identity), whose images ``q_0 ⊗ q_C`` are exact at the first sample and near-exact while the geometry moves
+    little — not in the exact group, but a state's image under them starts close to another basin (the inversion's
+    image probe); under a fixed geometry none, ``(0, 4)`` (its turns are exact images, in the group, or no images at
+    all)."""
+    if not scene.per_sample:
+        return scene.sun.new_zeros(0, 4)
+    return matrix_to_quat(inertial_turns(scene.sun[0], scene.observer[0])[1:])
 
 
 @dataclass(frozen=True)
