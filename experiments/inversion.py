@@ -61,7 +61,7 @@ from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
-FORMAT = 5
+FORMAT = 6
 TRUTH_STREAM = 1 << 42
 CALIBRATION_BINS = (0.0, 0.5, 0.8, 0.95, 0.99, 1.0001)
 
@@ -123,7 +123,7 @@ def run_seed(cfg, seed: int, sigma: float, args) -> dict:
            "p_right_sum": float(fam.p_right.sum()), "best_below_truth": float(inv.cost.min()) < ref.truth_cost - 1e-6,
            **ref.as_dict(), "verdict": ans.verdict, "chi2_per_dof": ans.fit.chi2_per_dof, "p_value": ans.fit.p_value,
            "widened": ans.widened, "first_chi2_per_dof": ans.first_fit.chi2_per_dof, "ridge_rows": ans.ridge_rows,
-           "image_rows": ans.image_rows,
+           "image_rows": ans.image_rows, "local_rows": ans.local_rows, "probe_gain_nats": ans.probe_gain_nats,
            "rate_lo_deg_s": ans.rate_interval_deg_s[0], "rate_hi_deg_s": ans.rate_interval_deg_s[1],
            "seconds": seconds, "stage_seconds": {**inv.seconds, **ans.seconds}, "starts": args.starts,
            "images": len(group),

@@ -11,9 +11,10 @@ from lightcurve_gp.attitude.dynamics import propagate
 from lightcurve_gp.attitude.rotations import attitude_matrix, quat_mul
 from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.inference.answer import IMAGE_FAMILIES, answer, image_starts
+from lightcurve_gp.inference.answer import answer
 from lightcurve_gp.inference.forward import GroupRenderer
 from lightcurve_gp.inference.inversion import InversionSettings, polish
+from lightcurve_gp.inference.probe_starts import IMAGE_FAMILIES, image_starts
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import ambiguity_group, inertial_turns, near_image_turns
 from lightcurve_gp.photometry.render import Scene
@@ -108,8 +109,9 @@ def test_answer_runs_the_probe_on_its_leading_families(moving):
     problem = _problem(scene, t, inertia, y)
     group = ambiguity_group(scene, times_s=t, inertia=inertia, rate_known=False, probes=2)
     settings = InversionSettings(starts=128, attitudes=64, arcs_s=(30.0, 80.0, 0.0), keep=(32, 8))
-    plain = answer(problem, group, settings=settings, ridge=False, widen=False)
-    probed = answer(problem, group, settings=settings, ridge=False, widen=False, image_turns=near_image_turns(scene))
+    plain = answer(problem, group, settings=settings, ridge=False, local=False, widen=False)
+    probed = answer(problem, group, settings=settings, ridge=False, local=False, widen=False,
+                    image_turns=near_image_turns(scene))
     assert plain.image_rows == 0 and "image probe" not in plain.seconds
     assert probed.image_rows == 3 * min(IMAGE_FAMILIES, len(plain.families))
     assert probed.as_dict()["image_rows"] == probed.image_rows

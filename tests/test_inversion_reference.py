@@ -15,17 +15,17 @@ from lightcurve_gp.attitude.rotations import quat_mul, rotvec_to_quat
 from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.evaluation.inversion_reference import MISS_NATS, answer_kind, inversion_reference, truth_basin
-from lightcurve_gp.inference.answer import (
+from lightcurve_gp.inference.answer import answer
+from lightcurve_gp.inference.families import families, log_prior_volume, prior_precision
+from lightcurve_gp.inference.forward import GroupRenderer
+from lightcurve_gp.inference.inversion import InversionSettings, rate_starts
+from lightcurve_gp.inference.probe_starts import (
     RIDGE_FACTORS,
     RIDGE_TILTS_DEG,
-    answer,
     below_one_turn,
     ridge_starts,
     tilted_rates,
 )
-from lightcurve_gp.inference.families import families, log_prior_volume, prior_precision
-from lightcurve_gp.inference.forward import GroupRenderer
-from lightcurve_gp.inference.inversion import InversionSettings, rate_starts
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import ambiguity_group
 from lightcurve_gp.photometry.render import Scene

@@ -1,7 +1,8 @@
 """The global inversion's answer: the search, its families, the fit test, and what it does when the fit fails.
 
 :func:`answer` runs :func:`~.inversion.invert` and :func:`~.families.families` and judges the best fit by its χ²
-(:mod:`.fit_verdict`: ``χ² = 2 c`` against ``χ²_ν``, ``ν = N − 7``). Three rules make the answer honest:
+(:mod:`.fit_verdict`: ``χ² = 2 c`` against ``χ²_ν``, ``ν = N − 7``). These rules make the answer honest (the
+probes' starts: :mod:`.probe_starts`):
 
 1. **Widening.** A best fit whose p-value is below :data:`~.fit_verdict.P_NO_FIT` is never reported as found: the
    search runs once more, wider (:func:`widened_settings`): twice the starts, twice the Sobol' attitudes of the
@@ -40,6 +41,13 @@
    solutions (measured on the GEO pass, held-out seeds 1004 and 1014 at 0.05 mag: the search reported one family,
    the in-plane-perpendicular and plane-normal images of the truth, 33.5 and 2.4 nats above the truth's basin and
    `unique`; polished from its images, 8 iterations reach the truth's basin to 0.01 nats on both).
+5. **Local probe.** The continuation's last stage takes a few Levenberg–Marquardt iterations on the whole light
+   curve from a solution of a shorter arc, and can stop short of its basin's minimum or in a neighbouring basin a
+   few per cent away in rate or a few degrees in axis. Each of the :data:`~.probe_starts.LOCAL_FAMILIES` leading
+   families is polished again, :data:`~.probe_starts.LOCAL_ITERATIONS` iterations, from itself, from its rate times
+   :data:`~.probe_starts.LOCAL_FACTORS` and from its axis tilted by :data:`~.probe_starts.LOCAL_TILTS_DEG` (21 rows
+   per family), and the polished states join the solutions; ``probe_gain_nats`` says by how much each probe
+   lowered the best cost.
 """
 
 from __future__ import annotations
@@ -53,32 +61,29 @@ from typing import Callable
 import torch
 from torch import Tensor
 
-from lightcurve_gp.attitude.rotations import quat_conj, quat_mul, rotvec_to_quat
 from lightcurve_gp.inference.bridge import carry_across_gaps
 from lightcurve_gp.inference.families import RIGHT_ANGLE_DEG, RIGHT_RATE_REL, Families, families
 from lightcurve_gp.inference.fit_verdict import INVERSION_PARAMETERS, UNIQUE_WEIGHT, FitTest, fit_test, verdict
 from lightcurve_gp.inference.inversion import Inversion, InversionSettings, invert, polish, rate_starts
 from lightcurve_gp.inference.periodogram import RATE_FACTORS
+from lightcurve_gp.inference.probe_starts import (
+    IMAGE_FAMILIES,
+    LOCAL_ITERATIONS,
+    below_one_turn,
+    image_starts,
+    local_starts,
+    ridge_starts,
+)
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
 
-__all__ = ["MAX_LOG_RATIO", "WIDEN_FACTOR", "RIDGE_FACTORS", "RIDGE_FAMILIES", "RIDGE_TILTS_DEG", "RIDGE_AZIMUTHS",
-           "Answer", "searched", "sample_times", "below_one_turn", "widened_settings", "wider_rates", "merge",
-           "tilted_rates", "ridge_starts", "IMAGE_FAMILIES", "image_starts", "answer"]
+__all__ = ["MAX_LOG_RATIO", "WIDEN_FACTOR", "Answer", "searched", "sample_times", "widened_settings", "wider_rates",
+           "merge", "answer"]
 
 #: families within this many nats of the best are reported
 MAX_LOG_RATIO = 10.0
 #: the widened search's starts, screen attitudes, screen rates and continuation rows, each times this
 WIDEN_FACTOR = 2
-#: the ridge probe's rate factors
-RIDGE_FACTORS = (0.25, 0.5, 0.71, 1.41, 2.0)
-#: leading families the ridge probe restarts
-RIDGE_FAMILIES = 3
-#: the ridge probe's tilts of the rate's axis (deg), each towards this many directions about it
-RIDGE_TILTS_DEG = (30.0, 60.0)
-RIDGE_AZIMUTHS = 6
-#: leading families the image probe restarts at their images
-IMAGE_FAMILIES = 4
 
 
 @dataclass
@@ -86,15 +91,16 @@ class Answer:
     """What the inversion says of a light curve (module docstring).
 
     Attributes:
-        inversion: every converged solution (the widened search's and the ridge probe's joined in).
+        inversion: every converged solution (the widened search's and the probes' joined in).
         families: the families within the likelihood-ratio cut, best weight first.
         fit: the best fit's χ² test; verdict: ``"unique"``, ``"ambiguous"`` or ``"no_fit"``.
         widened: whether the first search's fit failed and the search was widened; first_fit: that search's test.
         ridge_rows: solutions the ridge probe added (0 when no leading family was below one turn over the arc).
-        image_rows: solutions the image probe added (0 without ``image_turns``).
+        image_rows: solutions the image probe added (0 without ``image_turns``); local_rows: the local probe's.
+        probe_gain_nats: by how much each probe that ran lowered the best cost (nats, ≥ 0), by name.
         ridge: the top family is below one turn over the arc (module docstring).
         rate_interval_deg_s: the smallest and largest ``|ω|`` of the families (°/s).
-        seconds: wall time of the first search, the widening and the ridge probe.
+        seconds: wall time of the first search, the widening and each probe.
     """
 
     inversion: Inversion
@@ -107,6 +113,8 @@ class Answer:
     ridge: bool
     rate_interval_deg_s: tuple[float, float]
     image_rows: int = 0
+    local_rows: int = 0
+    probe_gain_nats: dict = field(default_factory=dict)
     seconds: dict = field(default_factory=dict)
 
     def words(self) -> str:
@@ -138,19 +146,14 @@ class Answer:
     def as_dict(self) -> dict:
         return {"verdict": self.verdict, "fit": self.fit.as_dict(), "widened": self.widened,
                 "first_fit": self.first_fit.as_dict(), "ridge_rows": self.ridge_rows,
-                "image_rows": self.image_rows, "ridge": self.ridge,
+                "image_rows": self.image_rows, "local_rows": self.local_rows,
+                "probe_gain_nats": dict(self.probe_gain_nats), "ridge": self.ridge,
                 "rate_interval_deg_s": list(self.rate_interval_deg_s)}
 
 
 def sample_times(problem: TrajectoryProblem) -> Tensor:
     """The samples' times from the first ``(K,)`` (s) — the one place that reads how the problem stores them."""
     return problem.times - problem.times[0]
-
-
-def below_one_turn(rate_rad_s, *, span_s: float):
-    """Whether a rate (rad/s; a number or a tensor) turns less than once over ``span_s`` seconds: where the
-    periodogram has no resolution and the answer is a ridge (module docstring)."""
-    return rate_rad_s * span_s < 2.0 * math.pi
 
 
 def widened_settings(settings: InversionSettings) -> InversionSettings:
@@ -184,60 +187,6 @@ def merge(a: Inversion, b: Inversion) -> Inversion:
                      seconds=seconds)
 
 
-def tilted_rates(omega: Tensor, *, tilts_deg=RIDGE_TILTS_DEG, azimuths: int = RIDGE_AZIMUTHS) -> Tensor:
-    """Rates ``(n, 1 + len(tilts_deg) · azimuths, 3)`` of the magnitudes of ``omega (n, 3)`` (rad/s): the rate
-    itself first, then its axis tilted by each angle of ``tilts_deg`` towards ``azimuths`` directions spread about
-    it."""
-    size = torch.linalg.vector_norm(omega, dim=-1, keepdim=True)
-    n = omega / size
-    basis = torch.eye(3, dtype=omega.dtype, device=omega.device)[n.abs().argmin(-1)]  # the axis least along n
-    a = torch.linalg.cross(n, basis, dim=-1)
-    a = a / torch.linalg.vector_norm(a, dim=-1, keepdim=True)
-    b = torch.linalg.cross(n, a, dim=-1)
-    out = [omega]
-    for tilt in tilts_deg:
-        t = math.radians(tilt)
-        for k in range(azimuths):
-            phi = 2.0 * math.pi * k / azimuths
-            out.append(size * (math.cos(t) * n + math.sin(t) * (math.cos(phi) * a + math.sin(phi) * b)))
-    return torch.stack(out, 1)
-
-
-def ridge_starts(fam: Families, *, span_s: float, factors=RIDGE_FACTORS,
-                 leading: int = RIDGE_FAMILIES) -> tuple[Tensor, Tensor]:
-    """The ridge probe's starts (module docstring): initial attitudes ``(M, 4)`` and states ``(M, 7)`` (``θ = 0``)
-    for every leading family below one turn over ``span_s``, at its rate's axis and the tilted ones
-    (:func:`tilted_rates`) times 1 and every factor (the family itself left out); ``M = 0`` when there is none."""
-    rate = torch.linalg.vector_norm(fam.omega0[:leading], dim=-1)
-    slow = torch.nonzero(below_one_turn(rate, span_s=span_s)).squeeze(-1)
-    if slow.numel() == 0:
-        return fam.q0.new_zeros(0, 4), fam.q0.new_zeros(0, 7)
-    scale = torch.tensor((1.0, *factors), dtype=fam.q0.dtype, device=fam.q0.device)
-    axes = tilted_rates(fam.omega0[slow])  # (n, D, 3)
-    omega = (axes[:, :, None, :] * scale[:, None]).flatten(1, 2)[:, 1:]  # (n, D·S − 1, 3): not the family itself
-    per = omega.shape[1]
-    omega = omega.reshape(-1, 3)
-    q0 = fam.q0[slow].repeat_interleave(per, 0)
-    w0 = fam.omega0[slow].repeat_interleave(per, 0)
-    half = 0.5 * span_s
-    # q(t) ≈ exp(ω t) ⊗ q0 for a constant body rate: keep q(span/2) when the rate changes
-    kept = quat_mul(rotvec_to_quat(w0 * half), q0)
-    moved = quat_mul(quat_conj(rotvec_to_quat(omega * half)), kept)
-    log_rho = fam.log_rho[slow].repeat_interleave(per, 0)
-    return moved, torch.cat([torch.zeros_like(omega), omega, log_rho[:, None]], -1)
-
-
-def image_starts(turns: Tensor, *, q0: Tensor, omega0: Tensor, log_rho: Tensor) -> tuple[Tensor, Tensor]:
-    """The image probe's starts (module docstring): initial attitudes ``q_0 ⊗ q_C`` ``(F·C, 4)`` of the states
-    ``q0 (F, 4)``, ``omega0 (F, 3)`` (rad/s), ``log_rho (F,)`` under each turn of ``turns (C, 4)`` (quaternions),
-    and states ``(F·C, 7)`` (``θ = 0``, each state's rate and ln ρ), the turns of one state together."""
-    turns = turns.to(q0)
-    per = turns.shape[0]
-    starts = quat_mul(q0[:, None, :], turns[None]).reshape(-1, 4)
-    omega, log_rho = omega0.repeat_interleave(per, 0), log_rho.repeat_interleave(per, 0)
-    return starts, torch.cat([torch.zeros_like(omega), omega, log_rho[:, None]], -1)
-
-
 def _families(group: AmbiguityGroup, inv: Inversion, problem: TrajectoryProblem, *, rate_max_rad_s: float,
               max_log_ratio: float, settings: InversionSettings) -> Families:
     return families(group, q0=inv.q0, omega0=inv.omega0, log_rho=inv.log_rho, cost=inv.cost,
@@ -268,7 +217,8 @@ def searched(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: Inv
 
 def answer(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: InversionSettings = InversionSettings(),
            rate_max_rad_s: float | None = None, max_log_ratio: float = MAX_LOG_RATIO, widen: bool = True,
-           ridge: bool = True, rate_grid: Tensor | None = None, image_turns: Tensor | None = None,
+           ridge: bool = True, local: bool = True, rate_grid: Tensor | None = None,
+           image_turns: Tensor | None = None,
            progress: Callable[[str], None] | None = None) -> Answer:
     """Search ``problem`` from no initial guess and judge the answer (module docstring).
 
@@ -276,7 +226,7 @@ def answer(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: Inver
         problem, group, settings, rate_grid, progress: as :func:`~.inversion.invert`'s.
         rate_max_rad_s: the evidence's rate-ball radius (rad/s; default the settings' fastest rate).
         max_log_ratio: families within this many nats of the best are reported.
-        widen: widen the search once when the first fit fails; ridge: run the ridge probe.
+        widen: widen the search once when the first fit fails; ridge, local: run the ridge and the local probe.
         image_turns: inertial turns ``(C, 4)`` (quaternions) of the image probe, e.g.
             :func:`~lightcurve_gp.photometry.ambiguity.near_image_turns`; ``None`` or none: no probe.
     """
@@ -302,32 +252,36 @@ def answer(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: Inver
         inv = merge(inv, more)
         fam = _families(group, inv, problem, **judge)
         seconds["widening"], tick = time.perf_counter() - tick, time.perf_counter()
-    ridge_rows = 0
-    if ridge:
-        q0, x = ridge_starts(fam, span_s=span_s)
-        if x.shape[0]:
-            say(f"ridge probe: {x.shape[0]} restarts of the slow leading families at scaled rates")
-            probe = polish(problem, q0, x, iterations=settings.final_iterations)
-            inv = merge(inv, replace(probe, periodogram=inv.periodogram, seconds={}))
-            fam = _families(group, inv, problem, **judge)
-            ridge_rows = x.shape[0]
-            seconds["ridge probe"] = time.perf_counter() - tick
-    image_rows = 0
-    if image_turns is not None and image_turns.shape[0]:
-        n = min(IMAGE_FAMILIES, len(fam))
-        q0, x = image_starts(image_turns, q0=fam.q0[:n], omega0=fam.omega0[:n], log_rho=fam.log_rho[:n])
-        say(f"image probe: {x.shape[0]} restarts of the leading families at their first sample's inertial images")
-        tick = time.perf_counter()
-        probe = polish(problem, q0, x, iterations=settings.final_iterations)
+    rows, gains = {}, {}
+
+    def run(name: str, starts: tuple[Tensor, Tensor], iterations: int, what: str) -> None:
+        nonlocal inv, fam
+        q0, x = starts
+        if not x.shape[0]:
+            return
+        say(f"{name} probe: {x.shape[0]} restarts {what}")
+        tick, before = time.perf_counter(), float(inv.cost.min())
+        probe = polish(problem, q0, x, iterations=iterations)
         inv = merge(inv, replace(probe, periodogram=inv.periodogram, seconds={}))
         fam = _families(group, inv, problem, **judge)
-        image_rows = x.shape[0]
-        seconds["image probe"] = time.perf_counter() - tick
+        rows[name], gains[name] = x.shape[0], max(0.0, before - float(inv.cost.min()))
+        seconds[f"{name} probe"] = time.perf_counter() - tick
+
+    if ridge:
+        run("ridge", ridge_starts(fam, span_s=span_s), settings.final_iterations,
+            "of the slow leading families at scaled rates")
+    if local:
+        run("local", local_starts(fam, span_s=span_s), LOCAL_ITERATIONS,
+            "of the leading families at neighbouring rates and axes")
+    if image_turns is not None and image_turns.shape[0]:
+        n = min(IMAGE_FAMILIES, len(fam))
+        run("image", image_starts(image_turns, q0=fam.q0[:n], omega0=fam.omega0[:n], log_rho=fam.log_rho[:n]),
+            settings.final_iterations, "of the leading families at their first sample's inertial images")
     fit = _test(inv, problem)
     rates = torch.rad2deg(torch.linalg.vector_norm(fam.omega0, dim=-1))
     on_ridge = below_one_turn(math.radians(float(rates[0])), span_s=span_s)
     said = verdict(fit, float(fam.p_right[0]))
     return Answer(inversion=inv, families=fam, fit=fit, verdict="ambiguous" if said == "unique" and on_ridge else said,
-                  widened=widened, first_fit=first, ridge_rows=ridge_rows, ridge=on_ridge,
-                  rate_interval_deg_s=(float(rates.min()), float(rates.max())), image_rows=image_rows,
-                  seconds=seconds)
+                  widened=widened, first_fit=first, ridge_rows=rows.get("ridge", 0), ridge=on_ridge,
+                  rate_interval_deg_s=(float(rates.min()), float(rates.max())), image_rows=rows.get("image", 0),
+                  local_rows=rows.get("local", 0), probe_gain_nats=gains, seconds=seconds)
