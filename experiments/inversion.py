@@ -31,6 +31,8 @@ Resumable: one JSON per (config, σ, seed, starts) under ``<runs>/inversion/case
 from __future__ import annotations
 
 import argparse
+import csv
+import io
 import json
 import math
 import sys
@@ -249,6 +251,16 @@ def report(rows: list[dict], command: str, span_s: float = 600.0) -> str:
     return "\n".join(text) + "\n"
 
 
+def per_seed_csv(rows: list[dict]) -> str:
+    """The rows as CSV text, one column per key of the first row but the stage times (nested values quoted)."""
+    keys = [k for k in rows[0] if k != "stage_seconds"]
+    text = io.StringIO()
+    writer = csv.writer(text, lineterminator="\n")
+    writer.writerow(keys)
+    writer.writerows([r.get(k, "") for k in keys] for r in rows)
+    return text.getvalue()
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", default=str(ROOT / "configs" / "boxwing.yaml"))
@@ -298,9 +310,7 @@ def main(argv: list[str] | None = None) -> int:
     command = "python -m experiments.inversion " + " ".join(argv if argv is not None else sys.argv[1:])
     args.out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(report(rows, command, args.duration_s), args.out / "summary.md")
-    keys = [k for k in rows[0] if k != "stage_seconds"]
-    write_text_atomic(",".join(keys) + "\n" + "\n".join(",".join(str(r.get(k, "")) for k in keys) for r in rows) + "\n",
-                      args.out / "per_seed.csv")
+    write_text_atomic(per_seed_csv(rows), args.out / "per_seed.csv")
     print(report(rows, command, args.duration_s))
     return 0
 
