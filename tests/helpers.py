@@ -1,8 +1,12 @@
 """Helpers shared by the tests: a toy attitude observation model and a constant-rate truth to filter."""
 
+import math
+
 import torch
 
+from lightcurve_gp.attitude.dynamics import propagate
 from lightcurve_gp.attitude.rotations import attitude_matrix, euler321_to_quat, quat_conj, quat_mul, quat_to_rotvec
+from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.evaluation.harness import run_estimators
 from lightcurve_gp.evaluation.registry import DEFAULT_ESTIMATORS
 from lightcurve_gp.observation.base import ObservationModule
@@ -100,3 +104,14 @@ def estimate_scenario(cfg, model=None, *, seeds=None, rho_true=None, estimators=
     """The config's scenario simulated for ``seeds`` and the estimators run on it (the estimate command's core)."""
     return run_estimators(cfg, simulate_scenario(cfg, seeds=seeds, rho_true=rho_true), estimators=estimators,
                           model=model)
+
+
+def tumbler_light_curve(scene, inertia, *, seed: int, rate_deg_s: float, samples: int, sigma: float):
+    """A random tumbler's noisy light curve at 1 Hz: the initial attitude ``(4,)``, the body rate ``(3,)`` (rad/s,
+    ``rate_deg_s`` about a random axis) and the magnitudes ``(samples + 1,)`` (float64)."""
+    g = torch.Generator().manual_seed(seed)
+    axis = torch.randn(3, generator=g, dtype=torch.float64)
+    q0 = random_attitudes(1, seed=seed + 5, dtype=torch.float64)[0]
+    w0 = math.radians(rate_deg_s) * axis / torch.linalg.vector_norm(axis)
+    q, _ = propagate(q0, w0, inertia, 1.0, samples)
+    return q0, w0, scene.magnitude(q) + sigma * torch.randn(samples + 1, generator=g, dtype=torch.float64)

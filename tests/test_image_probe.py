@@ -7,7 +7,6 @@ from pathlib import Path
 import pytest
 import torch
 
-from lightcurve_gp.attitude.dynamics import propagate
 from lightcurve_gp.attitude.rotations import attitude_matrix, quat_mul
 from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.config.load import load_config
@@ -18,6 +17,8 @@ from lightcurve_gp.inference.probe_starts import IMAGE_FAMILIES, image_starts
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import ambiguity_group, inertial_turns, near_image_turns
 from lightcurve_gp.photometry.render import Scene
+
+from helpers import tumbler_light_curve
 
 ROOT = Path(__file__).resolve().parents[1]
 F64 = torch.float64
@@ -43,13 +44,7 @@ def moving():
 
 
 def _truth(scene, inertia, seed):
-    g = torch.Generator().manual_seed(seed)
-    axis = torch.randn(3, generator=g, dtype=F64)
-    q0 = random_attitudes(1, seed=seed + 5, dtype=F64)[0]
-    w0 = math.radians(1.5) * axis / torch.linalg.vector_norm(axis)
-    q, _ = propagate(q0, w0, inertia, 1.0, T)
-    y = scene.magnitude(q) + SIGMA * torch.randn(T + 1, generator=g, dtype=F64)
-    return q0, w0, y
+    return tumbler_light_curve(scene, inertia, seed=seed, rate_deg_s=1.5, samples=T, sigma=SIGMA)
 
 
 def _problem(scene, t, inertia, y):

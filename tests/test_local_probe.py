@@ -7,7 +7,6 @@ from pathlib import Path
 import pytest
 import torch
 
-from lightcurve_gp.attitude.dynamics import propagate
 from lightcurve_gp.attitude.rotations import quat_mul, rotvec_to_quat
 from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.config.load import load_config
@@ -25,6 +24,8 @@ from lightcurve_gp.inference.probe_starts import (
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import ambiguity_group
 from lightcurve_gp.photometry.render import Scene
+
+from helpers import tumbler_light_curve
 
 ROOT = Path(__file__).resolve().parents[1]
 F64 = torch.float64
@@ -44,12 +45,7 @@ def boxwing():
 
 
 def _case(scene, inertia, seed):
-    g = torch.Generator().manual_seed(seed)
-    axis = torch.randn(3, generator=g, dtype=F64)
-    q0 = random_attitudes(1, seed=seed + 5, dtype=F64)[0]
-    w0 = math.radians(2.0) * axis / torch.linalg.vector_norm(axis)
-    q, _ = propagate(q0, w0, inertia, 1.0, T)
-    y = scene.magnitude(q) + SIGMA * torch.randn(T + 1, generator=g, dtype=F64)
+    q0, w0, y = tumbler_light_curve(scene, inertia, seed=seed, rate_deg_s=2.0, samples=T, sigma=SIGMA)
     problem = TrajectoryProblem(GroupRenderer(scene), torch.arange(T + 1.0, dtype=F64), y,
                                 torch.full((T + 1,), SIGMA, dtype=F64), inertia, torch.zeros(0, 4, dtype=F64))
     return problem, q0, w0
