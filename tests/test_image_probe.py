@@ -107,8 +107,8 @@ def test_answer_runs_the_probe_on_its_leading_families(moving):
     plain = answer(problem, group, settings=settings, ridge=False, local=False, widen=False)
     probed = answer(problem, group, settings=settings, ridge=False, local=False, widen=False,
                     image_turns=near_image_turns(scene))
-    assert plain.image_rows == 0 and "image probe" not in plain.seconds
-    assert probed.image_rows == 3 * min(IMAGE_FAMILIES, len(plain.families))
-    assert probed.as_dict()["image_rows"] == probed.image_rows
+    assert "image" not in plain.probe_rows and "image probe" not in plain.seconds
+    assert probed.probe_rows["image"] == 3 * min(IMAGE_FAMILIES, len(plain.families))
+    assert probed.as_dict()["probe_rows"]["image"] == probed.probe_rows["image"]
     # the probe only adds solutions: the best fit found can only improve
     assert float(probed.inversion.cost.min()) <= float(plain.inversion.cost.min()) + 1e-9

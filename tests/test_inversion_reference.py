@@ -162,7 +162,7 @@ def test_a_slow_tumbler_is_reported_as_a_ridge_with_spread_weights():
     # 0.1 deg/s over 200 s: 20 deg of turn, the rate is not resolved
     problem, group, q0, w0 = _light_curve(200, 0.1, 1)
     ans = answer(problem, group, settings=SMALL)
-    assert ans.fit.fits and ans.ridge_rows > 0 and ans.ridge
+    assert ans.fit.fits and ans.probe_rows.get("ridge", 0) > 0 and ans.ridge
     assert ans.verdict == "ambiguous" and "the rate is not resolved over the arc" in ans.words()
     assert len(ans.families) >= 3 and float(ans.families.weight[0]) < 0.9
     lo, hi = ans.rate_interval_deg_s

@@ -95,8 +95,8 @@ class Answer:
         families: the families within the likelihood-ratio cut, best weight first.
         fit: the best fit's χ² test; verdict: ``"unique"``, ``"ambiguous"`` or ``"no_fit"``.
         widened: whether the first search's fit failed and the search was widened; first_fit: that search's test.
-        ridge_rows: solutions the ridge probe added (0 when no leading family was below one turn over the arc).
-        image_rows: solutions the image probe added (0 without ``image_turns``); local_rows: the local probe's.
+        probe_rows: the solutions each probe that ran added, by name (``"ridge"``: only when a leading family is
+            below one turn over the arc; ``"local"``; ``"image"``: only with ``image_turns``).
         probe_gain_nats: by how much each probe that ran lowered the best cost (nats, ≥ 0), by name.
         ridge: the top family is below one turn over the arc (module docstring).
         rate_interval_deg_s: the smallest and largest ``|ω|`` of the families (°/s).
@@ -109,11 +109,9 @@ class Answer:
     verdict: str
     widened: bool
     first_fit: FitTest
-    ridge_rows: int
     ridge: bool
     rate_interval_deg_s: tuple[float, float]
-    image_rows: int = 0
-    local_rows: int = 0
+    probe_rows: dict = field(default_factory=dict)
     probe_gain_nats: dict = field(default_factory=dict)
     seconds: dict = field(default_factory=dict)
 
@@ -145,8 +143,7 @@ class Answer:
 
     def as_dict(self) -> dict:
         return {"verdict": self.verdict, "fit": self.fit.as_dict(), "widened": self.widened,
-                "first_fit": self.first_fit.as_dict(), "ridge_rows": self.ridge_rows,
-                "image_rows": self.image_rows, "local_rows": self.local_rows,
+                "first_fit": self.first_fit.as_dict(), "probe_rows": dict(self.probe_rows),
                 "probe_gain_nats": dict(self.probe_gain_nats), "ridge": self.ridge,
                 "rate_interval_deg_s": list(self.rate_interval_deg_s)}
 
@@ -282,6 +279,6 @@ def answer(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: Inver
     on_ridge = below_one_turn(math.radians(float(rates[0])), span_s=span_s)
     said = verdict(fit, float(fam.p_right[0]))
     return Answer(inversion=inv, families=fam, fit=fit, verdict="ambiguous" if said == "unique" and on_ridge else said,
-                  widened=widened, first_fit=first, ridge_rows=rows.get("ridge", 0), ridge=on_ridge,
-                  rate_interval_deg_s=(float(rates.min()), float(rates.max())), image_rows=rows.get("image", 0),
-                  local_rows=rows.get("local", 0), probe_gain_nats=gains, seconds=seconds)
+                  widened=widened, first_fit=first, ridge=on_ridge,
+                  rate_interval_deg_s=(float(rates.min()), float(rates.max())), probe_rows=rows,
+                  probe_gain_nats=gains, seconds=seconds)
