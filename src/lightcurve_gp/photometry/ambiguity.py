@@ -38,6 +38,7 @@ from lightcurve_gp.attitude.rotations import attitude_matrix, matrix_to_quat, qu
 from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.attitude.torque_free import torque_free_motion
 from lightcurve_gp.photometry.render import Scene
+from lightcurve_gp.photometry.spin_images import half_turn
 from lightcurve_gp.photometry.symmetry import cube_rotations, symmetry_rotations
 
 __all__ = ["INERTIAL_TURNS", "GROUP_SOURCE", "AmbiguityGroup", "inertial_turns", "near_image_turns",
@@ -55,7 +56,8 @@ def inertial_turns(sun: Tensor, observer: Tensor) -> Tensor:
     """The identity and the 180° turns about the normal of the Sun–observer plane, the bisector and the in-plane
     perpendicular ``(4, 3, 3)`` (:data:`INERTIAL_TURNS`) for unit inertial directions ``sun``, ``observer (3,)``.
 
-    A 180° turn about the unit axis ``a`` is ``2 a aᵀ − I``. Sun and observer must not be (anti)parallel."""
+    A 180° turn about the unit axis ``a`` is ``2 a aᵀ − I`` (:func:`.spin_images.half_turn`). Sun and observer
+    must not be (anti)parallel."""
     h = sun + observer
     n = torch.linalg.cross(sun, observer, dim=-1)
     if not float(torch.linalg.vector_norm(h)) > 1e-12 or not float(torch.linalg.vector_norm(n)) > 1e-12:
@@ -63,8 +65,7 @@ def inertial_turns(sun: Tensor, observer: Tensor) -> Tensor:
     h, n = h / torch.linalg.vector_norm(h), n / torch.linalg.vector_norm(n)
     p = torch.linalg.cross(n, h, dim=-1)
     eye = torch.eye(3, dtype=sun.dtype, device=sun.device)
-    turns = [2.0 * torch.outer(a, a) - eye for a in (n, h, p)]
-    return torch.stack([eye, *turns])
+    return torch.stack([eye, *(half_turn(a) for a in (n, h, p))])
 
 
 def near_image_turns(scene: Scene) -> Tensor:

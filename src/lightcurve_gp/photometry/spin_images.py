@@ -71,13 +71,13 @@ def profiled_nats(*, mag: Tensor, reference: Tensor, curve: Tensor, sigma_mag: f
 def half_turn(axis: Tensor) -> Tensor:
     """The 180° rotation ``2 e eᵀ − I`` ``(3, 3)`` about the unit vector ``axis`` (normalised here)."""
     e = axis / torch.linalg.vector_norm(axis)
-    return 2.0 * torch.outer(e, e) - torch.eye(3, dtype=e.dtype)
+    return 2.0 * torch.outer(e, e) - torch.eye(3, dtype=e.dtype, device=e.device)
 
 
 def reflection(normal: Tensor) -> Tensor:
     """The reflection ``I − 2 n nᵀ`` ``(3, 3)`` through the plane of unit normal ``normal`` (normalised here)."""
     n = normal / torch.linalg.vector_norm(normal)
-    return torch.eye(3, dtype=n.dtype) - 2.0 * torch.outer(n, n)
+    return torch.eye(3, dtype=n.dtype, device=n.device) - 2.0 * torch.outer(n, n)
 
 
 def nearest_plane_normal(directions: Tensor, *, containing: Tensor | None = None) -> Tensor:
