@@ -14,7 +14,13 @@ from lightcurve_gp.attitude.metrics import total_angle_deg
 from lightcurve_gp.attitude.rotations import quat_mul, rotvec_to_quat
 from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.evaluation.inversion_reference import MISS_NATS, answer_kind, inversion_reference, truth_basin
+from lightcurve_gp.evaluation.inversion_reference import (
+    MISS_NATS,
+    answer_kind,
+    inversion_reference,
+    state_nees,
+    truth_basin,
+)
 from lightcurve_gp.inference.answer import answer
 from lightcurve_gp.inference.families import families, log_prior_volume, prior_precision
 from lightcurve_gp.inference.forward import GroupRenderer
@@ -172,3 +178,21 @@ def test_a_slow_tumbler_is_reported_as_a_ridge_with_spread_weights():
     ref = inversion_reference(problem, group, ans.families, best_cost=float(ans.inversion.cost.min()), q0=q0,
                               omega0=w0, rho=0.4)
     assert ref.kind == "data_limited" and ref.best_cost <= ref.basin_cost + MISS_NATS
+
+
+def test_state_nees_is_the_offset_over_its_variance_at_the_nearest_image():
+    scene = Scene.from_config(load_config(ROOT / "configs" / "boxwing.yaml"))
+    group = ambiguity_group(scene, times_s=torch.arange(31.0), inertia=[55.0, 40.0, 65.0], rate_known=False, probes=2)
+    q0 = random_attitudes(1, seed=5, dtype=F64)[0]
+    w0 = torch.tensor([0.01, -0.02, 0.03], dtype=F64)
+    theta = torch.tensor([0.02, -0.01, 0.005], dtype=F64)  # the truth is exp(theta) applied to the state
+    dw = torch.tensor([1e-4, 0.0, -2e-4], dtype=F64)
+    variances = torch.tensor([1e-4, 4e-4, 1e-4, 1e-8, 1e-8, 4e-8], dtype=F64)
+    cov = torch.diag(variances)[None]
+    # the state is given as an image of the truth's offset state: its nearest image is then that image
+    q_img, w_img = group.attitudes(q0), group.rates(w0)
+    k = len(group) - 1
+    q = quat_mul(rotvec_to_quat(-theta), q_img[k])
+    expected = float((torch.cat([theta, dw]).square() / variances).sum())
+    got = state_nees(group, q[None], (w_img[k] - dw)[None], cov, q0=q0, omega0=w0)
+    assert float(got[0]) == pytest.approx(expected, rel=1e-6)

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from lightcurve_gp.attitude.metrics import attitude_errors_deg
+from lightcurve_gp.attitude.metrics import attitude_error_vector, attitude_errors_deg, nees
 from lightcurve_gp.inference.families import RIGHT_ANGLE_DEG, RIGHT_RATE_REL, Families, image_distance
 from lightcurve_gp.inference.fit_verdict import FitTest, fit_test
 from lightcurve_gp.inference.inversion import polish
@@ -42,7 +42,7 @@ from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
 
 __all__ = ["KINDS", "MISS_NATS", "InversionReference", "truth_basin",
-           "state_errors", "answer_kind", "inversion_reference"]
+           "state_errors", "state_nees", "answer_kind", "inversion_reference"]
 
 #: the kinds of an answer (module docstring)
 KINDS = ("right", "ambiguous_reported", "search_miss", "data_limited")
@@ -60,6 +60,8 @@ class InversionReference:
         basin_right: whether the truth's basin itself is within the limits of ``right``.
         axis_error_deg: each family's largest Euler error to its nearest image of the truth ``(F,)`` (deg);
         rate_error_rel: its rate difference over the true rate ``(F,)``; right: both within the limits ``(F,)``.
+        nees: each family's NEES ``(F,)`` against the image of the truth nearest it (:func:`state_nees`; χ²₆ when
+            the family is the truth's and its covariance honest).
         truth_rank: the rank (1 = top) of the first family that is right, 0 when none is.
         basin_rank: the rank of the first family within the limits of ``right`` of the truth's basin, 0 when none is.
         kind: one of :data:`KINDS`.
@@ -72,6 +74,7 @@ class InversionReference:
     basin_right: bool
     axis_error_deg: Tensor
     rate_error_rel: Tensor
+    nees: Tensor
     right: Tensor
     truth_rank: int
     basin_rank: int
@@ -84,7 +87,7 @@ class InversionReference:
                 "best_minus_basin": self.best_cost - self.basin_cost, "basin_chi2_per_dof": self.basin_fit.chi2_per_dof,
                 "basin_right": self.basin_right,
                 "top1_max_axis_error_deg": float(self.axis_error_deg[0]),
-                "top1_rate_error_rel": float(self.rate_error_rel[0])}
+                "top1_rate_error_rel": float(self.rate_error_rel[0]), "top1_nees": float(self.nees[0])}
 
 
 def truth_basin(problem: TrajectoryProblem, group: AmbiguityGroup, *, q0: Tensor, omega0: Tensor, rho: float,
@@ -111,6 +114,20 @@ def state_errors(group: AmbiguityGroup, q: Tensor, omega: Tensor, *, q0: Tensor,
     return axes, rate_err / rate
 
 
+def state_nees(group: AmbiguityGroup, q: Tensor, omega: Tensor, covariance: Tensor, *, q0: Tensor,
+               omega0: Tensor) -> Tensor:
+    """The NEES ``eᵀ Σ⁻¹ e`` ``(M,)`` of states ``q (M, 4)``, ``omega (M, 3)`` (rad/s) with Laplace covariances
+    ``(M, 6+, 6+)`` of ``[θ, ω, …]`` (the block ``[:6, :6]``), against the image of the truth nearest each (as
+    :func:`state_errors` picks it): ``e = [θ, δω]`` with ``exp(θ) ⊗ q = q_image`` (rad) and ``δω = ω_image − ω``
+    (rad/s). A right state with an honest covariance gives χ²₆ (mean 6)."""
+    rate = math.degrees(float(torch.linalg.vector_norm(omega0)))
+    _, _, image = image_distance(group, q, omega, q0, omega0, angle_deg=RIGHT_ANGLE_DEG,
+                                 rate_deg_s=max(RIGHT_RATE_REL * rate, 1e-9))
+    q_img, w_img = group.attitudes(q0)[image], group.rates(omega0)[image]
+    error = torch.cat([attitude_error_vector(q_img, q), w_img - omega], -1)
+    return nees(error, covariance[:, :6, :6])
+
+
 def answer_kind(*, right: Tensor, best_cost: float, basin_cost: float, miss_nats: float = MISS_NATS) -> str:
     """The kind of an answer (module docstring) from which families are the truth's ``right (F,)`` (bool, top
     first), the best cost found and the truth's basin's."""
@@ -129,6 +146,7 @@ def inversion_reference(problem: TrajectoryProblem, group: AmbiguityGroup, fam: 
     ``q0 (4,)``, ``omega0 (3,)`` (rad/s), ``rho`` on ``problem`` (module docstring)."""
     raw, basin, basin_q, basin_w = truth_basin(problem, group, q0=q0, omega0=omega0, rho=rho)
     axes, rel = state_errors(group, fam.q0, fam.omega0, q0=q0, omega0=omega0)
+    family_nees = state_nees(group, fam.q0, fam.omega0, fam.covariance, q0=q0, omega0=omega0)
     right = (axes < RIGHT_ANGLE_DEG) & (rel < RIGHT_RATE_REL)
     basin_axes, basin_rel = state_errors(group, basin_q[None], basin_w[None], q0=q0, omega0=omega0)
     rank = int(torch.nonzero(right)[0, 0]) + 1 if bool(right.any()) else 0
@@ -139,6 +157,6 @@ def inversion_reference(problem: TrajectoryProblem, group: AmbiguityGroup, fam: 
     return InversionReference(truth_cost=raw, basin_cost=basin, best_cost=float(best_cost),
                               basin_fit=fit_test(basin, samples=samples),
                               basin_right=bool(basin_axes[0] < RIGHT_ANGLE_DEG) and bool(basin_rel[0] < RIGHT_RATE_REL),
-                              axis_error_deg=axes, rate_error_rel=rel,
+                              axis_error_deg=axes, rate_error_rel=rel, nees=family_nees,
                               right=right, truth_rank=rank, basin_rank=basin_rank,
                               kind=answer_kind(right=right, best_cost=float(best_cost), basin_cost=basin))
