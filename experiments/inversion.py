@@ -47,7 +47,7 @@ from experiments.common import seed_range, trained_model
 from lightcurve_gp.attitude.dynamics import propagate
 from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.evaluation.inversion_reference import KINDS, inversion_reference
+from lightcurve_gp.evaluation.inversion_reference import KINDS, inversion_reference, state_nees
 from lightcurve_gp.evaluation.reporting import markdown_table, quantiles
 from lightcurve_gp.files import write_json_atomic, write_text_atomic
 from lightcurve_gp.filters.bank import bank_attitudes, run_bank
@@ -55,7 +55,7 @@ from lightcurve_gp.inference.answer import MAX_LOG_RATIO, answer
 from lightcurve_gp.inference.families import image_distance
 from lightcurve_gp.inference.fit_verdict import VERDICTS
 from lightcurve_gp.inference.forward import GroupRenderer
-from lightcurve_gp.inference.inversion import InversionSettings
+from lightcurve_gp.inference.inversion import InversionSettings, polish
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.passes.geometry import pass_geometry
 from lightcurve_gp.photometry.ambiguity import ambiguity_group, near_image_turns
@@ -131,11 +131,30 @@ def run_seed(cfg, seed: int, sigma: float, args) -> dict:
            "images": len(group),
            "families_state": {"q0": fam.q0.tolist(), "omega0_deg_s": torch.rad2deg(fam.omega0).tolist(),
                               "log_rho": fam.log_rho.tolist(), "weight": fam.weight.tolist(),
-                              "p_right": fam.p_right.tolist()},
+                              "p_right": fam.p_right.tolist(), "log_likelihood": fam.log_likelihood.tolist(),
+                              "mass": fam.mass.tolist(), "nees": ref.nees.tolist()},
            "truth": {"q0": q0.tolist(), "omega0_deg_s": torch.rad2deg(w0).tolist(), "rho": rho}}
     if args.bank_size:
         row.update(bank_scores(args, seed, sigma, (q0, w0, rho), group))
     return row
+
+
+def cached_nees(cfg, row: dict) -> dict:
+    """The NEES of a kept row's families (rows made before it was kept): the seed's light curve made again, the
+    Laplace covariance taken at each family's state (a polish of no step) and
+    :func:`~lightcurve_gp.evaluation.inversion_reference.state_nees` against the truth; the keys
+    ``top1_nees`` and ``families_state["nees"]``."""
+    scene, times, y, (q0, w0, rho) = scenario(cfg, row["seed"], row["sigma"], row.get("rate_law", "log-uniform"))
+    inertia = torch.tensor(cfg.shape.inertia_kg_m2, dtype=torch.float64)
+    problem = TrajectoryProblem(GroupRenderer(scene), times, y, torch.full_like(y, row["sigma"]), inertia, q0[None])
+    group = ambiguity_group(scene, times_s=times, inertia=inertia, rate_known=False)
+    state = row["families_state"]
+    q = torch.tensor(state["q0"], dtype=torch.float64)
+    w = torch.deg2rad(torch.tensor(state["omega0_deg_s"], dtype=torch.float64))
+    x = torch.cat([torch.zeros_like(w), w, torch.tensor(state["log_rho"], dtype=torch.float64)[:, None]], -1)
+    fam = polish(problem, q, x, iterations=0)
+    values = state_nees(group, fam.q0, fam.omega0, fam.covariance, q0=q0, omega0=w0)
+    return {"top1_nees": float(values[0]), "families_state": {**state, "nees": values.tolist()}}
 
 
 def bank_scores(args, seed: int, sigma: float, truth, group) -> dict:
@@ -154,15 +173,18 @@ def bank_scores(args, seed: int, sigma: float, truth, group) -> dict:
 
 
 def calibration(rows: list[dict], key: str = "top1_p_right") -> str:
-    """Mean top-family probability (``key``: its p_right, or its basin weight) against the share right, per bin."""
+    """Mean top-family probability (``key``: its p_right, or its basin weight) against the share right, per bin,
+    with twice the standard deviation of that share were every seed right with its own probability
+    (``2 √(mean p(1 − p) / n)``): how far an honest probability's bin may stray by chance."""
     w = np.array([r[key] for r in rows])
     ok = np.array([r["top1"] for r in rows], dtype=float)
     parts = []
     for lo, hi in zip(CALIBRATION_BINS[:-1], CALIBRATION_BINS[1:]):
         inside = (w >= lo) & (w < hi)
         if inside.any():
-            parts.append(f"[{lo:g}, {min(hi, 1):g}]: w̄ {w[inside].mean():.2f} vs {ok[inside].mean():.2f} "
-                         f"(n {int(inside.sum())})")
+            mean, n = float(w[inside].mean()), int(inside.sum())
+            spread = 2.0 * math.sqrt(max(float((w[inside] * (1.0 - w[inside])).mean()), 0.0) / n)
+            parts.append(f"[{lo:g}, {min(hi, 1):g}]: w̄ {mean:.2f} vs {ok[inside].mean():.2f} (n {n}, ±{spread:.2f})")
     return "; ".join(parts)
 
 
@@ -206,6 +228,18 @@ def reported_within_ratio(rows: list[dict], ratio_nats: float = MAX_LOG_RATIO) -
     return f"{k}/{len(sel)} ({100 * k / max(len(sel), 1):.0f} %)"
 
 
+def nees_right(rows: list[dict]) -> str:
+    """The top family's NEES (6 degrees of freedom, :func:`~lightcurve_gp.evaluation.inversion_reference.state_nees`)
+    over the seeds where it is right: median [IQR] and the share above χ²₆'s 99th percentile (16.8); "—" for rows
+    made before it was kept."""
+    values = [r["top1_nees"] for r in rows if r["top1"] and "top1_nees" in r]
+    if not values:
+        return "—"
+    q = quantiles(values)
+    wide = sum(v > 16.81 for v in values)
+    return f"{q.median:.1f} [{q.q25:.1f}, {q.q75:.1f}], > 16.8: {wide}/{len(values)}"
+
+
 def misses(rows: list[dict]) -> str:
     """Search misses (best found worse than the truth's basin by more than the miss margin): ``k/n (share)``."""
     k = sum(r["kind"] == "search_miss" for r in rows)
@@ -219,7 +253,8 @@ def report(rows: list[dict], command: str, span_s: float = 600.0) -> str:
             "Kinds against the truth's basin (evaluation/inversion_reference.py): right, a right family reported "
             "but not first, search miss (best found worse than the truth's basin by > 1 nat), data-limited (another "
             "basin at least as good). Wrong & unique: the top family wrong and the verdict unique (p_right >= 0.9, "
-            "fit passed). p_right: the top family's basin weight times the Gaussian mass of the region of right "
+            "fit passed), beside the count honest probabilities expect (the sum of 1 - p_right over the unique "
+            "seeds). p_right: the top family's basin weight times the Gaussian mass of the region of right "
             "states about it (inference/families.py); calibration and Brier of p_right, and of the basin weight "
             "alone. The truth's basin family: a reported family within 10° and 2 % of the truth's basin (the "
             "polish from the truth), counted over the seeds whose basin is within the reporting ratio of the best.\n"]
@@ -234,17 +269,21 @@ def report(rows: list[dict], command: str, span_s: float = 600.0) -> str:
             secs = quantiles([r["seconds"] for r in sel])
             bank = pct("bank_top1") + " / " + pct("bank_top5") if "bank_top1" in sel[0] else "not run"
             arc = f"{100 * sum(arc_right(r, span_s) for r in sel) / n:.0f} %"
-            wrong_unique = sum(not r["top1"] and r["verdict"] == "unique" for r in sel)
+            unique = [r for r in sel if r["verdict"] == "unique"]
+            wrong_unique = (f"{sum(not r['top1'] for r in unique)} (expected "
+                            f"{sum(1.0 - r['top1_p_right'] for r in unique):.1f} of {len(unique)})")
             cells.append([sigma, n, pct("top1"), fast_right(sel), arc, pct("topk"), reported_within_ratio(sel),
                           misses(sel), kinds(sel), verdicts(sel), wrong_unique,
-                          f"{rate.median:.2g} [{rate.q25:.2g}, {rate.q75:.2g}]", calibration(sel),
+                          f"{rate.median:.2g} [{rate.q25:.2g}, {rate.q75:.2g}]", nees_right(sel), calibration(sel),
                           f"{brier(sel):.3f}", calibration(sel, "top1_weight"), f"{brier(sel, 'top1_weight'):.3f}",
                           f"{secs.median:.0f}", bank])
         text.append(f"\n## {name}, rates {law}\n\n" + markdown_table(
             ("σ (mag)", "seeds", "top-1 right (10°, rate 2 %)", "top-1 right at ≥ 1 °/s",
              "top-1 within 10° over the arc", "right family reported",
              "truth's basin family reported (basin within the ratio)",
-             "search misses", "kinds", "verdicts", "wrong & unique", "top-1 rate error %, median [IQR]",
+             "search misses", "kinds", "verdicts", "wrong & unique (expected: Σ 1 − p_right over the unique)",
+             "top-1 rate error %, median [IQR]",
+             "NEES of the right top family (6 dof: 6), median [IQR]",
              "calibration of p_right (bin: mean p_right vs share right)", "Brier (p_right)",
              "calibration of the basin weight", "Brier (weight)", "s per seed (median)",
              "bank top-1 / top-5 (true rate given)"), cells))
@@ -302,7 +341,11 @@ def main(argv: list[str] | None = None) -> int:
             grid += "_uniform" if args.rate_law == "uniform" else ""
             path = cases / f"{cfg.name}_s{sigma:g}_n{args.starts}{grid}_b{args.bank_size}_v{FORMAT}_{seed}.json"
             if path.exists():
-                rows.append(json.loads(path.read_text()))
+                row = json.loads(path.read_text())
+                if "top1_nees" not in row:
+                    row.update(cached_nees(cfg, row))
+                    write_json_atomic(row, path)
+                rows.append(row)
                 continue
             row = run_seed(cfg, seed, sigma, args)
             write_json_atomic(row, path)

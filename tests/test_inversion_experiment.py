@@ -1,0 +1,27 @@
+"""The inversion experiment's tables: the calibration bins' chance spread, the NEES of the right top families and
+the per-seed CSV, on hand-made rows."""
+
+import csv
+import io
+import math
+
+from experiments.inversion import calibration, nees_right, per_seed_csv
+
+
+def test_calibration_states_the_spread_an_honest_probability_allows():
+    rows = [{"top1_p_right": 0.9, "top1": k < 8} for k in range(10)]
+    text = calibration(rows)
+    spread = 2.0 * math.sqrt(0.9 * 0.1 / 10)
+    assert text == f"[0.8, 0.95]: w̄ 0.90 vs 0.80 (n 10, ±{spread:.2f})"
+
+
+def test_nees_of_the_right_top_families_only():
+    rows = [{"top1": True, "top1_nees": v} for v in (2.0, 4.0, 6.0, 20.0)] + [{"top1": False, "top1_nees": 99.0}]
+    assert nees_right(rows) == "5.0 [3.5, 9.5], > 16.8: 1/4"
+    assert nees_right([{"top1": True}]) == "—"
+
+
+def test_per_seed_csv_keeps_nested_values_in_one_column():
+    rows = [{"seed": 1, "probe_rows": {"local": 21, "image": 0}, "stage_seconds": {"search": 1.0}}]
+    table = list(csv.reader(io.StringIO(per_seed_csv(rows))))
+    assert table == [["seed", "probe_rows"], ["1", "{'local': 21, 'image': 0}"]]
