@@ -157,6 +157,14 @@ def cached_nees(cfg, row: dict) -> dict:
     return {"top1_nees": float(values[0]), "families_state": {**state, "nees": values.tolist()}}
 
 
+def without_p_right(row: dict) -> dict:
+    """A kept ``no_fit`` row made before the answer stated no ``p_right`` under that verdict
+    (:mod:`lightcurve_gp.inference.answer`, rule 1), with the answer's rule applied: every ``p_right`` 0."""
+    state = row["families_state"]
+    return {**row, "top1_p_right": 0.0, "p_right_sum": 0.0,
+            "families_state": {**state, "p_right": [0.0] * len(state["p_right"])}}
+
+
 def bank_scores(args, seed: int, sigma: float, truth, group) -> dict:
     """Today's global start on the seed's light curve with the true rate (module docstring)."""
     q0, w0, rho = truth
@@ -344,6 +352,9 @@ def main(argv: list[str] | None = None) -> int:
                 row = json.loads(path.read_text())
                 if "top1_nees" not in row:
                     row.update(cached_nees(cfg, row))
+                    write_json_atomic(row, path)
+                if row["verdict"] == "no_fit" and row["p_right_sum"] > 0.0:
+                    row = without_p_right(row)
                     write_json_atomic(row, path)
                 rows.append(row)
                 continue

@@ -5,7 +5,7 @@ import csv
 import io
 import math
 
-from experiments.inversion import calibration, nees_right, per_seed_csv
+from experiments.inversion import calibration, nees_right, per_seed_csv, without_p_right
 
 
 def test_calibration_states_the_spread_an_honest_probability_allows():
@@ -25,3 +25,12 @@ def test_per_seed_csv_keeps_nested_values_in_one_column():
     rows = [{"seed": 1, "probe_rows": {"local": 21, "image": 0}, "stage_seconds": {"search": 1.0}}]
     table = list(csv.reader(io.StringIO(per_seed_csv(rows))))
     assert table == [["seed", "probe_rows"], ["1", "{'local': 21, 'image': 0}"]]
+
+
+def test_a_kept_no_fit_row_gets_the_answers_rule():
+    row = {"verdict": "no_fit", "top1_p_right": 0.98, "p_right_sum": 0.99, "seed": 7,
+           "families_state": {"p_right": [0.98, 0.01], "weight": [0.99, 0.01]}}
+    new = without_p_right(row)
+    assert new["top1_p_right"] == 0.0 and new["p_right_sum"] == 0.0
+    assert new["families_state"] == {"p_right": [0.0, 0.0], "weight": [0.99, 0.01]} and new["seed"] == 7
+    assert row["top1_p_right"] == 0.98  # the kept row itself is not changed in place

@@ -87,6 +87,8 @@ def test_the_box_wing_inversion_of_a_cylinders_light_curve_says_no_fit(setup):
     assert ans.widened and not ans.first_fit.fits
     assert ans.verdict == "no_fit" and ans.fit.chi2_per_dof > 5.0
     assert ans.words().startswith("no solution fits this light curve after a widened search")
+    # a rejected model states no probability of being right; the weights still compare the basins
+    assert bool((ans.families.p_right == 0).all()) and float(ans.families.weight.sum()) == pytest.approx(1.0)
     # the widened search's rows joined the first's: twice the continuation's last keep at most, more than the first
     assert ans.inversion.q0.shape[0] > SMALL.keep[-1]
 
@@ -145,4 +147,5 @@ def test_invert_says_no_fit_on_a_cylinders_light_curve(setup, tmp_path, capsys):
     assert summary["fit"]["dof"] == T + 1 - 7 and summary["fit"]["p_value"] < P_NO_FIT
     table = read_solutions(run / "solutions.ecsv")
     assert table.meta["verdict"] == "no_fit"
+    assert np.all(np.asarray(table["p_right"]) == 0.0) and summary["top_p_right"] == 0.0
     assert np.isclose(table.meta["chi2_per_dof"], summary["fit"]["chi2_per_dof"])
