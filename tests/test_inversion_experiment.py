@@ -5,7 +5,14 @@ import csv
 import io
 import math
 
-from experiments.inversion import calibration, nees_right, per_seed_csv, without_p_right
+from experiments.inversion import (
+    calibration,
+    nees_right,
+    on_reported_ridge,
+    per_seed_csv,
+    reported_within_ratio,
+    without_p_right,
+)
 
 
 def test_calibration_states_the_spread_an_honest_probability_allows():
@@ -34,3 +41,14 @@ def test_a_kept_no_fit_row_gets_the_answers_rule():
     assert new["top1_p_right"] == 0.0 and new["p_right_sum"] == 0.0
     assert new["families_state"] == {"p_right": [0.0, 0.0], "weight": [0.99, 0.01]} and new["seed"] == 7
     assert row["top1_p_right"] == 0.98  # the kept row itself is not changed in place
+
+
+def test_the_truths_family_reported_counts_a_slow_tumblers_reported_ridge():
+    base = {"basin_cost": 100.0, "best_cost": 99.0, "rate_lo_deg_s": 0.1, "rate_hi_deg_s": 0.3}
+    rows = [{**base, "basin_rank": 1, "rate_deg_s": 2.0},
+            {**base, "basin_rank": 0, "rate_deg_s": 0.2},    # slow, its rate inside the interval: on the ridge
+            {**base, "basin_rank": 0, "rate_deg_s": 0.5},    # slow, outside the interval
+            {**base, "basin_rank": 0, "rate_deg_s": 0.2, "basin_cost": 120.0}]  # basin beyond the ratio: not counted
+    assert on_reported_ridge(rows[1]) and not on_reported_ridge(rows[2])
+    assert not on_reported_ridge({**rows[1], "rate_deg_s": 0.7, "rate_hi_deg_s": 1.0})  # more than one turn
+    assert reported_within_ratio(rows) == "1/3 (33 %; with the ridges 67 %)"
