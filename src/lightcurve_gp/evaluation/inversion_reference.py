@@ -42,7 +42,7 @@ from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
 
 __all__ = ["KINDS", "MISS_NATS", "InversionReference", "truth_basin",
-           "state_errors", "state_nees", "answer_kind", "inversion_reference"]
+           "nearest_images", "state_errors", "state_nees", "answer_kind", "inversion_reference"]
 
 #: the kinds of an answer (module docstring)
 KINDS = ("right", "ambiguous_reported", "search_miss", "data_limited")
@@ -102,28 +102,33 @@ def truth_basin(problem: TrajectoryProblem, group: AmbiguityGroup, *, q0: Tensor
     return float(raw), float(basin.cost[k]), basin.q0[k], basin.omega0[k]
 
 
-def state_errors(group: AmbiguityGroup, q: Tensor, omega: Tensor, *, q0: Tensor,
-                 omega0: Tensor) -> tuple[Tensor, Tensor]:
-    """The largest Euler error (deg) of states ``q (M, 4)``, ``omega (M, 3)`` (rad/s) to the image of the truth
-    nearest each and that image's rate difference over the true rate ``(M,)`` each; the image is the one of least
-    ``angle / RIGHT_ANGLE_DEG + |Δω| / (RIGHT_RATE_REL |ω|)``."""
+def nearest_images(group: AmbiguityGroup, q: Tensor, omega: Tensor, *, q0: Tensor,
+                   omega0: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """The image of the truth ``q0 (4,)``, ``omega0 (3,)`` (rad/s) nearest each state ``q (M, 4)``, ``omega (M, 3)``:
+    the one of least ``angle / RIGHT_ANGLE_DEG + |Δω| / (RIGHT_RATE_REL |ω|)``; its attitudes ``(M, 4)``, rates
+    ``(M, 3)`` (rad/s) and rate differences ``|Δω|`` ``(M,)`` (°/s)."""
     rate = math.degrees(float(torch.linalg.vector_norm(omega0)))
     _, rate_err, image = image_distance(group, q, omega, q0, omega0, angle_deg=RIGHT_ANGLE_DEG,
                                         rate_deg_s=max(RIGHT_RATE_REL * rate, 1e-9))
-    axes = attitude_errors_deg(group.attitudes(q0)[image], q).abs().amax(-1)
-    return axes, rate_err / rate
+    return group.attitudes(q0)[image], group.rates(omega0)[image], rate_err
+
+
+def state_errors(group: AmbiguityGroup, q: Tensor, omega: Tensor, *, q0: Tensor,
+                 omega0: Tensor) -> tuple[Tensor, Tensor]:
+    """The largest Euler error (deg) of states ``q (M, 4)``, ``omega (M, 3)`` (rad/s) to the image of the truth
+    nearest each (:func:`nearest_images`) and that image's rate difference over the true rate ``(M,)`` each."""
+    q_img, _, rate_err = nearest_images(group, q, omega, q0=q0, omega0=omega0)
+    rate = math.degrees(float(torch.linalg.vector_norm(omega0)))
+    return attitude_errors_deg(q_img, q).abs().amax(-1), rate_err / rate
 
 
 def state_nees(group: AmbiguityGroup, q: Tensor, omega: Tensor, covariance: Tensor, *, q0: Tensor,
                omega0: Tensor) -> Tensor:
     """The NEES ``eᵀ Σ⁻¹ e`` ``(M,)`` of states ``q (M, 4)``, ``omega (M, 3)`` (rad/s) with Laplace covariances
-    ``(M, 6+, 6+)`` of ``[θ, ω, …]`` (the block ``[:6, :6]``), against the image of the truth nearest each (as
-    :func:`state_errors` picks it): ``e = [θ, δω]`` with ``exp(θ) ⊗ q = q_image`` (rad) and ``δω = ω_image − ω``
+    ``(M, 6+, 6+)`` of ``[θ, ω, …]`` (the block ``[:6, :6]``), against the image of the truth nearest each
+    (:func:`nearest_images`): ``e = [θ, δω]`` with ``exp(θ) ⊗ q = q_image`` (rad) and ``δω = ω_image − ω``
     (rad/s). A right state with an honest covariance gives χ²₆ (mean 6)."""
-    rate = math.degrees(float(torch.linalg.vector_norm(omega0)))
-    _, _, image = image_distance(group, q, omega, q0, omega0, angle_deg=RIGHT_ANGLE_DEG,
-                                 rate_deg_s=max(RIGHT_RATE_REL * rate, 1e-9))
-    q_img, w_img = group.attitudes(q0)[image], group.rates(omega0)[image]
+    q_img, w_img, _ = nearest_images(group, q, omega, q0=q0, omega0=omega0)
     error = torch.cat([attitude_error_vector(q_img, q), w_img - omega], -1)
     return nees(error, covariance[:, :6, :6])
 
