@@ -71,6 +71,7 @@ CALIBRATION_BINS = (0.0, 0.5, 0.8, 0.95, 0.99, 1.0001)
 
 
 RATE_LAWS = ("log-uniform", "uniform")
+KEEP_4000 = (1000, 300, 100, 50)  # the rows kept per stage in the cases' names before keep became a share of starts
 
 
 def seed_truth(seed: int, rate_law: str = "log-uniform") -> tuple[torch.Tensor, torch.Tensor, float]:
@@ -120,7 +121,7 @@ def run_seed(cfg, seed: int, sigma: float, args) -> dict:
     scene, problem, group, (q0, w0, rho) = seed_problem(cfg, seed, sigma, args.rate_law)
     start = time.perf_counter()
     settings = InversionSettings(starts=args.starts, attitudes=args.attitudes,
-                                 keep=tuple(args.keep) if args.keep else InversionSettings.keep,
+                                 keep=tuple(args.keep) if args.keep else None,
                                  early_arcs=args.early_arcs, cohort_quotas=not args.shared_pruning)
     ans = answer(problem, group, settings=settings, rate_max_rad_s=math.radians(5.0), widen=not args.no_widen,
                  image_turns=near_image_turns(scene))
@@ -336,8 +337,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--attitudes", type=int, default=InversionSettings.attitudes,
                         help="Sobol' attitudes of the screening grid (the rest of the grid goes to rates)")
     parser.add_argument("--keep", type=int, nargs="+", default=None,
-                        help="rows carried into each continuation stage after the first (default "
-                             f"{' '.join(map(str, InversionSettings.keep))})")
+                        help="rows carried into each continuation stage after the first (default: the shares "
+                             f"{' '.join(map(str, InversionSettings.keep_share))} of --starts)")
     parser.add_argument("--early-arcs", type=int, default=InversionSettings.early_arcs,
                         help="arcs before its entry arc that each rate is also screened on (0: the entry arc alone)")
     parser.add_argument("--shared-pruning", action="store_true",
@@ -360,8 +361,9 @@ def main(argv: list[str] | None = None) -> int:
     for sigma in args.sigma:
         for seed in tqdm(args.seeds, desc=f"{cfg.name} σ {sigma:g}"):
             grid = "" if args.attitudes == InversionSettings.attitudes else f"_a{args.attitudes}"
-            if args.keep and tuple(args.keep) != InversionSettings.keep:
-                grid += "_k" + "-".join(map(str, args.keep))
+            keep = InversionSettings(starts=args.starts, keep=tuple(args.keep) if args.keep else None).stage_keep()
+            if keep != KEEP_4000:  # rows of the counts every earlier case used keep their names
+                grid += "_k" + "-".join(map(str, keep))
             grid += "_nowiden" if args.no_widen else ""
             grid += f"_e{args.early_arcs}" if args.early_arcs != InversionSettings.early_arcs else ""
             grid += "_shared" if args.shared_pruning else ""

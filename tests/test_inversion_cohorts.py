@@ -64,3 +64,15 @@ def test_the_defaults_screen_each_rate_early_once_and_prune_by_cohort():
     assert InversionSettings().early_arcs == 1 and InversionSettings().cohort_quotas
     with pytest.raises(ValueError, match=r"^early_arcs: -1 must be >= 0$"):
         InversionSettings(early_arcs=-1)
+
+
+def test_rows_kept_are_a_share_of_the_starts():
+    # the counts every 4000-start table used, and the same shares of the default 10^4
+    assert InversionSettings(starts=4000).stage_keep() == (1000, 300, 100, 50)
+    assert InversionSettings().stage_keep() == (2500, 750, 250, 125)
+    assert InversionSettings(starts=10, keep_share=(0.01, 0.5, 0.25, 0.1)).stage_keep() == (1, 5, 2, 1)
+    assert InversionSettings(keep=(7, 6, 5, 4)).stage_keep() == (7, 6, 5, 4)  # counts replace the shares
+    with pytest.raises(ValueError, match=r"^keep: 2 values for 5 stages; need one per stage after the first$"):
+        InversionSettings(keep=(7, 6))
+    with pytest.raises(ValueError, match=r"^keep: \(7, 0, 5, 4\) must be >= 1 row per stage$"):
+        InversionSettings(keep=(7, 0, 5, 4))

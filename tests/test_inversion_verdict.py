@@ -123,7 +123,10 @@ def test_widening_runs_after_a_failed_first_search_and_not_after_a_good_one(setu
 
 def test_widened_settings():
     wide = widened_settings(InversionSettings())
-    assert (wide.starts, wide.attitudes, wide.keep, wide.seed) == (20_000, 512, (2000, 600, 200, 100), 1)
+    assert (wide.starts, wide.attitudes, wide.keep, wide.seed) == (20_000, 512, None, 1)
+    assert wide.stage_keep() == (5000, 1500, 500, 250)  # the same shares of twice the starts
+    counted = widened_settings(InversionSettings(keep=(1000, 300, 100, 50)))
+    assert counted.stage_keep() == (2000, 600, 200, 100)  # counts given are doubled
     # the screen grid is starts x screen_factor points: four times the first
     assert wide.starts * wide.screen_factor == 4 * InversionSettings().starts * InversionSettings().screen_factor
     assert wide.shell_ratio == pytest.approx(math.sqrt(1.5))

@@ -161,7 +161,8 @@ def widened_settings(settings: InversionSettings) -> InversionSettings:
     the screen's rates ×:data:`WIDEN_FACTOR` (the screen grid ×``WIDEN_FACTOR²``), a new Sobol' scramble."""
     k = WIDEN_FACTOR
     return replace(settings, starts=k * settings.starts, attitudes=k * settings.attitudes,
-                   screen_factor=k * settings.screen_factor, keep=tuple(k * n for n in settings.keep),
+                   screen_factor=k * settings.screen_factor,
+                   keep=None if settings.keep is None else tuple(k * n for n in settings.keep),
                    shell_ratio=math.sqrt(settings.shell_ratio), seed=settings.seed + 1)
 
 
