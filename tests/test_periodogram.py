@@ -68,6 +68,7 @@ def test_a_curve_of_pure_noise_has_no_detection_and_proposes_no_rate_outside_the
     assert periodogram(t, y, rate_range_deg_s=(0.05, 5.0)).detection
 
 
+@pytest.mark.slow  # ~6 s of white-noise periodograms; keeps the fast lane under its 2 minutes
 def test_the_detection_threshold_holds_its_false_alarm_rate_on_white_noise():
     """Independent check by simulation (astropy's periodogram on the module's grid, 1 Hz samples to 0.5 Hz): the
     strongest peak of white noise exceeds the threshold no more often than its false-alarm probability (Bonferroni is

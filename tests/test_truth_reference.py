@@ -66,6 +66,7 @@ def test_statistic_is_the_laplace_nees_where_the_cost_is_quadratic(solved):
     assert ref.count("same") == 3
 
 
+@pytest.mark.slow  # ~4 s; keeps the fast lane under its 2 minutes
 def test_a_search_miss_is_told_from_the_truths_basin():
     """Tuning seed 1064 of the random truths at σ = 0.01 mag: without the weak-direction probe the search ends in a
     basin 19 nats above the truth's (a miss, statistic above 30); with it, in the truth's basin."""

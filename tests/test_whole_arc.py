@@ -232,6 +232,7 @@ def test_misfit_test_searches_again_with_unequal_lobes():
     assert first.searched_again is None and bool(again.searched_again.all())
 
 
+@pytest.mark.slow  # ~5 s; keeps the fast lane under its 2 minutes
 def test_second_search_screens_prior_attitudes_with_every_lobe_setting():
     """A tuning seed of the random truths (1276: n_u = 469, n_v = 23, the truth 2.5 σ0 from the prior mean) at
     σ = 0.01 mag, surface unknown, with the filter's start (68° off): the first search and the unequal lobes from its
