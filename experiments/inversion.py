@@ -71,7 +71,8 @@ CALIBRATION_BINS = (0.0, 0.5, 0.8, 0.95, 0.99, 1.0001)
 
 
 RATE_LAWS = ("log-uniform", "uniform")
-KEEP_4000 = (1000, 300, 100, 50)  # the rows kept per stage in the cases' names before keep became a share of starts
+#: the rows kept per stage at 4000 starts: the counts of every case named without ``_k`` (from before the shares)
+KEEP_4000 = InversionSettings(starts=4000).stage_keep()
 
 
 def seed_truth(seed: int, rate_law: str = "log-uniform") -> tuple[torch.Tensor, torch.Tensor, float]:

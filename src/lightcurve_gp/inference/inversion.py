@@ -64,9 +64,8 @@ class InversionSettings:
         shell_ratio: ratio of neighbouring rate shells of the log grid.
         arcs_s: arc length of each stage (s); 0 means the whole light curve.
         keep_share: rows entering each stage after the first, as a share of ``starts`` (one per stage after the
-            first; :meth:`stage_keep`). The shares are those of 1000, 300, 100 and 50 rows of 4000 starts: with
-            the counts fixed, 10⁴ starts kept a smaller share of rows screened on the short first arcs, where a
-            wrong state fits as well as the truth, and missed more at 0.71 mag than 4000 starts did.
+            first; :meth:`stage_keep`): 1000, 300, 100 and 50 rows of 4000 starts, so that more starts keep more
+            of the rows screened on the short first arcs, where a wrong state fits as well as the truth.
         keep: rows entering each stage after the first as counts, which replace ``keep_share`` (``None``: the
             shares).
         iterations: Levenberg–Marquardt iterations per stage; final_iterations: on the whole light curve (few rows).
