@@ -52,12 +52,13 @@ from lightcurve_gp.evaluation.inversion_reference import KINDS, inversion_refere
 from lightcurve_gp.evaluation.reporting import markdown_table, quantiles
 from lightcurve_gp.files import write_json_atomic, write_text_atomic
 from lightcurve_gp.filters.bank import bank_attitudes, run_bank
-from lightcurve_gp.inference.answer import MAX_LOG_RATIO, answer
+from lightcurve_gp.inference.answer import MAX_LOG_RATIO, PROFILE_JOIN_NATS, answer
 from lightcurve_gp.inference.families import RIGHT_RATE_REL, image_distance
-from lightcurve_gp.inference.fit_verdict import VERDICTS
+from lightcurve_gp.inference.fit_verdict import UNIQUE_WEIGHT, VERDICTS
 from lightcurve_gp.inference.forward import GroupRenderer
 from lightcurve_gp.inference.inversion import InversionSettings, polish
 from lightcurve_gp.inference.probe_starts import below_one_turn
+from lightcurve_gp.inference.rate_profile import rate_profile, ridge_rule
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.passes.geometry import pass_geometry
 from lightcurve_gp.photometry.ambiguity import ambiguity_group, near_image_turns
@@ -138,6 +139,7 @@ def run_seed(cfg, seed: int, sigma: float, args) -> dict:
            "widened": ans.widened, "first_chi2_per_dof": ans.first_fit.chi2_per_dof,
            "probe_rows": ans.probe_rows, "probe_gain_nats": ans.probe_gain_nats,
            "rate_lo_deg_s": ans.rate_interval_deg_s[0], "rate_hi_deg_s": ans.rate_interval_deg_s[1],
+           "ridge": ans.ridge, "rate_profile": None if ans.profile is None else ans.profile.as_dict(),
            "seconds": seconds, "stage_seconds": {**inv.seconds, **ans.seconds}, "starts": args.starts,
            "images": len(group),
            "families_state": {"q0": fam.q0.tolist(), "omega0_deg_s": torch.rad2deg(fam.omega0).tolist(),
@@ -163,6 +165,35 @@ def cached_nees(cfg, row: dict) -> dict:
     fam = polish(problem, q, x, iterations=0)
     values = state_nees(group, fam.q0, fam.omega0, fam.covariance, q0=q0, omega0=w0)
     return {"top1_nees": float(values[0]), "families_state": {**state, "nees": values.tolist()}}
+
+
+def profiled(cfg, row: dict, args) -> dict:
+    """A kept row made before the answer profiled a slow top family's rate
+    (:mod:`lightcurve_gp.inference.rate_profile`), with the answer's rule applied: above one turn over the arc
+    nothing changes; below it the top family's profile from its kept state caps its ``p_right``
+    (:func:`~lightcurve_gp.inference.rate_profile.ridge_rule`), sets the ridge and the verdict and widens the rate
+    interval, unless a profile point fits better than the family by more than
+    :data:`~lightcurve_gp.inference.answer.PROFILE_JOIN_NATS`: the answer would then have joined it to the
+    solutions, so the seed is run again."""
+    state = row["families_state"]
+    w = torch.deg2rad(torch.tensor(state["omega0_deg_s"][0], dtype=torch.float64))
+    if not below_one_turn(float(w.norm()), span_s=args.duration_s):
+        return {**row, "ridge": False, "rate_profile": None}
+    _, problem, _, _ = seed_problem(cfg, row["seed"], row["sigma"], row.get("rate_law", "log-uniform"))
+    profile = rate_profile(problem, q0=torch.tensor(state["q0"][0], dtype=torch.float64), omega0=w,
+                           log_rho=torch.tensor(state["log_rho"][0], dtype=torch.float64),
+                           span_s=float(problem.times[-1] - problem.times[0]),
+                           rate_range_deg_s=InversionSettings.rate_range_deg_s)
+    if profile.gain_nats > PROFILE_JOIN_NATS:
+        return run_seed(cfg, row["seed"], row["sigma"], args)
+    p_right, ridge = ridge_rule(profile, weight=state["weight"][0], p_right=state["p_right"][0])
+    verdict = row["verdict"] if row["verdict"] == "no_fit" else \
+        "unique" if p_right >= UNIQUE_WEIGHT and not ridge else "ambiguous"
+    p_rights = [p_right, *state["p_right"][1:]]
+    lo, hi = profile.interval_deg_s
+    return {**row, "top1_p_right": p_right, "p_right_sum": float(sum(p_rights)), "verdict": verdict, "ridge": ridge,
+            "rate_profile": profile.as_dict(), "rate_lo_deg_s": min(row["rate_lo_deg_s"], lo),
+            "rate_hi_deg_s": max(row["rate_hi_deg_s"], hi), "families_state": {**state, "p_right": p_rights}}
 
 
 def without_p_right(row: dict) -> dict:
@@ -226,7 +257,7 @@ def kinds(rows: list[dict]) -> str:
 def verdicts(rows: list[dict]) -> str:
     """How many seeds got each verdict, and how many were widened."""
     counts = ", ".join(f"{v.replace('_', ' ')} {sum(r['verdict'] == v for r in rows)}" for v in VERDICTS)
-    return f"{counts}; widened {sum(r['widened'] for r in rows)}"
+    return f"{counts}; widened {sum(r['widened'] for r in rows)}; ridge {sum(bool(r.get('ridge')) for r in rows)}"
 
 
 def fast_right(rows: list[dict], fast_deg_s: float = 1.0) -> str:
@@ -377,6 +408,9 @@ def main(argv: list[str] | None = None) -> int:
                     write_json_atomic(row, path)
                 if row["verdict"] == "no_fit" and row["p_right_sum"] > 0.0:
                     row = without_p_right(row)
+                    write_json_atomic(row, path)
+                if "rate_profile" not in row:
+                    row = profiled(cfg, row, args)
                     write_json_atomic(row, path)
                 rows.append(row)
                 continue

@@ -170,6 +170,10 @@ def test_a_slow_tumbler_is_reported_as_a_ridge_with_spread_weights():
     ans = answer(problem, group, settings=SMALL)
     assert ans.fit.fits and ans.probe_rows.get("ridge", 0) > 0 and ans.ridge
     assert ans.verdict == "ambiguous" and "the rate is not resolved over the arc" in ans.words()
+    # the top family's rate profile says so: its 95 % interval far wider than the 2 % of "right", in the words
+    assert ans.profile is not None and not ans.profile.resolved
+    a, b = ans.profile.interval_deg_s
+    assert b / a > 1.1 and "95 % interval " in ans.words()
     assert len(ans.families) >= 3 and float(ans.families.weight[0]) < 0.9
     lo, hi = ans.rate_interval_deg_s
     assert hi / lo > 2.0

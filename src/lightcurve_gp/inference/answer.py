@@ -28,14 +28,19 @@ probes' starts: :mod:`.probe_starts`):
    the tilts the best found is 0.9 nats below the basin, among 7 families (the top one at 1.6° and 4 % of the rate
    in one run, 19° in another: the weights between them are the ridge's, below); the probe took 16–21 s instead of
    4 s beside other work). Where the rate is resolved they come back to the family or fit worse by more than the
-   likelihood-ratio cut; where it is not they are families of their own and share the weight. The reported
-   **rate interval** is the range of ``|ω|`` over the families within the cut. A top family below one turn over
-   the arc is on a **ridge**: the verdict is then ``"ambiguous"`` whatever its weight. With other families beside
-   it, the weights between points of one ridge rest on Laplace volumes (:mod:`.families`) that a ridge does not have
-   (measured on a 0.1 °/s tumbler over 200 s: the ridge's families within 0.3 nats of each other, the top one with
-   weight 0.85–0.997 depending on its nearly singular covariance); alone, the probe does not prove the search
-   exhaustive (held-out seeds 1000–1015 at 0.05 mag, 4000 starts: of the 7 whose truth turns less than once in
-   600 s, 1 was right, 5 data-limited and 1 a search miss of 3.4 nats reported alone with weight 1).
+   likelihood-ratio cut; where it is not they are families of their own and share the weight.
+   **Rate profile** (:mod:`.rate_profile`): below one turn the top family's rate is then profiled (its data cost
+   polished at 0.5–2× its rate with the magnitude pinned). A profile point more than :data:`PROFILE_JOIN_NATS`
+   below the family is polished freely and joins the solutions, and the new top family is profiled once more. The
+   profile decides the **ridge**: the top family is on one when its 95 % profile interval is wider than the 2 % of
+   "right" (less than one turn does not make a ridge: a box-wing turning 325° in 600 s at 0.05 mag has its rate
+   fixed to ±0.2 %, its interval 0.541–0.543 °/s); a ridge's verdict is ``"ambiguous"`` whatever the weights, and
+   its ``p_right`` is capped at its weight times the profile's share within the tolerance
+   (:func:`~.rate_profile.ridge_rule`): the Laplace covariance at one point of a ridge cannot say how flat it is,
+   and with other families beside it the weights between points of one ridge rest on Laplace volumes
+   (:mod:`.families`) that a ridge does not have (measured on a 0.1 °/s tumbler over 200 s: the ridge's families
+   within 0.3 nats of each other, the top one with weight 0.85–0.997 depending on its nearly singular covariance).
+   The reported **rate interval** spans the families' rates and the top family's profile interval.
 4. **Image probe.** Along a pass the Sun and observer move, and the 180° inertial turns of the first sample's pair
    (:func:`~lightcurve_gp.photometry.ambiguity.near_image_turns`) are not in the exact group: the image of a
    state under one fits the first arcs as well and the whole arc a few to tens of nats apart, a basin of its own
@@ -77,14 +82,17 @@ from lightcurve_gp.inference.probe_starts import (
     local_starts,
     ridge_starts,
 )
+from lightcurve_gp.inference.rate_profile import RateProfile, rate_profile, ridge_rule
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
 
-__all__ = ["MAX_LOG_RATIO", "WIDEN_FACTOR", "Answer", "searched", "sample_times", "widened_settings", "wider_rates",
-           "merge", "answer"]
+__all__ = ["MAX_LOG_RATIO", "WIDEN_FACTOR", "PROFILE_JOIN_NATS", "Answer", "searched", "sample_times",
+           "widened_settings", "wider_rates", "merge", "answer"]
 
 #: families within this many nats of the best are reported
 MAX_LOG_RATIO = 10.0
+#: a point of the rate profile this many nats below the top family is polished and joins the solutions
+PROFILE_JOIN_NATS = 0.5
 #: the widened search's starts, screen attitudes, screen rates and continuation rows, each times this
 WIDEN_FACTOR = 2
 
@@ -101,8 +109,11 @@ class Answer:
         probe_rows: the solutions each probe that ran added, by name (``"ridge"``: only when a leading family is
             below one turn over the arc; ``"local"``; ``"image"``: only with ``image_turns``).
         probe_gain_nats: by how much each probe that ran lowered the best cost (nats, ≥ 0), by name.
-        ridge: the top family is below one turn over the arc (module docstring).
-        rate_interval_deg_s: the smallest and largest ``|ω|`` of the families (°/s).
+        ridge: the top family is below one turn over the arc and its rate profile does not resolve its rate
+            (module docstring).
+        rate_interval_deg_s: the smallest and largest ``|ω|`` of the families and of the top family's 95 % profile
+            interval (°/s).
+        profile: the top family's rate profile (:mod:`.rate_profile`; ``None`` above one turn over the arc).
         seconds: wall time of the first search, the widening and each probe.
     """
 
@@ -114,6 +125,7 @@ class Answer:
     first_fit: FitTest
     ridge: bool
     rate_interval_deg_s: tuple[float, float]
+    profile: RateProfile | None = None
     probe_rows: dict = field(default_factory=dict)
     probe_gain_nats: dict = field(default_factory=dict)
     seconds: dict = field(default_factory=dict)
@@ -128,19 +140,26 @@ class Answer:
                     "allows (the shape, the noise level or the rate range is wrong, or the search missed the "
                     "answer); the families below are not an answer")
         lo, hi = self.rate_interval_deg_s
-        rates = f"rate {lo:.4g} deg/s" if len(fam) == 1 else f"rates {lo:.4g}-{hi:.4g} deg/s"
+        rates = f"rate {lo:.4g} deg/s" if len(fam) == 1 and lo == hi else f"rates {lo:.4g}-{hi:.4g} deg/s"
+        if self.profile is not None:
+            a, b = self.profile.interval_deg_s
+            ends = ("at least " if self.profile.open[0] else "") + f"{a:.4g}", \
+                f"{b:.4g}" + (" or more" if self.profile.open[1] else "")
+            rates = (f"rate {self.profile.rate_deg_s:.4g} deg/s, 95 % interval {ends[0]}-{ends[1]} deg/s"
+                     + ("" if len(fam) == 1 else f"; the families' rates {lo:.4g}-{hi:.4g} deg/s"))
         tolerance = f"{RIGHT_ANGLE_DEG:g} deg and {100 * RIGHT_RATE_REL:g} %"
         if self.verdict == "unique":
             return (f"unique: one family carries weight {float(fam.weight[0]):.3f} and is within {tolerance} of "
                     f"the truth with probability {float(fam.p_right[0]):.3f} ({rates}); the fit is what the noise "
                     f"allows ({stats}){wide}")
-        what = ("the rate is not resolved over the arc (a ridge: less than one turn)" if self.ridge
-                else "the light curve does not single one out")
+        what = ("the rate is not resolved over the arc (a ridge: less than one turn, the rate's profile flat "
+                "beyond the tolerance)" if self.ridge else "the light curve does not single one out")
         if not self.ridge and float(fam.weight[0]) >= UNIQUE_WEIGHT:
             return (f"ambiguous: one basin carries weight {float(fam.weight[0]):.3f} ({rates}) but the light curve "
                     f"does not pin it within {tolerance} (probability {float(fam.p_right[0]):.3f}) ({stats}){wide}")
         if len(fam) == 1:
-            return (f"ambiguous: one family fits ({rates}) but {what}: other states may fit as well ({stats}){wide}")
+            return (f"ambiguous: one family fits ({rates}), within {tolerance} with probability "
+                    f"{float(fam.p_right[0]):.3f}, but {what} ({stats}){wide}")
         return (f"ambiguous: {len(fam)} families fit ({rates}), the heaviest with weight {float(fam.weight[0]):.3f} "
                 f"(within {tolerance} with probability {float(fam.p_right[0]):.3f}); {what} ({stats}){wide}")
 
@@ -148,7 +167,8 @@ class Answer:
         return {"verdict": self.verdict, "fit": self.fit.as_dict(), "widened": self.widened,
                 "first_fit": self.first_fit.as_dict(), "probe_rows": dict(self.probe_rows),
                 "probe_gain_nats": dict(self.probe_gain_nats), "ridge": self.ridge,
-                "rate_interval_deg_s": list(self.rate_interval_deg_s)}
+                "rate_interval_deg_s": list(self.rate_interval_deg_s),
+                "rate_profile": None if self.profile is None else self.profile.as_dict()}
 
 
 def sample_times(problem: TrajectoryProblem) -> Tensor:
@@ -278,13 +298,32 @@ def answer(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: Inver
         n = min(IMAGE_FAMILIES, len(fam))
         run("image", image_starts(image_turns, q0=fam.q0[:n], omega0=fam.omega0[:n], log_rho=fam.log_rho[:n]),
             settings.final_iterations, "of the leading families at their first sample's inertial images")
+    profile = None
+    if ridge and bool(below_one_turn(float(torch.linalg.vector_norm(fam.omega0[0])), span_s=span_s)):
+        tick = time.perf_counter()
+        for _ in range(2):  # a better point on the profile joins the solutions, and the new top is profiled once
+            profile = rate_profile(problem, q0=fam.q0[0], omega0=fam.omega0[0], log_rho=fam.log_rho[0],
+                                   span_s=span_s, rate_range_deg_s=settings.rate_range_deg_s)
+            if profile.gain_nats <= PROFILE_JOIN_NATS:
+                break
+            best = int(torch.argmin(profile.cost))
+            run("profile", (profile.q0[best:best + 1], profile.x[best:best + 1]), settings.final_iterations,
+                "from the best point of the top family's rate profile")
+            if not below_one_turn(float(torch.linalg.vector_norm(fam.omega0[0])), span_s=span_s):
+                profile = None
+                break
+        seconds["rate profile"] = time.perf_counter() - tick
     fit = _test(inv, problem)
     rates = torch.rad2deg(torch.linalg.vector_norm(fam.omega0, dim=-1))
-    on_ridge = below_one_turn(math.radians(float(rates[0])), span_s=span_s)
+    lo, hi = float(rates.min()), float(rates.max())
+    on_ridge = False
+    if profile is not None:
+        top_p, on_ridge = ridge_rule(profile, weight=float(fam.weight[0]), p_right=float(fam.p_right[0]))
+        fam = replace(fam, p_right=torch.cat([fam.p_right.new_tensor([top_p]), fam.p_right[1:]]))
+        lo, hi = min(lo, profile.interval_deg_s[0]), max(hi, profile.interval_deg_s[1])
     said = verdict(fit, float(fam.p_right[0]))
     if said == "no_fit":
         fam = replace(fam, p_right=torch.zeros_like(fam.p_right))
     return Answer(inversion=inv, families=fam, fit=fit, verdict="ambiguous" if said == "unique" and on_ridge else said,
-                  widened=widened, first_fit=first, ridge=on_ridge,
-                  rate_interval_deg_s=(float(rates.min()), float(rates.max())), probe_rows=rows,
-                  probe_gain_nats=gains, seconds=seconds)
+                  widened=widened, first_fit=first, ridge=on_ridge, rate_interval_deg_s=(lo, hi), profile=profile,
+                  probe_rows=rows, probe_gain_nats=gains, seconds=seconds)
