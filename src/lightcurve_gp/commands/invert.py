@@ -13,7 +13,9 @@ estimates of the same file) atomically (an existing one is refused unless ``--fo
 * ``summary.json`` — the verdict (``unique``, ``ambiguous`` or ``no_fit``: :mod:`lightcurve_gp.inference.answer`)
   and the best fit's χ² test, the ambiguity group used, the periodogram's candidates, the polished families' fits
   (χ², p-value, verdict, surface), timings, the settings, provenance;
-* ``periodogram.png`` and ``light_curve.png`` (the observed magnitudes with each leading family's prediction).
+* ``periodogram.png`` and ``light_curve.png`` (the observed magnitudes with each leading family's prediction);
+  ``rate_profile.png`` when the top family turns less than once over the arc (its rate profile, the 95 % interval
+  and the 2 % of "right": :mod:`lightcurve_gp.inference.rate_profile`).
 
 The verdict is printed in words; a light curve that nothing fits (after one widened search) is said so, exit
 code 0. Sample times may have any spacing and gaps (the propagation is closed form,
@@ -36,6 +38,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from matplotlib.figure import Figure
+from matplotlib.ticker import FuncFormatter
 from tqdm.auto import tqdm
 
 from lightcurve_gp.commands import invert_convex
@@ -55,8 +58,9 @@ from lightcurve_gp.commands.layout import invert_folder
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.evaluation.plots import save_figure
 from lightcurve_gp.files import RunFolder, write_json_atomic
-from lightcurve_gp.inference.families import Families
+from lightcurve_gp.inference.families import RIGHT_RATE_REL, Families
 from lightcurve_gp.inference.inversion import Inversion, InversionSettings
+from lightcurve_gp.inference.rate_profile import PROFILE_CUT_NATS, RateProfile
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.observed.arc_run import arc_summary
 from lightcurve_gp.observed.inversion_run import InversionRun, invert_observations, trajectory_problem
@@ -120,7 +124,8 @@ def _predictions(problem: TrajectoryProblem, fam: Families, top: int = 5) -> np.
     return (problem.y - r * problem.sigma).cpu().numpy()
 
 
-def _figures(folder: Path, t: np.ndarray, problem: TrajectoryProblem, inv: Inversion, fam: Families) -> None:
+def _figures(folder: Path, t: np.ndarray, problem: TrajectoryProblem, inv: Inversion, fam: Families,
+             profile: RateProfile | None = None) -> None:
     fig = Figure(figsize=(7.0, 3.5), layout="constrained")
     ax = fig.subplots()
     pg = inv.periodogram
@@ -141,6 +146,36 @@ def _figures(folder: Path, t: np.ndarray, problem: TrajectoryProblem, inv: Inver
     ax.set_ylabel("$m_{app}$ [mag] (brighter ↑)")
     fig.legend(loc="outside lower center", ncols=3, frameon=False, fontsize=8)
     save_figure(fig, folder / "light_curve.png")
+    if profile is not None:
+        _profile_figure(folder, profile)
+
+
+def _profile_figure(folder: Path, profile: RateProfile) -> None:
+    """``rate_profile.png``: the top family's data cost over its rate, the 95 % interval and the 2 % of "right"."""
+    fig = Figure(figsize=(7.0, 3.5), layout="constrained")
+    ax = fig.subplots()
+    rates = profile.rates_deg_s.cpu().numpy()
+    delta = (profile.cost - profile.cost.min()).cpu().numpy()
+    lo, hi = profile.interval_deg_s
+    ax.axvspan(lo, hi, color="tab:blue", alpha=0.2, label=f"95 % interval {lo:.4g}–{hi:.4g} deg/s")
+    own = profile.rate_deg_s
+    for edge in (own * (1 - RIGHT_RATE_REL), own * (1 + RIGHT_RATE_REL)):
+        ax.axvline(edge, color="tab:green", lw=0.8, ls="--")
+    ax.plot([], [], color="tab:green", lw=0.8, ls="--", label=f"{100 * RIGHT_RATE_REL:g} % about the family's "
+            f"{own:.4g} deg/s")
+    ax.plot(rates, delta, ".-", color="black", lw=0.8)
+    ax.axhline(PROFILE_CUT_NATS, color="tab:red", lw=0.6, ls=":")
+    ax.set_xscale("log")
+    plain = FuncFormatter(lambda value, _: f"{value:g}")
+    ax.xaxis.set_major_formatter(plain)
+    ax.xaxis.set_minor_formatter(plain)
+    ax.set_yscale("symlog", linthresh=1.0)
+    ax.set_ylim(bottom=0.0)
+    ax.set_xlabel("rate |ω| [deg/s] (held; attitude, axis and ρ polished)")
+    ax.set_ylabel("½χ² above the profile's minimum [nats]")
+    ax.set_title("resolved" if profile.resolved else "a ridge: the rate is not resolved", fontsize=9)
+    fig.legend(loc="outside lower center", ncols=2, frameon=False, fontsize=8)
+    save_figure(fig, folder / "rate_profile.png")
 
 
 def _polished(run: InversionRun) -> list[dict]:
@@ -205,7 +240,7 @@ def _run(args: argparse.Namespace) -> int:
     with RunFolder(folder, force=args.force) as tmp:
         write_solutions(table, tmp / "solutions.ecsv")
         write_json_atomic(_summary(run, settings, record), tmp / "summary.json")
-        _figures(tmp, run.problem.times.cpu().numpy(), run.problem, inv, fam)
+        _figures(tmp, run.problem.times.cpu().numpy(), run.problem, inv, fam, run.answer.profile)
     best = table[0]
     print(f"{source}: {obs.describe()}")
     print(f"{len(fam)} families within {args.max_log_ratio:g} nats (modulo {len(run.group)} exact images); "

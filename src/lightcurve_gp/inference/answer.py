@@ -34,7 +34,7 @@ probes' starts: :mod:`.probe_starts`):
    below the family is polished freely and joins the solutions, and the new top family is profiled once more. The
    profile decides the **ridge**: the top family is on one when its 95 % profile interval is wider than the 2 % of
    "right" (less than one turn does not make a ridge: a box-wing turning 325° in 600 s at 0.05 mag has its rate
-   fixed to ±0.2 %, its interval 0.541–0.543 °/s); a ridge's verdict is ``"ambiguous"`` whatever the weights, and
+   fixed to ±0.3 %, its interval 0.541–0.544 °/s); a ridge's verdict is ``"ambiguous"`` whatever the weights, and
    its ``p_right`` is capped at its weight times the profile's share within the tolerance
    (:func:`~.rate_profile.ridge_rule`): the Laplace covariance at one point of a ridge cannot say how flat it is,
    and with other families beside it the weights between points of one ridge rest on Laplace volumes
