@@ -38,12 +38,19 @@ def test_invert_writes_solutions_that_round_trip_and_hold_the_truth(observed):
     assert invert_main([CONFIG, "--light-curve", str(obs), "--starts", "256", "--out", str(out), "--no-progress",
                         *SHORT]) == 0
     run = out / "estimates" / "boxwing" / "invert_obs"
-    assert {p.name for p in run.iterdir()} == {"solutions.ecsv", "summary.json", "periodogram.png", "light_curve.png"}
+    # 1.67 deg/s over 150 s turns 250 deg, less than once: the top family's rate profile is drawn too
+    assert {p.name for p in run.iterdir()} == {"solutions.ecsv", "summary.json", "periodogram.png", "light_curve.png",
+                                               "rate_profile.png"}
     table = read_solutions(run / "solutions.ecsv")
     assert list(table["rank"]) == list(range(1, len(table) + 1))
     assert abs(float(np.sum(table["weight"])) - 1.0) < 1e-9 and len(table.meta["images"]) == 16
     summary = json.loads((run / "summary.json").read_text())
-    np.testing.assert_allclose(np.asarray(table["p_right"]), np.asarray(table["weight"]) * np.asarray(table["mass"]))
+    # p_right is the weight times the tolerance mass, the top family's capped by its rate profile's share
+    gaussian = np.asarray(table["weight"]) * np.asarray(table["mass"])
+    np.testing.assert_allclose(np.asarray(table["p_right"])[1:], gaussian[1:])
+    profile = summary["rate_profile"]
+    assert 0.0 < profile["share"] <= 1.0 and profile["interval_deg_s"][0] < profile["rate_deg_s"]
+    assert float(table[0]["p_right"]) == pytest.approx(min(gaussian[0], float(table[0]["weight"]) * profile["share"]))
     assert float(table[0]["p_right"]) == pytest.approx(summary["top_p_right"], rel=1e-12)
     assert summary["ambiguity_images"]["labels"] == table.meta["images"] and summary["periodogram_detection"]
     assert summary["ambiguity_images"]["source"].startswith("derived by") and not summary["ambiguity_images"][
