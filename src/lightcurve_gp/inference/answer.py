@@ -301,10 +301,10 @@ def answer(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: Inver
     profile = None
     if ridge and bool(below_one_turn(float(torch.linalg.vector_norm(fam.omega0[0])), span_s=span_s)):
         tick = time.perf_counter()
-        for _ in range(2):  # a better point on the profile joins the solutions, and the new top is profiled once
+        for attempt in range(2):  # a better point on the profile joins the solutions; the new top is profiled once
             profile = rate_profile(problem, q0=fam.q0[0], omega0=fam.omega0[0], log_rho=fam.log_rho[0],
                                    span_s=span_s, rate_range_deg_s=settings.rate_range_deg_s)
-            if profile.gain_nats <= PROFILE_JOIN_NATS:
+            if profile.gain_nats <= PROFILE_JOIN_NATS or attempt == 1:
                 break
             best = int(torch.argmin(profile.cost))
             run("profile", (profile.q0[best:best + 1], profile.x[best:best + 1]), settings.final_iterations,
