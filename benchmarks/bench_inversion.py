@@ -2,7 +2,8 @@
 ``--starts`` starts, with 1 and 2 torch threads (median of ``--repeats``; wall and process CPU time, the load average
 beside them: on a shared machine the wall time is the CPU time stretched by the other processes): the search alone
 (``invert``) and the whole answer that ``python -m lightcurve_gp.invert`` gives (``answer``: the search, the families,
-the fit test and the probes).
+the fit test and the probes); and the rate profile that the answer runs for a slow top family
+(``rate_profile``: 29 polishes with the rate held, here about the truth: its cost does not depend on the rate).
 
     python benchmarks/bench_inversion.py --starts 10000 --repeats 3
 """
@@ -23,11 +24,14 @@ from lightcurve_gp.config.load import load_config
 from lightcurve_gp.inference.answer import answer
 from lightcurve_gp.inference.forward import GroupRenderer
 from lightcurve_gp.inference.inversion import InversionSettings, invert
+from lightcurve_gp.inference.rate_profile import rate_profile
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import ambiguity_group
 from lightcurve_gp.photometry.render import Scene
 
 ROOT = Path(__file__).resolve().parents[1]
+#: the light curve's body rate (deg/s)
+RATE_DEG_S = (0.9, -0.7, 1.1)
 
 
 def problem(sigma: float = 0.05):
@@ -35,7 +39,7 @@ def problem(sigma: float = 0.05):
     scene = Scene.from_config(cfg)
     inertia = torch.tensor(cfg.shape.inertia_kg_m2, dtype=torch.float64)
     q0 = quat_normalize(torch.tensor([0.3, -0.2, 0.5, 0.78], dtype=torch.float64))
-    w0 = torch.deg2rad(torch.tensor([0.9, -0.7, 1.1], dtype=torch.float64))
+    w0 = torch.deg2rad(torch.tensor(RATE_DEG_S, dtype=torch.float64))
     q, _ = propagate(q0, w0, inertia, 1.0, 600)
     gen = torch.Generator().manual_seed(0)
     y = scene.magnitude(q, rho=0.5) + sigma * torch.randn(601, generator=gen, dtype=torch.float64)
@@ -54,8 +58,12 @@ def main() -> int:
     prob, group = problem()
     print(f"| what | threads | starts | wall s (median of {args.repeats}) | CPU s | load average | cores |")
     print("|---|---|---|---|---|---|---|")
+    w0 = torch.deg2rad(torch.tensor(RATE_DEG_S, dtype=torch.float64))
     runs = {"search (invert)": lambda s: invert(prob, group, settings=s),
-            "whole answer (answer)": lambda s: answer(prob, group, settings=s)}
+            "whole answer (answer)": lambda s: answer(prob, group, settings=s),
+            "rate profile (rate_profile, 29 points)": lambda s: rate_profile(
+                prob, q0=prob.anchors[0], omega0=w0, log_rho=torch.tensor(0.5, dtype=torch.float64).log(),
+                span_s=600.0, rate_range_deg_s=s.rate_range_deg_s)}
     for threads in args.threads:
         torch.set_num_threads(threads)
         for what, run in runs.items():
