@@ -106,12 +106,15 @@ def estimate_scenario(cfg, model=None, *, seeds=None, rho_true=None, estimators=
                           model=model)
 
 
-def tumbler_light_curve(scene, inertia, *, seed: int, rate_deg_s: float, samples: int, sigma: float):
+def tumbler_light_curve(scene, inertia, *, seed: int, rate_deg_s: float, samples: int, sigma: float,
+                        rho: float | None = None):
     """A random tumbler's noisy light curve at 1 Hz: the initial attitude ``(4,)``, the body rate ``(3,)`` (rad/s,
-    ``rate_deg_s`` about a random axis) and the magnitudes ``(samples + 1,)`` (float64)."""
+    ``rate_deg_s`` about a random axis) and the magnitudes ``(samples + 1,)`` (float64); ``rho``: the scene's own
+    when ``None``."""
     g = torch.Generator().manual_seed(seed)
     axis = torch.randn(3, generator=g, dtype=torch.float64)
     q0 = random_attitudes(1, seed=seed + 5, dtype=torch.float64)[0]
     w0 = math.radians(rate_deg_s) * axis / torch.linalg.vector_norm(axis)
     q, _ = propagate(q0, w0, inertia, 1.0, samples)
-    return q0, w0, scene.magnitude(q) + sigma * torch.randn(samples + 1, generator=g, dtype=torch.float64)
+    m = scene.magnitude(q) if rho is None else scene.magnitude(q, rho=rho)
+    return q0, w0, m + sigma * torch.randn(samples + 1, generator=g, dtype=torch.float64)

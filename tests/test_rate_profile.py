@@ -8,8 +8,6 @@ import pytest
 import torch
 from scipy.stats import norm
 
-from lightcurve_gp.attitude.dynamics import propagate
-from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.inference.families import RIGHT_RATE_REL
 from lightcurve_gp.inference.forward import GroupRenderer
@@ -25,6 +23,7 @@ from lightcurve_gp.inference.rate_profile import (
 )
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.render import Scene
+from tests.helpers import tumbler_light_curve
 
 ROOT = Path(__file__).resolve().parents[1]
 F64 = torch.float64
@@ -63,12 +62,8 @@ def _light_curve(span: int, rate_deg_s: float, seed: int):
     cfg = load_config(ROOT / "configs" / "boxwing.yaml")
     scene = Scene.from_config(cfg, rho=0.5)
     inertia = torch.tensor(cfg.shape.inertia_kg_m2, dtype=F64)
-    g = torch.Generator().manual_seed(seed)
-    axis = torch.randn(3, generator=g, dtype=F64)
-    w0 = math.radians(rate_deg_s) * axis / axis.norm()
-    q0 = random_attitudes(1, seed=seed + 5, dtype=F64)[0]
-    q, _ = propagate(q0, w0, inertia, 1.0, span)
-    y = scene.magnitude(q, rho=0.4) + SIGMA * torch.randn(span + 1, generator=g, dtype=F64)
+    q0, w0, y = tumbler_light_curve(scene, inertia, seed=seed, rate_deg_s=rate_deg_s, samples=span, sigma=SIGMA,
+                                    rho=0.4)
     problem = TrajectoryProblem(GroupRenderer(scene), torch.arange(span + 1, dtype=F64), y,
                                 torch.full((span + 1,), SIGMA, dtype=F64), inertia, torch.zeros(0, 4, dtype=F64))
     return problem, q0, w0
