@@ -104,8 +104,8 @@ def test_answer_runs_the_probe_on_its_leading_families(moving):
     problem = _problem(scene, t, inertia, y)
     group = ambiguity_group(scene, times_s=t, inertia=inertia, rate_known=False, probes=2)
     settings = InversionSettings(starts=128, attitudes=64, arcs_s=(30.0, 80.0, 0.0), keep=(32, 8))
-    plain = answer(problem, group, settings=settings, ridge=False, local=False, widen=False)
-    probed = answer(problem, group, settings=settings, ridge=False, local=False, widen=False,
+    plain = answer(problem, group, settings=settings, ridge=False, local=False, far=False, widen=False)
+    probed = answer(problem, group, settings=settings, ridge=False, local=False, far=False, widen=False,
                     image_turns=near_image_turns(scene))
     assert "image" not in plain.probe_rows and "image probe" not in plain.seconds
     assert probed.probe_rows["image"] == 3 * min(IMAGE_FAMILIES, len(plain.families))

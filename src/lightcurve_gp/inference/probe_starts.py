@@ -8,7 +8,12 @@ have visited (:mod:`.answer` runs them, polishes them on the whole light curve a
   :data:`LOCAL_FACTORS` about the same axis, and at its axis tilted by :data:`LOCAL_TILTS_DEG`: the neighbouring
   basins in rate and axis that the last continuation stage, a few Levenberg–Marquardt iterations from a shorter arc,
   can stop short of;
-* **image** (:func:`image_starts`): a family under inertial turns (e.g. the first sample's, along a pass).
+* **image** (:func:`image_starts`): a family under inertial turns (e.g. the first sample's, along a pass);
+* **body turn** (:func:`body_turn_starts`): a family under the axis rotations of the body frame that are not exact
+  images (:func:`near_body_turns`): where the shape nearly maps onto itself they start near another basin;
+* **harmonic** (:func:`harmonic_starts`): a family at its rate times :data:`HARMONIC_FACTORS` (a light curve whose
+  rate is read off ``k`` of its cycles can also fit at ``k ± 1``), about its axis and axes tilted by
+  :data:`HARMONIC_TILTS_DEG`.
 
 A restart at another rate keeps the attitude at the middle of the arc (``q(t) ≈ exp(ω t) ⊗ q0`` for a constant
 body rate): the light curve pins the attitude best where it has samples on both sides. Every function returns
@@ -23,12 +28,16 @@ import math
 import torch
 from torch import Tensor
 
-from lightcurve_gp.attitude.rotations import quat_conj, quat_mul, rotvec_to_quat
+from lightcurve_gp.attitude.rotations import attitude_matrix, matrix_to_quat, quat_conj, quat_mul, rotvec_to_quat
 from lightcurve_gp.inference.families import Families
+from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
+from lightcurve_gp.photometry.symmetry import cube_rotations
 
 __all__ = ["RIDGE_FACTORS", "RIDGE_FAMILIES", "RIDGE_TILTS_DEG", "RIDGE_AZIMUTHS", "LOCAL_FACTORS",
-           "LOCAL_TILTS_DEG", "LOCAL_FAMILIES", "LOCAL_ITERATIONS", "IMAGE_FAMILIES", "below_one_turn",
-           "tilted_rates", "restarted_at", "ridge_starts", "local_starts", "image_starts"]
+           "LOCAL_TILTS_DEG", "LOCAL_FAMILIES", "LOCAL_ITERATIONS", "IMAGE_FAMILIES", "HARMONIC_FACTORS",
+           "HARMONIC_TILTS_DEG", "HARMONIC_FAMILIES", "BODY_TURN_FAMILIES", "below_one_turn", "tilted_rates",
+           "restarted_at", "ridge_starts", "local_starts", "image_starts", "near_body_turns", "body_turn_starts",
+           "harmonic_starts"]
 
 #: the ridge probe's rate factors
 RIDGE_FACTORS = (0.25, 0.5, 0.71, 1.41, 2.0)
@@ -39,12 +48,19 @@ RIDGE_TILTS_DEG = (30.0, 60.0)
 RIDGE_AZIMUTHS = 6
 #: the local probe's rate factors (about the family's own axis) and axis tilts (deg, at its own magnitude)
 LOCAL_FACTORS = (0.92, 0.96, 0.98, 0.99, 1.01, 1.02, 1.04, 1.08)
-LOCAL_TILTS_DEG = (5.0, 10.0)
+LOCAL_TILTS_DEG = (2.0, 5.0, 10.0)
 #: leading families the local probe restarts, and its Levenberg–Marquardt iterations
 LOCAL_FAMILIES = 4
 LOCAL_ITERATIONS = 30
 #: leading families the image probe restarts at their images
 IMAGE_FAMILIES = 4
+#: the harmonic probe's rate factors, its axis tilts (deg, each towards :data:`RIDGE_AZIMUTHS` directions) and the
+#: leading families it restarts
+HARMONIC_FACTORS = (0.5, 2.0 / 3.0, 1.5, 2.0)
+HARMONIC_TILTS_DEG = (10.0, 20.0)
+HARMONIC_FAMILIES = 4
+#: leading families the body-turn probe restarts
+BODY_TURN_FAMILIES = 4
 
 
 def below_one_turn(rate_rad_s, *, span_s: float):
@@ -123,3 +139,49 @@ def image_starts(turns: Tensor, *, q0: Tensor, omega0: Tensor, log_rho: Tensor) 
     starts = quat_mul(q0[:, None, :], turns[None]).reshape(-1, 4)
     omega, log_rho = omega0.repeat_interleave(per, 0), log_rho.repeat_interleave(per, 0)
     return starts, torch.cat([torch.zeros_like(omega), omega, log_rho[:, None]], -1)
+
+
+def near_body_turns(group: AmbiguityGroup) -> Tensor:
+    """The axis rotations of the body frame (the 24 rotations mapping ±x, ±y, ±z onto themselves) that are not
+    among ``group``'s body images, as quaternions ``q_R (B, 4)`` (scalar last): the body-turn probe's turns. A box's
+    faces map onto faces under each; where materials, appendages or the inertia break the symmetry the image is
+    another state, whose basin the search can miss while it finds this one."""
+    rotations = cube_rotations(dtype=group.body.dtype, device=group.body.device)
+    exact = attitude_matrix(group.body)  # (K, 3, 3)
+    known = ((rotations[:, None] - exact[None]).abs().flatten(-2).amax(-1) < 1e-9).any(-1)
+    return matrix_to_quat(rotations[~known])
+
+
+def body_turn_starts(turns: Tensor, fam: Families, *, leading: int = BODY_TURN_FAMILIES) -> tuple[Tensor, Tensor]:
+    """The body-turn probe's starts: each of the ``leading`` families ``(q_0, ω_0, ln ρ)`` turned by every body
+    rotation ``q_R`` of ``turns (B, 4)``: ``(q_R ⊗ q_0, R ω_0, ln ρ)``, ``(n·B, 4)`` and ``(n·B, 7)``, the turns of
+    one family together."""
+    n = min(leading, len(fam))
+    if n == 0 or turns.shape[0] == 0:
+        return fam.q0.new_zeros(0, 4), fam.q0.new_zeros(0, 7)
+    turns = turns.to(fam.q0)
+    per = turns.shape[0]
+    q = quat_mul(turns[None], fam.q0[:n, None]).reshape(-1, 4)
+    omega = (attitude_matrix(turns)[None] @ fam.omega0[:n, None, :, None]).squeeze(-1).reshape(-1, 3)
+    rho = fam.log_rho[:n].repeat_interleave(per, 0)
+    return q, torch.cat([torch.zeros_like(omega), omega, rho[:, None]], -1)
+
+
+def harmonic_starts(fam: Families, *, span_s: float, rate_range_deg_s: tuple[float, float],
+                    factors=HARMONIC_FACTORS, tilts_deg=HARMONIC_TILTS_DEG, azimuths: int = RIDGE_AZIMUTHS,
+                    leading: int = HARMONIC_FAMILIES) -> tuple[Tensor, Tensor]:
+    """The harmonic probe's starts: each of the ``leading`` families at its rate times every factor, about its axis
+    and its axis tilted by each of ``tilts_deg`` towards ``azimuths`` directions (:func:`tilted_rates`), keeping
+    its attitude at the middle of the arc (:func:`restarted_at`); rates outside ``rate_range_deg_s`` (°/s) left
+    out. ``(M, 4)``, ``(M, 7)``, the rows of one family together."""
+    n = min(leading, len(fam))
+    if n == 0:
+        return fam.q0.new_zeros(0, 4), fam.q0.new_zeros(0, 7)
+    w = fam.omega0[:n]
+    scale = torch.tensor(factors, dtype=w.dtype, device=w.device)
+    axes = tilted_rates(w, tilts_deg=tilts_deg, azimuths=azimuths)  # (n, D, 3)
+    omega = (axes[:, :, None, :] * scale[:, None]).flatten(1, 2)  # (n, D·F, 3)
+    q, x = restarted_at(omega, q0=fam.q0[:n], omega0=w, log_rho=fam.log_rho[:n], span_s=span_s)
+    rate = torch.rad2deg(torch.linalg.vector_norm(x[:, 3:6], dim=-1))
+    inside = (rate >= rate_range_deg_s[0]) & (rate <= rate_range_deg_s[1])
+    return q[inside], x[inside]
