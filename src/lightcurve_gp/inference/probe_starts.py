@@ -148,7 +148,7 @@ def near_body_turns(group: AmbiguityGroup) -> Tensor:
     another state, whose basin the search can miss while it finds this one."""
     rotations = cube_rotations(dtype=group.body.dtype, device=group.body.device)
     exact = attitude_matrix(group.body)  # (K, 3, 3)
-    known = ((rotations[:, None] - exact[None]).abs().flatten(-2).amax(-1) < 1e-9).any(-1)
+    known = ((rotations[:, None] - exact[None]).abs().flatten(-2).amax(-1) < 1e-3).any(-1)  # entries 0 or ±1
     return matrix_to_quat(rotations[~known])
 
 
