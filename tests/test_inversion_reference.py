@@ -152,9 +152,11 @@ def test_a_seed_is_right_and_a_starved_search_of_it_a_search_miss():
     assert ref.basin_rank == 1  # the top family is the truth's basin's
     assert ref.best_cost <= ref.basin_cost + 1e-6 <= ref.truth_cost + 1e-6
     # every screened rate a thirtieth of the truth's, all of them from the 30 s arc (there they turn 3°; entering
-    # at the 80 s arc instead, they reach the truth), no widening: the search ends far above the truth's basin
+    # at the 80 s arc instead, they reach the truth), no widening and no far probes (with them the answer reaches
+    # the truth's basin): the search ends far above the truth's basin
     starved = rate_starts([], count=24, rate_range_deg_s=(0.08, 0.1), span_s=200, shell_ratio=2.0)
-    bad = answer(problem, group, settings=replace(SMALL, entry_turn_deg=0.0), rate_grid=starved, widen=False)
+    bad = answer(problem, group, settings=replace(SMALL, entry_turn_deg=0.0), rate_grid=starved, widen=False,
+                 far=False)
     miss = inversion_reference(problem, group, bad.families, best_cost=float(bad.inversion.cost.min()), q0=q0,
                                omega0=w0, rho=0.4)
     assert miss.kind == "search_miss" and miss.truth_rank == 0 and miss.basin_rank == 0
