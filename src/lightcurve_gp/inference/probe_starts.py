@@ -11,9 +11,9 @@ have visited (:mod:`.answer` runs them, polishes them on the whole light curve a
 * **image** (:func:`image_starts`): a family under inertial turns (e.g. the first sample's, along a pass);
 * **body turn** (:func:`body_turn_starts`): a family under the axis rotations of the body frame that are not exact
   images (:func:`near_body_turns`): where the shape nearly maps onto itself they start near another basin;
-* **harmonic** (:func:`harmonic_starts`): a family at its rate times :data:`HARMONIC_FACTORS` (a light curve whose
-  rate is read off ``k`` of its cycles can also fit at ``k ± 1``), about its axis and axes tilted by
-  :data:`HARMONIC_TILTS_DEG`.
+* **harmonic** (:func:`harmonic_starts`): a family at its rate times :data:`HARMONIC_FACTORS`, about its axis and
+  axes tilted by :data:`HARMONIC_TILTS_DEG`: a light curve of ``k`` brightness cycles per turn can be fitted nearly
+  as well by a spin of ``k ± 1`` cycles per turn, its rate times ``k / (k ± 1)`` (½, ⅔, 3/2 and 2 for ``k ≤ 3``).
 
 A restart at another rate keeps the attitude at the middle of the arc (``q(t) ≈ exp(ω t) ⊗ q0`` for a constant
 body rate): the light curve pins the attitude best where it has samples on both sides. Every function returns
