@@ -66,7 +66,9 @@ def _state(w):
 def test_near_body_turns_are_the_axis_rotations_outside_the_group(boxwing):
     _, _, group = boxwing
     exact = attitude_matrix(group.body)
-    turns = attitude_matrix(near_body_turns(group))
+    near = near_body_turns(group)
+    turns = attitude_matrix(near.body)
+    assert torch.allclose(near.inertial, torch.tensor([0.0, 0, 0, 1], dtype=F64).expand(20, 4))
     distinct = {tuple(m.round().flatten().tolist()) for m in exact}
     assert len(distinct) == 4  # the box-wing's body images: the identity and the 180° turns about x, y, z
     assert turns.shape == (24 - 4, 3, 3)
@@ -85,7 +87,7 @@ def test_body_turn_starts_turn_the_attitude_and_the_rate_with_the_body(boxwing):
     q, x = body_turn_starts(turns, fam)
     n = min(BODY_TURN_FAMILIES, len(fam))
     assert q.shape == (n * 20, 4) and x.shape == (n * 20, 7)
-    rot = attitude_matrix(turns)
+    rot = attitude_matrix(turns.body)
     for k in range(20):  # A(q_R ⊗ q) = R A(q) and ω ↦ R ω; θ = 0, ln ρ kept
         assert torch.allclose(attitude_matrix(q[k]), rot[k] @ attitude_matrix(fam.q0[0]), atol=1e-12)
         assert torch.allclose(x[k, 3:6], rot[k] @ fam.omega0[0], atol=1e-15)
@@ -98,11 +100,11 @@ def test_from_a_body_turned_basin_the_probe_reaches_the_truths(boxwing):
     problem = _problem(scene, inertia, y)
     basin = polish(problem, q0[None], _state(w0), iterations=LOCAL_ITERATIONS)
     turns = near_body_turns(group)
-    rot = attitude_matrix(turns)
+    rot = attitude_matrix(turns.body)
     # the truth turned by 90° about x (a face of the box onto another; the wings and the inertia break it)
     quarter_x = torch.tensor([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]], dtype=F64)
     k = next(i for i in range(len(rot)) if torch.allclose(rot[i], quarter_x, atol=1e-12))
-    wrong = polish(problem, quat_mul(turns[k], q0)[None], _state(rot[k] @ w0), iterations=8)
+    wrong = polish(problem, quat_mul(turns.body[k], q0)[None], _state(rot[k] @ w0), iterations=8)
     assert float(wrong.cost[0]) > float(basin.cost[0]) + 25.0
     q, x = body_turn_starts(turns, _families_of(group, wrong, problem))
     back = polish(problem, q, x, iterations=LOCAL_ITERATIONS)

@@ -141,28 +141,34 @@ def image_starts(turns: Tensor, *, q0: Tensor, omega0: Tensor, log_rho: Tensor) 
     return starts, torch.cat([torch.zeros_like(omega), omega, log_rho[:, None]], -1)
 
 
-def near_body_turns(group: AmbiguityGroup) -> Tensor:
+def near_body_turns(group: AmbiguityGroup) -> AmbiguityGroup:
     """The axis rotations of the body frame (the 24 rotations mapping ±x, ±y, ±z onto themselves) that are not
-    among ``group``'s body images, as quaternions ``q_R (B, 4)`` (scalar last): the body-turn probe's turns. A box's
-    faces map onto faces under each; where materials, appendages or the inertia break the symmetry the image is
-    another state, whose basin the search can miss while it finds this one."""
+    among ``group``'s body images, as images of their own (``B`` body turns, no inertial turn, the rate turned with
+    the body): the body-turn probe's turns. A box's faces map onto faces under each; where materials, appendages or
+    the inertia break the symmetry the image is another state, whose basin the search can miss while it finds this
+    one."""
     rotations = cube_rotations(dtype=group.body.dtype, device=group.body.device)
     exact = attitude_matrix(group.body)  # (K, 3, 3)
     known = ((rotations[:, None] - exact[None]).abs().flatten(-2).amax(-1) < 1e-3).any(-1)  # entries 0 or ±1
-    return matrix_to_quat(rotations[~known])
+    body = matrix_to_quat(rotations[~known])
+    identity = torch.zeros_like(body)
+    identity[:, 3] = 1.0
+    return AmbiguityGroup(body=body, inertial=identity, rate_known=False,
+                          labels=tuple(f"near body turn {k + 1}" for k in range(body.shape[0])))
 
 
-def body_turn_starts(turns: Tensor, fam: Families, *, leading: int = BODY_TURN_FAMILIES) -> tuple[Tensor, Tensor]:
-    """The body-turn probe's starts: each of the ``leading`` families ``(q_0, ω_0, ln ρ)`` turned by every body
-    rotation ``q_R`` of ``turns (B, 4)``: ``(q_R ⊗ q_0, R ω_0, ln ρ)``, ``(n·B, 4)`` and ``(n·B, 7)``, the turns of
-    one family together."""
+def body_turn_starts(turns: AmbiguityGroup, fam: Families, *,
+                     leading: int = BODY_TURN_FAMILIES) -> tuple[Tensor, Tensor]:
+    """The body-turn probe's starts: each of the ``leading`` families ``(q_0, ω_0, ln ρ)`` under every image of
+    ``turns`` (:func:`near_body_turns`; :meth:`~lightcurve_gp.photometry.ambiguity.AmbiguityGroup.attitudes` and
+    ``rates``: ``(q_R ⊗ q_0, R ω_0, ln ρ)``), ``(n·B, 4)`` and ``(n·B, 7)``, the turns of one family together."""
     n = min(leading, len(fam))
-    if n == 0 or turns.shape[0] == 0:
+    if n == 0 or len(turns) == 0:
         return fam.q0.new_zeros(0, 4), fam.q0.new_zeros(0, 7)
-    turns = turns.to(fam.q0)
-    per = turns.shape[0]
-    q = quat_mul(turns[None], fam.q0[:n, None]).reshape(-1, 4)
-    omega = (attitude_matrix(turns)[None] @ fam.omega0[:n, None, :, None]).squeeze(-1).reshape(-1, 3)
+    turns = turns.to(device=fam.q0.device, dtype=fam.q0.dtype)
+    per = len(turns)
+    q = turns.attitudes(fam.q0[:n]).transpose(0, 1).reshape(-1, 4)  # (B, n, 4) -> (n·B, 4)
+    omega = turns.rates(fam.omega0[:n]).transpose(0, 1).reshape(-1, 3)
     rho = fam.log_rho[:n].repeat_interleave(per, 0)
     return q, torch.cat([torch.zeros_like(omega), omega, rho[:, None]], -1)
 
