@@ -9,6 +9,7 @@ from lightcurve_gp.attitude.rotations import attitude_matrix, euler321_to_quat, 
 from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.evaluation.harness import run_estimators
 from lightcurve_gp.evaluation.registry import DEFAULT_ESTIMATORS
+from lightcurve_gp.inference.families import families
 from lightcurve_gp.observation.base import ObservationModule
 from lightcurve_gp.simulation.scenario import simulate_scenario
 
@@ -118,3 +119,10 @@ def tumbler_light_curve(scene, inertia, *, seed: int, rate_deg_s: float, samples
     q, _ = propagate(q0, w0, inertia, 1.0, samples)
     m = scene.magnitude(q) if rho is None else scene.magnitude(q, rho=rho)
     return q0, w0, m + sigma * torch.randn(samples + 1, generator=g, dtype=torch.float64)
+
+
+def families_of(group, inv, problem, *, rate_max_deg_s: float = 5.0):
+    """The families (:func:`lightcurve_gp.inference.families.families`) of the solutions of ``inv`` (an
+    :class:`~lightcurve_gp.inference.inversion.Inversion`) on ``problem``, rates up to ``rate_max_deg_s``."""
+    return families(group, q0=inv.q0, omega0=inv.omega0, log_rho=inv.log_rho, cost=inv.cost,
+                    covariance=inv.covariance, sigma=problem.sigma, rate_max_rad_s=math.radians(rate_max_deg_s))

@@ -10,7 +10,6 @@ import torch
 from lightcurve_gp.attitude.rotations import attitude_matrix, quat_mul, rotvec_to_quat
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.inference.answer import answer
-from lightcurve_gp.inference.families import families
 from lightcurve_gp.inference.forward import GroupRenderer
 from lightcurve_gp.inference.inversion import InversionSettings, polish
 from lightcurve_gp.inference.probe_starts import (
@@ -29,7 +28,7 @@ from lightcurve_gp.photometry.ambiguity import ambiguity_group
 from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.photometry.symmetry import cube_rotations
 
-from helpers import tumbler_light_curve
+from helpers import families_of, tumbler_light_curve
 
 ROOT = Path(__file__).resolve().parents[1]
 F64 = torch.float64
@@ -52,11 +51,6 @@ def boxwing():
 def _problem(scene, inertia, y):
     return TrajectoryProblem(GroupRenderer(scene), torch.arange(T + 1.0, dtype=F64), y,
                              torch.full((T + 1,), SIGMA, dtype=F64), inertia, torch.zeros(0, 4, dtype=F64))
-
-
-def _families_of(group, inv, problem):
-    return families(group, q0=inv.q0, omega0=inv.omega0, log_rho=inv.log_rho, cost=inv.cost,
-                    covariance=inv.covariance, sigma=problem.sigma, rate_max_rad_s=math.radians(5.0))
 
 
 def _state(w):
@@ -82,7 +76,7 @@ def test_body_turn_starts_turn_the_attitude_and_the_rate_with_the_body(boxwing):
     scene, inertia, group = boxwing
     q0, w0, y = tumbler_light_curve(scene, inertia, seed=0, rate_deg_s=2.0, samples=T, sigma=SIGMA)
     problem = _problem(scene, inertia, y)
-    fam = _families_of(group, polish(problem, q0[None], _state(w0), iterations=2), problem)
+    fam = families_of(group, polish(problem, q0[None], _state(w0), iterations=2), problem)
     turns = near_body_turns(group)
     q, x = body_turn_starts(turns, fam)
     n = min(BODY_TURN_FAMILIES, len(fam))
@@ -106,7 +100,7 @@ def test_from_a_body_turned_basin_the_probe_reaches_the_truths(boxwing):
     k = next(i for i in range(len(rot)) if torch.allclose(rot[i], quarter_x, atol=1e-12))
     wrong = polish(problem, quat_mul(turns.body[k], q0)[None], _state(rot[k] @ w0), iterations=8)
     assert float(wrong.cost[0]) > float(basin.cost[0]) + 25.0
-    q, x = body_turn_starts(turns, _families_of(group, wrong, problem))
+    q, x = body_turn_starts(turns, families_of(group, wrong, problem))
     back = polish(problem, q, x, iterations=LOCAL_ITERATIONS)
     assert float(back.cost.min()) == pytest.approx(float(basin.cost[0]), abs=1e-3)
 
@@ -115,7 +109,7 @@ def test_harmonic_starts_hold_each_factor_and_tilt_and_keep_the_middle_attitude(
     scene, inertia, group = boxwing
     q0, w0, y = tumbler_light_curve(scene, inertia, seed=2, rate_deg_s=1.0, samples=T, sigma=SIGMA)
     problem = _problem(scene, inertia, y)
-    fam = _families_of(group, polish(problem, q0[None], _state(w0), iterations=2), problem)
+    fam = families_of(group, polish(problem, q0[None], _state(w0), iterations=2), problem)
     q, x = harmonic_starts(fam, span_s=float(T), rate_range_deg_s=RANGE)
     per = (1 + len(HARMONIC_TILTS_DEG) * RIDGE_AZIMUTHS) * len(HARMONIC_FACTORS)
     assert x.shape == (per * len(fam), 7)
@@ -136,7 +130,7 @@ def test_harmonic_starts_leave_out_rates_outside_the_range(boxwing):
     q0, w0, y = tumbler_light_curve(scene, inertia, seed=3, rate_deg_s=4.0, samples=T, sigma=SIGMA)
     problem = _problem(scene, inertia, y)
     q, x = restarted_at(w0[None, None], q0=q0[None], omega0=w0[None], log_rho=LOG_RHO, span_s=float(T))
-    fam = _families_of(group, polish(problem, q, x, iterations=0), problem)
+    fam = families_of(group, polish(problem, q, x, iterations=0), problem)
     _, x = harmonic_starts(fam, span_s=float(T), rate_range_deg_s=RANGE)
     rates = torch.rad2deg(torch.linalg.vector_norm(x[:, 3:6], dim=-1))
     # 4 °/s: 1.5× and 2× leave the 5 °/s range, ½× and ⅔× stay (13 axes each)

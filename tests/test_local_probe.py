@@ -10,7 +10,6 @@ import torch
 from lightcurve_gp.attitude.rotations import quat_mul, rotvec_to_quat
 from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.inference.families import families
 from lightcurve_gp.inference.forward import GroupRenderer
 from lightcurve_gp.inference.inversion import polish
 from lightcurve_gp.inference.probe_starts import (
@@ -25,7 +24,7 @@ from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import ambiguity_group
 from lightcurve_gp.photometry.render import Scene
 
-from helpers import tumbler_light_curve
+from helpers import families_of, tumbler_light_curve
 
 ROOT = Path(__file__).resolve().parents[1]
 F64 = torch.float64
@@ -51,11 +50,6 @@ def _case(scene, inertia, seed):
     return problem, q0, w0
 
 
-def _families_of(group, inv, problem):
-    return families(group, q0=inv.q0, omega0=inv.omega0, log_rho=inv.log_rho, cost=inv.cost,
-                    covariance=inv.covariance, sigma=problem.sigma, rate_max_rad_s=math.radians(5.0))
-
-
 def test_restarts_keep_the_attitude_at_the_middle_of_the_arc():
     q0 = random_attitudes(2, seed=4, dtype=F64)
     w0 = torch.tensor([[0.01, -0.02, 0.03], [0.0, 0.02, -0.01]], dtype=F64)
@@ -75,7 +69,7 @@ def test_local_starts_are_the_family_its_rate_factors_and_its_tilted_axes(boxwin
     scene, inertia, group = boxwing
     problem, q0, w0 = _case(scene, inertia, 0)
     x0 = torch.cat([torch.zeros(3, dtype=F64), w0, LOG_RHO])[None]
-    fam = _families_of(group, polish(problem, q0[None], x0, iterations=4), problem)
+    fam = families_of(group, polish(problem, q0[None], x0, iterations=4), problem)
     q, x = local_starts(fam, span_s=600.0)
     per = 1 + len(LOCAL_FACTORS) + len(LOCAL_TILTS_DEG) * RIDGE_AZIMUTHS
     assert x.shape == (per * len(fam), 7)
@@ -99,6 +93,6 @@ def test_from_a_neighbouring_rate_basin_the_local_probe_reaches_the_truths(boxwi
     q, x = restarted_at((w0 * factor)[None, None], q0=q0[None], omega0=w0[None], log_rho=LOG_RHO, span_s=600.0)
     off = polish(problem, q, x, iterations=8)  # a few per cent off in rate: another basin, > 25 nats worse
     assert float(off.cost[0]) > float(basin.cost[0]) + 25.0
-    q, x = local_starts(_families_of(group, off, problem), span_s=600.0)
+    q, x = local_starts(families_of(group, off, problem), span_s=600.0)
     back = polish(problem, q, x, iterations=LOCAL_ITERATIONS)
     assert float(back.cost.min()) == pytest.approx(float(basin.cost[0]), abs=1e-3)

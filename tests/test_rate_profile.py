@@ -23,7 +23,8 @@ from lightcurve_gp.inference.rate_profile import (
 )
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.render import Scene
-from tests.helpers import tumbler_light_curve
+
+from helpers import tumbler_light_curve
 
 ROOT = Path(__file__).resolve().parents[1]
 F64 = torch.float64
