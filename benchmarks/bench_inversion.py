@@ -11,6 +11,7 @@ the fit test and the probes); and the rate profile that the answer runs for a sl
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import statistics
 import time
@@ -30,11 +31,14 @@ from lightcurve_gp.photometry.ambiguity import ambiguity_group
 from lightcurve_gp.photometry.render import Scene
 
 ROOT = Path(__file__).resolve().parents[1]
-#: the light curve's body rate (deg/s)
+#: the light curve's body rate (deg/s) and ρ
 RATE_DEG_S = (0.9, -0.7, 1.1)
+RHO = 0.5
 
 
 def problem(sigma: float = 0.05):
+    """The benchmark's light curve as a problem anchored at the true first attitude, its ambiguity group, and the
+    true body rate ``(3,)`` (rad/s)."""
     cfg = load_config(ROOT / "configs" / "boxwing.yaml")
     scene = Scene.from_config(cfg)
     inertia = torch.tensor(cfg.shape.inertia_kg_m2, dtype=torch.float64)
@@ -42,11 +46,11 @@ def problem(sigma: float = 0.05):
     w0 = torch.deg2rad(torch.tensor(RATE_DEG_S, dtype=torch.float64))
     q, _ = propagate(q0, w0, inertia, 1.0, 600)
     gen = torch.Generator().manual_seed(0)
-    y = scene.magnitude(q, rho=0.5) + sigma * torch.randn(601, generator=gen, dtype=torch.float64)
+    y = scene.magnitude(q, rho=RHO) + sigma * torch.randn(601, generator=gen, dtype=torch.float64)
     prob = TrajectoryProblem(GroupRenderer(scene), torch.arange(601, dtype=torch.float64), y, torch.full_like(y, sigma),
                              inertia, q0[None])
     group = ambiguity_group(scene, times_s=torch.arange(601.0), inertia=inertia, rate_known=False, probes=2)
-    return prob, group
+    return prob, group, w0
 
 
 def main() -> int:
@@ -55,14 +59,13 @@ def main() -> int:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     args = parser.parse_args()
-    prob, group = problem()
+    prob, group, w0 = problem()
     print(f"| what | threads | starts | wall s (median of {args.repeats}) | CPU s | load average | cores |")
     print("|---|---|---|---|---|---|---|")
-    w0 = torch.deg2rad(torch.tensor(RATE_DEG_S, dtype=torch.float64))
     runs = {"search (invert)": lambda s: invert(prob, group, settings=s),
             "whole answer (answer)": lambda s: answer(prob, group, settings=s),
             "rate profile (rate_profile, 29 points)": lambda s: rate_profile(
-                prob, q0=prob.anchors[0], omega0=w0, log_rho=torch.tensor(0.5, dtype=torch.float64).log(),
+                prob, q0=prob.anchors[0], omega0=w0, log_rho=torch.tensor(math.log(RHO), dtype=torch.float64),
                 span_s=600.0, rate_range_deg_s=s.rate_range_deg_s)}
     for threads in args.threads:
         torch.set_num_threads(threads)
