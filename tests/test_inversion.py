@@ -135,3 +135,24 @@ def test_inversion_recovers_a_noise_free_truth_from_a_coarse_start_set(setup):
     assert float(torch.linalg.vector_norm(fam.omega0[0] - w_img[k]) / w0.norm()) < 5e-3
     assert float(fam.log_rho[0].exp()) == pytest.approx(0.4, rel=1e-2)
     assert float(fam.weight[0]) > 0.99
+
+
+def test_a_noisy_first_arc_passes_on_every_row_it_cannot_tell_from_the_best(setup):
+    # 0.7 mag over a 30 s arc: rows within tie_nats of the best go on beyond the quota, and as each row's
+    # Levenberg–Marquardt is its own, the search keeps every solution it found without the rule
+    scene, inertia = setup
+    T = 240
+    q0, w0, y = _truth(scene, inertia, T, rate_deg_s=1.2, sigma=0.7, seed=4)
+    problem = _problem(scene, inertia, y, 0.7, q0[None])
+    group = ambiguity_group(scene, times_s=torch.arange(T + 1.0), inertia=inertia, rate_known=False, probes=2)
+    rows, best = {}, {}
+    for tie in (None, 10.0):
+        said = []
+        settings = InversionSettings(starts=256, attitudes=64, arcs_s=(30.0, 80.0, 0.0), keep=(64, 16),
+                                     iterations=5, tie_nats=tie)
+        inv = invert(problem, group, settings=settings, progress=said.append)
+        rows[tie] = [int(m.split()[2]) for m in said if m.startswith("stage")]
+        best[tie] = float(inv.cost.min())
+    assert rows[None][0] == rows[10.0][0]  # the same screen
+    assert rows[10.0][1] > rows[None][1]
+    assert best[10.0] <= best[None] + 1e-9

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from lightcurve_gp.attitude.sampling import random_attitudes
-from lightcurve_gp.inference.inversion import InversionSettings, cohort_quotas, prune_rows, screened_at
+from lightcurve_gp.inference.inversion import InversionSettings, cohort_quotas, prune_rows, screened_at, tied_keep
 from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
 
 F64 = torch.float64
@@ -60,8 +60,25 @@ def test_a_cohort_keeps_one_row_per_solution_modulo_the_group():
     assert rows.tolist() == [0, 1, 2]
 
 
+def test_rows_the_arc_cannot_tell_from_the_best_are_kept_beyond_the_quota():
+    spaced = torch.arange(20, dtype=F64)  # one nat apart: 0..10 lie within 10 nats of the best
+    assert tied_keep(spaced, keep=3, tie_nats=10.0) == 11
+    assert tied_keep(spaced, keep=3, tie_nats=None) == 3
+    assert tied_keep(30.0 * spaced, keep=3, tie_nats=10.0) == 3  # an arc that separates them: the quota
+    assert tied_keep(spaced, keep=50, tie_nats=10.0) == 20  # never more than the rows
+    assert tied_keep(spaced.new_zeros(0), keep=3, tie_nats=10.0) == 0
+    q, omega = _rows(30, seed=7)
+    cohort = torch.tensor([0] * 20 + [1] * 10)
+    cost = torch.cat([torch.arange(20, dtype=F64), 100.0 * torch.arange(10, dtype=F64)])
+    rows = prune_rows(IDENTITY, q, omega, cost, keep=4, cohort=cohort, quotas=[4, 2], tie_nats=10.0)
+    assert sorted(rows.tolist()) == list(range(11)) + [20, 21]  # cohort 0's ties kept, cohort 1 its quota
+    assert sorted(prune_rows(IDENTITY, q, omega, cost, keep=4, cohort=cohort, quotas=[4, 2]).tolist()) == [
+        0, 1, 2, 3, 20, 21]
+
+
 def test_the_defaults_screen_each_rate_early_once_and_prune_by_cohort():
     assert InversionSettings().early_arcs == 1 and InversionSettings().cohort_quotas
+    assert InversionSettings().tie_nats == 10.0
     with pytest.raises(ValueError, match=r"^early_arcs: -1 must be >= 0$"):
         InversionSettings(early_arcs=-1)
 
