@@ -7,7 +7,14 @@ import pytest
 import torch
 
 from lightcurve_gp.attitude.sampling import random_attitudes
-from lightcurve_gp.inference.inversion import InversionSettings, cohort_quotas, prune_rows, screened_at, tied_keep
+from lightcurve_gp.inference.inversion import (
+    TIE_CAP,
+    InversionSettings,
+    cohort_quotas,
+    prune_rows,
+    screened_at,
+    tied_keep,
+)
 from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
 
 F64 = torch.float64
@@ -66,6 +73,8 @@ def test_rows_the_arc_cannot_tell_from_the_best_are_kept_beyond_the_quota():
     assert tied_keep(spaced, keep=3, tie_nats=None) == 3
     assert tied_keep(30.0 * spaced, keep=3, tie_nats=10.0) == 3  # an arc that separates them: the quota
     assert tied_keep(spaced, keep=50, tie_nats=10.0) == 20  # never more than the rows
+    assert tied_keep(spaced, keep=1, tie_nats=10.0) == 8  # at most TIE_CAP (8) times the quota
+    assert tied_keep(spaced, keep=2, tie_nats=10.0, tie_cap=1.5) == 3
     assert tied_keep(spaced.new_zeros(0), keep=3, tie_nats=10.0) == 0
     q, omega = _rows(30, seed=7)
     cohort = torch.tensor([0] * 20 + [1] * 10)
@@ -78,7 +87,7 @@ def test_rows_the_arc_cannot_tell_from_the_best_are_kept_beyond_the_quota():
 
 def test_the_defaults_screen_each_rate_early_once_and_prune_by_cohort():
     assert InversionSettings().early_arcs == 1 and InversionSettings().cohort_quotas
-    assert InversionSettings().tie_nats == 10.0
+    assert InversionSettings().tie_nats == 10.0 and InversionSettings().tie_cap == TIE_CAP == 8.0
     with pytest.raises(ValueError, match=r"^early_arcs: -1 must be >= 0$"):
         InversionSettings(early_arcs=-1)
 

@@ -27,10 +27,14 @@ within a likelihood ratio of the best kept) in batched tensors, on one :class:`.
    tuning seed 31 at 0.71 mag, 2.37 °/s, with every row carried: on the 30 s arc all of the ~6100 rows of the first
    cohort lay within 10 nats of its best, on 60 s 75 % of them, on 120 s 26 %, on 240 s 1.5 %; the quotas kept
    2500, 750, 250 and 125 rows, chosen by arcs that held no information, and the answer ended 117 nats above the
-   truth's basin; with the ties kept it reaches the basin, as on tuning seeds 34, 44 and 51, missed by 24–146 nats
-   before; at 0.05 mag on the benchmark's light curve no arc has more ties than its quota); with a Gaussian prior
-   of standard deviation ``turn_rad / arc`` on the change of the rate (a short arc cannot tell the rate better;
-   without it the rate wanders along the short arc's flat directions) except on the whole light curve.
+   truth's basin; with the ties kept it reaches the basin, as tuning seeds 34, 44 and 51 do, missed by 24–146 nats
+   before (those three measured with no cap); at 0.05 mag on the benchmark's light curve no arc has more ties than
+   its quota). The ties kept are at most :data:`TIE_CAP` times the quota: a slow tumbler's ridge ties thousands of
+   rows on the long arcs (seed 1001 at 0.1 mag, 0.11 °/s: the whole answer took 558 s with no cap, 225 s capped at
+   8×, 190 s at 4×, 110 s before the ties, on two busy cores), and at 4× tuning seed 31 is missed again (33 nats),
+   at 8× it is reached. Each stage but the whole light curve's has a Gaussian prior of standard deviation
+   ``turn_rad / arc`` on the change of the rate (a short arc cannot tell the rate better; without it the rate
+   wanders along the short arc's flat directions).
 4. The survivors, polished on the whole light curve, with their Laplace covariance, go to :mod:`.families`.
 
 Everything is one set of tensors on the problem's device and dtype; ``progress`` (a callable of a message) reports
@@ -54,8 +58,12 @@ from lightcurve_gp.inference.solver import GaussianPrior, LeastSquaresOptions, b
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
 
-__all__ = ["InversionSettings", "Inversion", "rate_starts", "entry_stages", "screened_at", "cohort_quotas",
+__all__ = ["TIE_CAP", "InversionSettings", "Inversion", "rate_starts", "entry_stages", "screened_at", "cohort_quotas",
            "tied_keep", "prune_rows", "screen", "invert", "polish"]
+
+
+#: the ties a cohort keeps beyond its quota are at most this many times the quota (:func:`tied_keep`)
+TIE_CAP = 8.0
 
 
 @dataclass(frozen=True)
@@ -83,8 +91,8 @@ class InversionSettings:
         cohort_quotas: the rows that entered at one arc (a cohort) are pruned among themselves, to
             :func:`cohort_quotas` of ``keep``, so rows entering later never crowd out those carried; False: all rows
             compete for ``keep``.
-        tie_nats: a cohort keeps, beyond its quota, every row within this many nats of its best on the arc
-            (:func:`tied_keep`; ``None``: the quota alone).
+        tie_nats: a cohort keeps, beyond its quota, every row within this many nats of its best on the arc, at most
+            ``tie_cap`` times its quota (:func:`tied_keep`; ``None``: the quota alone).
         cluster_angle_deg, cluster_rate_deg_s: solutions this close modulo the group are one.
         seed: of the Sobol' attitudes.
         nterms: Fourier terms of the periodogram.
@@ -105,6 +113,7 @@ class InversionSettings:
     early_arcs: int = 1
     cohort_quotas: bool = True
     tie_nats: float | None = 10.0
+    tie_cap: float = TIE_CAP
     cluster_angle_deg: float = 5.0
     cluster_rate_deg_s: float = 0.05
     seed: int = 0
@@ -237,23 +246,24 @@ def cohort_quotas(keep: int, starts: list[int]) -> list[int]:
     return [math.ceil(keep * n / most) if n else 0 for n in starts]
 
 
-def tied_keep(cost: Tensor, *, keep: int, tie_nats: float | None) -> int:
+def tied_keep(cost: Tensor, *, keep: int, tie_nats: float | None, tie_cap: float = TIE_CAP) -> int:
     """Rows to keep of ``cost (N,)``: ``keep``, or more where more rows lie within ``tie_nats`` of the best (the arc
-    cannot tell them from it; ``None``: ``keep``), never more than ``N``."""
+    cannot tell them from it; ``None``: ``keep``), at most ``tie_cap · keep`` and never more than ``N``."""
     if tie_nats is None or not cost.numel():
         return min(keep, cost.numel())
-    return min(max(keep, int((cost <= cost.min() + tie_nats).sum())), cost.numel())
+    ties = int((cost <= cost.min() + tie_nats).sum())
+    return min(max(keep, min(ties, math.ceil(tie_cap * keep))), cost.numel())
 
 
 def prune_rows(group: AmbiguityGroup, anchors: Tensor, omega: Tensor, cost: Tensor, *, keep: int,
                cohort: Tensor | None = None, quotas: list[int] | None = None, angle_deg: float = 5.0,
-               rate_deg_s: float = 0.05, tie_nats: float | None = None) -> Tensor:
+               rate_deg_s: float = 0.05, tie_nats: float | None = None, tie_cap: float = TIE_CAP) -> Tensor:
     """Indices of the rows kept of ``anchors (N, 4)``, ``omega (N, 3)`` (rad/s), ``cost (N,)``: the best ``keep``
     (more with ``tie_nats``: :func:`tied_keep`), one per solution modulo ``group`` (the best ``4 keep`` by cost
     clustered within ``angle_deg`` and ``rate_deg_s``); with ``cohort (N,)`` (each row's cohort index) and
     ``quotas`` (rows per cohort), the same within each cohort on its own, ``quotas[c]`` rows of cohort ``c``."""
     if cohort is None:
-        keep = tied_keep(cost, keep=keep, tie_nats=tie_nats)
+        keep = tied_keep(cost, keep=keep, tie_nats=tie_nats, tie_cap=tie_cap)
         top = torch.topk(cost, min(4 * keep, cost.numel()), largest=False).indices
         _, heads = cluster(group, anchors[top], omega[top], cost[top], angle_deg=angle_deg, rate_deg_s=rate_deg_s)
         return top[heads[:keep]]
@@ -262,7 +272,8 @@ def prune_rows(group: AmbiguityGroup, anchors: Tensor, omega: Tensor, cost: Tens
         mine = torch.nonzero(cohort == c).flatten()
         if quota and mine.numel():
             parts.append(mine[prune_rows(group, anchors[mine], omega[mine], cost[mine], keep=quota,
-                                         angle_deg=angle_deg, rate_deg_s=rate_deg_s, tie_nats=tie_nats)])
+                                         angle_deg=angle_deg, rate_deg_s=rate_deg_s, tie_nats=tie_nats,
+                                         tie_cap=tie_cap)])
     return torch.cat(parts) if parts else cohort.new_zeros(0)
 
 
@@ -316,7 +327,7 @@ def invert(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: Inver
                               cohort=cohort if settings.cohort_quotas else None,
                               quotas=cohort_quotas(keep, cohort_starts[:stage]),
                               angle_deg=settings.cluster_angle_deg, rate_deg_s=settings.cluster_rate_deg_s,
-                              tie_nats=settings.tie_nats)
+                              tie_nats=settings.tie_nats, tie_cap=settings.tie_cap)
             anchors, x, cohort = anchors[rows], x[rows], cohort[rows]
         if entering[stage] is not None:
             anchors, x = torch.cat([anchors, entering[stage][0]]), torch.cat([x, entering[stage][1]])
