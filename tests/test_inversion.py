@@ -21,6 +21,8 @@ from lightcurve_gp.passes.geometry import pass_geometry
 from lightcurve_gp.photometry.ambiguity import ambiguity_group
 from lightcurve_gp.photometry.render import Scene
 
+from helpers import families_of
+
 ROOT = Path(__file__).resolve().parents[1]
 F64 = torch.float64
 
@@ -126,8 +128,7 @@ def test_inversion_recovers_a_noise_free_truth_from_a_coarse_start_set(setup):
     rates = torch.cat([coarse, (w0 + math.radians(0.1) * torch.tensor([0.6, -0.8, 0.0], dtype=F64))[None]])
     settings = InversionSettings(starts=256, attitudes=128, arcs_s=(30.0, 80.0, 0.0), keep=(64, 16), iterations=8)
     inv = invert(problem, group, settings=settings, rate_grid=rates)
-    fam = families(group, q0=inv.q0, omega0=inv.omega0, log_rho=inv.log_rho, cost=inv.cost,
-                   covariance=inv.covariance, sigma=problem.sigma, rate_max_rad_s=math.radians(5.0))
+    fam = families_of(group, inv, problem)
     q_img, w_img = group.attitudes(q0), group.rates(w0)
     err = attitude_errors_deg(q_img, fam.q0[0].expand(16, 4)).abs().amax(-1)
     k = int(err.argmin())
