@@ -138,6 +138,7 @@ def test_inversion_recovers_a_noise_free_truth_from_a_coarse_start_set(setup):
     assert float(fam.weight[0]) > 0.99
 
 
+@pytest.mark.slow
 def test_a_noisy_first_arc_passes_on_every_row_it_cannot_tell_from_the_best(setup):
     # 0.7 mag over a 30 s arc: rows within tie_nats of the best go on beyond the quota, and as each row's
     # Levenberg–Marquardt is its own, the search keeps every solution it found without the rule
