@@ -66,7 +66,7 @@ from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
-FORMAT = 10
+FORMAT = 11
 TRUTH_STREAM = 1 << 42
 CALIBRATION_BINS = (0.0, 0.5, 0.8, 0.95, 0.99, 1.0001)
 
@@ -134,7 +134,8 @@ def run_seed(cfg, seed: int, sigma: float, args) -> dict:
            "rate_deg_s": math.degrees(float(w0.norm())), "rho_true": rho, "families": len(fam),
            "top1": bool(ref.right[0]), "topk": bool(ref.right.any()), "top1_weight": float(fam.weight[0]),
            "top1_mass": float(fam.mass[0]), "top1_p_right": float(fam.p_right[0]),
-           "p_right_sum": float(fam.p_right.sum()), "best_below_truth": float(inv.cost.min()) < ref.truth_cost - 1e-6,
+           "p_right_sum": float(fam.p_right.sum()), "beyond_rate_range": fam.beyond,
+           "best_below_truth": float(inv.cost.min()) < ref.truth_cost - 1e-6,
            **ref.as_dict(), "verdict": ans.verdict, "chi2_per_dof": ans.fit.chi2_per_dof, "p_value": ans.fit.p_value,
            "widened": ans.widened, "first_chi2_per_dof": ans.first_fit.chi2_per_dof,
            "probe_rows": ans.probe_rows, "probe_gain_nats": ans.probe_gain_nats,

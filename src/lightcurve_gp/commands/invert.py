@@ -190,7 +190,8 @@ def _polished(run: InversionRun) -> list[dict]:
 
 def _summary(run: InversionRun, settings: InversionSettings, record: dict) -> dict:
     ans, inv, fam, group = run.answer, run.inversion, run.families, run.group
-    return {**ans.as_dict(), "verdict_words": ans.words(), "families": len(fam), "polished": _polished(run),
+    return {**ans.as_dict(), "verdict_words": ans.words(), "families": len(fam), "beyond_rate_range": fam.beyond,
+            "polished": _polished(run),
             "converged_solutions": int(inv.q0.shape[0]), "images": list(group.labels),
             "ambiguity_images": group.as_dict(), "top_weight": float(fam.weight[0]),
             "top_p_right": float(fam.p_right[0]),
@@ -248,6 +249,9 @@ def _run(args: argparse.Namespace) -> int:
           f"rate {math.hypot(*(float(best[f'omega_{a}']) for a in 'xyz')):.4g} deg/s, "
           f"rho {float(best['rho']):.3g}; {sum(inv.seconds.values()) + run.seconds:.1f} s")
     print(f"verdict: {run.answer.words()}")
+    if fam.beyond:
+        print(f"{fam.beyond} more basins within {args.max_log_ratio:g} nats turn faster than the fastest rate "
+              f"searched ({settings.rate_range_deg_s[1]:g} deg/s) and are left out (--rate-max widens the range)")
     for k, arc in enumerate(run.polished):
         print(f"family {k + 1} polished by the whole-arc MAP (surface unknown): chi2/dof {arc.chi2 / arc.dof:.2f}, "
               f"p = {arc.p_value:.3g}, {arc.verdict.replace('_', ' ')}")

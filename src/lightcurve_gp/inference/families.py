@@ -31,6 +31,13 @@ the family's mode. Under the family's Laplace Gaussian (the bounded ``Σ̃_f``) 
 that region (Monte Carlo over fixed draws) and ``p_right_f = w_f · mass_f`` the probability that family ``f`` is the
 right answer. A wide family (a slow tumbler's ridge, a rate the arc cannot tell to 2 %) keeps its basin weight but
 not its claim to be right.
+
+**The prior's support.** The rate ball bounds the volume and also the rates an answer may have: the polish on the
+whole light curve is not held inside it, and at high noise a mode can drift far beyond the fastest rate searched
+(held-out seed 1003 at 0.71 mag, a 0.2 °/s tumbler: its leading family turned at 15.4 °/s with weight 0.43, the
+search's range 0.05–5 °/s). A mode whose rate exceeds ``ω_max`` by more than :data:`SUPPORT_SIGMAS` of its own
+(bounded) rate standard deviation along its axis has no prior mass and is no family (:func:`beyond_support`;
+``Families.beyond`` counts them); a mode at the edge, within that, is kept as it is.
 """
 
 from __future__ import annotations
@@ -45,8 +52,9 @@ from lightcurve_gp.attitude.metrics import attitude_errors_deg, total_angle_deg
 from lightcurve_gp.attitude.rotations import quat_mul, rotvec_to_quat
 from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
 
-__all__ = ["RIGHT_ANGLE_DEG", "RIGHT_RATE_REL", "MASS_DRAWS", "Families", "image_distance", "cluster",
-           "log_prior_volume", "prior_precision", "bounded_covariance", "tolerance_mass", "families"]
+__all__ = ["RIGHT_ANGLE_DEG", "RIGHT_RATE_REL", "MASS_DRAWS", "SUPPORT_SIGMAS", "Families", "image_distance",
+           "cluster", "log_prior_volume", "prior_precision", "bounded_covariance", "beyond_support", "tolerance_mass",
+           "families"]
 
 #: ln ρ prior range of the evidence (ρ from 1e-3 to 1)
 LOG_RHO_RANGE = math.log(1e3)
@@ -56,6 +64,8 @@ RIGHT_ANGLE_DEG = 10.0
 RIGHT_RATE_REL = 0.02
 #: draws of :func:`tolerance_mass`
 MASS_DRAWS = 4096
+#: a mode whose rate exceeds the prior's ball by more than this many of its standard deviations is no family
+SUPPORT_SIGMAS = 3.0
 
 
 def image_distance(group: AmbiguityGroup, q_a: Tensor, omega_a: Tensor, q_b: Tensor, omega_b: Tensor, *,
@@ -132,6 +142,19 @@ def bounded_covariance(covariance: Tensor, rate_max_rad_s: float) -> Tensor:
     return 0.5 * (out + out.transpose(-1, -2))
 
 
+def beyond_support(omega0: Tensor, covariance: Tensor, rate_max_rad_s: float, *,
+                   sigmas: float = SUPPORT_SIGMAS) -> Tensor:
+    """Which modes ``(F,)`` lie beyond the prior's rate ball: ``|ω| − ω_max > sigmas · σ_r`` for body rates
+    ``omega0 (F, 3)`` (rad/s) with Laplace covariances ``(F, 7, 7)``, ``σ_r² = uᵀ Σ̃_ωω u`` along ``u = ω/|ω|``
+    (:func:`bounded_covariance`; a non-finite ``σ_r`` counts as 0, the rate alone decides)."""
+    rate = torch.linalg.vector_norm(omega0, dim=-1)
+    u = omega0 / rate.clamp_min(torch.finfo(rate.dtype).tiny).unsqueeze(-1)
+    cov = bounded_covariance(covariance, rate_max_rad_s)[..., 3:6, 3:6]
+    sd = torch.einsum("fi,fij,fj->f", u, cov, u).clamp_min(0.0).sqrt()
+    sd = torch.where(torch.isfinite(sd), sd, torch.zeros_like(sd))
+    return rate - rate_max_rad_s > sigmas * sd
+
+
 def tolerance_mass(q0: Tensor, omega0: Tensor, covariance: Tensor, *, angle_deg: float = RIGHT_ANGLE_DEG,
                    rate_rel: float = RIGHT_RATE_REL, draws: int = MASS_DRAWS, seed: int = 0) -> Tensor:
     """The Gaussian mass ``(F,)`` of the states "right" about modes ``q0 (F, 4)``, ``omega0 (F, 3)`` (rad/s) under
@@ -165,6 +188,8 @@ class Families:
         covariance: Laplace covariances of ``[θ, ω, ln ρ]`` ``(F, 7, 7)`` (rad², (rad/s)², …).
         members: solutions in each family ``(F,)``.
         images: the labels of the group the families were taken modulo.
+        beyond: modes within the likelihood-ratio cut left out as beyond the prior's rate ball
+            (:func:`beyond_support`).
     """
 
     q0: Tensor
@@ -178,6 +203,7 @@ class Families:
     covariance: Tensor
     members: Tensor
     images: tuple[str, ...]
+    beyond: int = 0
 
     def __len__(self) -> int:
         return self.q0.shape[0]
@@ -188,11 +214,16 @@ def families(group: AmbiguityGroup, *, q0: Tensor, omega0: Tensor, log_rho: Tens
              angle_deg: float = 5.0, rate_deg_s: float = 0.05) -> Families:
     """Cluster converged solutions (``M`` rows: ``q0 (M, 4)``, ``omega0 (M, 3)``, ``log_rho (M,)``, ``cost (M,)`` =
     ``½ Σ r²``, ``covariance (M, 7, 7)``), keep the families within ``max_log_ratio`` nats of the best and weight
-    them by evidence (module docstring). ``sigma (K,)`` the light curve's 1σ (mag) for the likelihood's constant."""
+    them by evidence (module docstring); modes beyond the prior's rate ball (:func:`beyond_support`) are no families
+    unless every mode is. ``sigma (K,)`` the light curve's 1σ (mag) for the likelihood's constant."""
     labels, heads = cluster(group, q0, omega0, cost, angle_deg=angle_deg, rate_deg_s=rate_deg_s)
     constant = float(torch.log(math.sqrt(2.0 * math.pi) * sigma).sum())
     ll = -cost[heads] - constant
-    keep = (ll.max() - ll) <= max_log_ratio
+    inside = ~beyond_support(omega0[heads], covariance[heads], rate_max_rad_s)
+    if not bool(inside.any()):
+        inside = torch.ones_like(inside)
+    near = (ll[inside].max() - ll) <= max_log_ratio
+    keep, beyond = inside & near, int((~inside & near).sum())
     heads, ll = heads[keep], ll[keep]
     cov = covariance[heads]
     # det(2π (Σ⁻¹ + P)⁻¹) = det(2π Σ) / det(I + Σ P), no inverse of a nearly singular Σ (module docstring)
@@ -212,4 +243,4 @@ def families(group: AmbiguityGroup, *, q0: Tensor, omega0: Tensor, log_rho: Tens
     mass = torch.where(torch.isfinite(mass), mass, torch.zeros_like(mass))
     return Families(q0=pick(q0), omega0=pick(omega0), log_rho=pick(log_rho), log_likelihood=ll[order],
                     log_evidence=log_z[order], weight=weight[order], mass=mass, p_right=weight[order] * mass,
-                    covariance=cov[order], members=members[order], images=tuple(group.labels))
+                    covariance=cov[order], members=members[order], images=tuple(group.labels), beyond=beyond)
