@@ -45,6 +45,7 @@ def _run_constant(*, bias: float, R: float, v: float, rate: float, B: int = 400,
     return hist, hist.y_var - hist.model_var  # R̂_k used at every step
 
 
+@pytest.mark.slow
 def test_correct_model_leaves_R_in_expectation():
     """White noise, correct model: ``ν ~ N(0, R + v)``, the excess ``e = ν² − v`` has mean R and variance
     ``2(R + v)²``, so the average ``c`` (stationary std ``σ_c = √(λ/(2−λ) · 2(R + v)²)``) is centred on R;
@@ -59,6 +60,7 @@ def test_correct_model_leaves_R_in_expectation():
     assert float(hist.nis()[:, late].mean()) == pytest.approx(1.0, abs=0.06)
 
 
+@pytest.mark.slow
 def test_model_bias_raises_R_toward_R_plus_bias_squared():
     """A constant model error β adds β² to ``E ν²``: ``c → R + β²`` (the clamp at R is 3σ_c away)."""
     R, v, bias = 0.5, 0.1, 0.5

@@ -71,6 +71,7 @@ def test_bad_config_value_is_reported_with_its_key(tmp_path, capsys):
     assert not (tmp_path / "boxwing").exists()
 
 
+@pytest.mark.slow
 def test_estimate_prints_the_table_and_writes_results(trained, tmp_path, capsys):
     code = estimate.main([BOXWING, "--model", str(trained / "tiny" / "model.pt"), "--seeds", "3", "--rho-true", "0.7",
                           "--estimators", "paper", "--out", str(tmp_path), *sets(TINY)])

@@ -88,6 +88,7 @@ def test_body_turn_starts_turn_the_attitude_and_the_rate_with_the_body(boxwing):
     assert bool((x[:, :3] == 0).all()) and torch.allclose(x[:20, 6], fam.log_rho[0].expand(20))
 
 
+@pytest.mark.slow
 def test_from_a_body_turned_basin_the_probe_reaches_the_truths(boxwing):
     scene, inertia, group = boxwing
     q0, w0, y = tumbler_light_curve(scene, inertia, seed=1, rate_deg_s=2.0, samples=T, sigma=SIGMA)
@@ -138,6 +139,7 @@ def test_harmonic_starts_leave_out_rates_outside_the_range(boxwing):
     assert sorted({round(float(r), 6) for r in rates}) == pytest.approx([2.0, 8.0 / 3.0], abs=1e-6)
 
 
+@pytest.mark.slow
 def test_answer_runs_the_far_probes_and_they_only_add(boxwing):
     scene, inertia, group = boxwing
     q0, w0, y = tumbler_light_curve(scene, inertia, seed=4, rate_deg_s=1.5, samples=T, sigma=SIGMA)

@@ -98,6 +98,7 @@ def test_from_an_image_basin_the_probe_reaches_the_truths(moving, seed):
     assert torch.allclose(back, basin.cost[0].expand(3), atol=1e-3)
 
 
+@pytest.mark.slow
 def test_answer_runs_the_probe_on_its_leading_families(moving):
     _, scene, t, inertia = moving
     q0, w0, y = _truth(scene, inertia, 0)

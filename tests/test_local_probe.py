@@ -84,6 +84,7 @@ def test_local_starts_are_the_family_its_rate_factors_and_its_tilted_axes(boxwin
     assert torch.allclose(tilts, expected, atol=1e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("seed", "factor"), [(0, 1.08), (3, 1.05)])
 def test_from_a_neighbouring_rate_basin_the_local_probe_reaches_the_truths(boxwing, seed, factor):
     scene, inertia, group = boxwing

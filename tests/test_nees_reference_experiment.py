@@ -8,6 +8,7 @@ import pytest
 from experiments import nees_reference
 
 
+@pytest.mark.slow
 def test_rows_per_block_and_seed_file_agree(tmp_path, capsys):
     args = ["--sigmas", "0.1", "--random-seeds", "2000:2004", "--report", "2000:2002,2000:2004", "--paper-seeds", "",
             "--out", str(tmp_path / "out"), "--runs", str(tmp_path / "runs")]

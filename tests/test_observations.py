@@ -83,6 +83,7 @@ def simulated(tmp_path_factory):
     return cfg, simulate_scenario(cfg, [4]), path
 
 
+@pytest.mark.slow
 def test_a_scenario_and_the_file_simulate_writes_of_it_give_the_same_estimate(simulated):
     cfg, sc, path = simulated
     problem = sc.problem()
@@ -159,6 +160,7 @@ def test_two_files_at_the_same_instant_are_refused_naming_both(simulated, tmp_pa
                                      f"time 0.000000 s after ")
 
 
+@pytest.mark.slow
 def test_a_no_fit_solutions_file_is_warned_about_as_a_start_not_an_answer(simulated, tmp_path, capsys):
     from astropy.table import Table
 

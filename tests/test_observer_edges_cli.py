@@ -400,6 +400,7 @@ def test_bars_to_a_file_are_lines_at_an_interval(monkeypatch):
     assert out.getvalue().splitlines() == ["estimators: 0% 0/4 00:00 elapsed", *lines, "error: something"]
 
 
+@pytest.mark.slow
 def test_a_command_with_stderr_in_a_file_writes_progress_lines(tmp_path, monkeypatch, capsys):
     from lightcurve_gp.commands import estimate
 

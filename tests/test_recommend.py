@@ -41,6 +41,7 @@ def test_without_a_renderable_shape_only_the_gp_filter_is_left():
             recommend_estimator(cfg, noise_std=bad, have_model=False)
 
 
+@pytest.mark.slow
 def test_estimate_without_estimators_runs_the_recommended_one_and_says_why(tmp_path, capsys):
     args = [str(REALISTIC), "--seeds", "2", "--out", str(tmp_path), "--no-progress",
             *[a for s in SHORT for a in ("--set", s)]]

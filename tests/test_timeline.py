@@ -49,6 +49,7 @@ def test_gaps_land_on_the_regularly_propagated_attitudes():
     assert angle(q_gaps, q_regular[keep * 100]) < 1e-11
 
 
+@pytest.mark.slow
 def test_irregular_times_compose_to_the_closed_form_motion():
     t = torch.tensor([5.0, 5.3, 6.1, 9.0, 9.05, 14.7, 20.0], dtype=DT)  # the first sample at 5 s
     increments = spin_increments(t, omega0=OMEGA0, inertia=INERTIA)

@@ -55,6 +55,7 @@ def paper():
     return cfg, scene, simulate_scenario(cfg, seeds=range(3), scene=scene)
 
 
+@pytest.mark.slow
 def test_map_estimator_equals_the_surface_map_reference(paper):
     """``map`` (surface unknown; through the harness, started from the surface filter and the prior starts) lands on
     the minimum the checkpoint MAP reference of :mod:`lightcurve_gp.inference.surface` finds from the prior mean
@@ -78,6 +79,7 @@ def test_map_estimator_equals_the_surface_map_reference(paper):
     assert float(nees(end, arc_estimate(sc.problem(), solution).P[:, -1]).max()) < 0.1 ** 2
 
 
+@pytest.mark.slow
 def test_matched_map_equals_the_known_rate_map_reference(paper):
     """``matched_map`` (the truth's surface known) equals :func:`map_known_rate` on the renderer with that surface."""
     cfg, scene, sc = paper
@@ -91,6 +93,7 @@ def test_matched_map_equals_the_known_rate_map_reference(paper):
     assert angle_deg(result.q_est[:, -1], reference).max() < 2e-3
 
 
+@pytest.mark.slow
 def test_whole_arc_nees_is_chi_square_on_noise_only_seeds():
     """The truth's surface known, 48 noise seeds around one truth at σ = 0.01 mag: the error at t_0 against the
     Laplace covariance is one χ²(3) draw per seed, so the seeds' mean NEES lies in the 95 % band of the mean of 48
@@ -192,6 +195,7 @@ def test_noise_floor_continuation_finds_the_basin_the_prior_starts_miss():
     assert float(continued.cost) <= 290.0  # the truth's cost is 281 nats; its 600 samples alone expect 300 ± 17
 
 
+@pytest.mark.slow
 def test_surface_starts_find_the_lobes_the_prior_mean_misses():
     """A tuning seed of the random truths (1050: n_u = 21, n_v = 315, F0 = 0.14) at σ = 0.1 mag, surface unknown, no
     filter start: from the prior's starts, all with the prior's lobe exponents (n = 316), the MAP ends 28° away at
@@ -210,6 +214,7 @@ def test_surface_starts_find_the_lobes_the_prior_mean_misses():
     assert float(lobes.cost) <= 330.0  # 600 samples alone expect 300 ± 17 nats
 
 
+@pytest.mark.slow
 def test_misfit_test_searches_again_with_unequal_lobes():
     """A tuning seed of the random truths (1038: n_u = 6714, n_v = 22) at σ = 0.01 mag, surface unknown, no filter
     start: the first search ends tens of thousands of nats above the 600 samples' ``χ²/2`` (300 ± 17); the misfit
@@ -298,6 +303,7 @@ def test_weak_direction_starts_move_k_standard_deviations_along_the_weakest_atti
                      quat_to_rotvec(quat_mul(q_p[2, s], quat_conj(q[b, s])))) < 0  # the two signs
 
 
+@pytest.mark.slow
 def test_weak_direction_probe_finds_the_basin_the_search_misses():
     """A tuning seed of the random truths (1064) at σ = 0.01 mag, surface unknown: the search (starts, continuation,
     surface starts) ends 9° from the truth, 19 nats above the truth's basin (297.9 nats), with a NEES far outside its
@@ -342,6 +348,7 @@ def test_extended_starts_leave_the_other_objects_alone():
     assert float(both.cost[1]) == 250.0 and int(both.best_start[1]) == K
 
 
+@pytest.mark.slow
 def test_worker_threads_change_nothing_but_the_time(paper):
     """Rendering pieces of the problems in two threads (torch held to one meanwhile) gives the single-thread MAP bit
     for bit, and the caller's torch thread count is back afterwards."""
