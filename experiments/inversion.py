@@ -54,7 +54,7 @@ from lightcurve_gp.files import write_json_atomic, write_text_atomic
 from lightcurve_gp.filters.bank import bank_attitudes, run_bank
 from lightcurve_gp.inference.answer import MAX_LOG_RATIO, PROFILE_JOIN_NATS, answer
 from lightcurve_gp.inference.families import RIGHT_RATE_REL, image_distance
-from lightcurve_gp.inference.fit_verdict import UNIQUE_WEIGHT, VERDICTS
+from lightcurve_gp.inference.fit_verdict import VERDICTS, judged
 from lightcurve_gp.inference.forward import GroupRenderer
 from lightcurve_gp.inference.inversion import InversionSettings, polish
 from lightcurve_gp.inference.probe_starts import below_one_turn
@@ -188,8 +188,7 @@ def profiled(cfg, row: dict, args) -> dict:
     if profile.gain_nats > PROFILE_JOIN_NATS:
         return run_seed(cfg, row["seed"], row["sigma"], args)
     p_right, ridge = ridge_rule(profile, weight=state["weight"][0], p_right=state["p_right"][0])
-    verdict = row["verdict"] if row["verdict"] == "no_fit" else \
-        "unique" if p_right >= UNIQUE_WEIGHT and not ridge else "ambiguous"
+    verdict = judged(fits=row["verdict"] != "no_fit", top_weight=p_right, ridge=ridge)
     p_rights = [p_right, *state["p_right"][1:]]
     lo, hi = profile.interval_deg_s
     return {**row, "top1_p_right": p_right, "p_right_sum": float(sum(p_rights)), "verdict": verdict, "ridge": ridge,

@@ -17,7 +17,7 @@ from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.commands.invert import main as invert_main
 from lightcurve_gp.config.load import load_config
 from lightcurve_gp.inference.answer import answer, widened_settings
-from lightcurve_gp.inference.fit_verdict import P_NO_FIT, fit_test, verdict
+from lightcurve_gp.inference.fit_verdict import P_NO_FIT, fit_test, judged, verdict
 from lightcurve_gp.inference.forward import GroupRenderer
 from lightcurve_gp.inference.inversion import InversionSettings, rate_starts
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
@@ -53,6 +53,9 @@ def test_verdict_rule():
     assert verdict(good, 0.95) == "unique" and verdict(good, 0.9) == "unique"
     assert verdict(good, 0.89) == "ambiguous"
     assert verdict(bad, 1.0) == "no_fit"  # a misfit is never unique, whatever its weight
+    assert verdict(good, 0.99, ridge=True) == "ambiguous"  # nor is a rate its profile does not fix
+    assert verdict(bad, 0.99, ridge=True) == "no_fit"
+    assert judged(fits=True, top_weight=0.95) == "unique" and judged(fits=False, top_weight=0.95) == "no_fit"
 
 
 @pytest.fixture(scope="module")

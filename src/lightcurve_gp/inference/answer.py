@@ -351,9 +351,9 @@ def answer(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: Inver
         top_p, on_ridge = ridge_rule(profile, weight=float(fam.weight[0]), p_right=float(fam.p_right[0]))
         fam = replace(fam, p_right=torch.cat([fam.p_right.new_tensor([top_p]), fam.p_right[1:]]))
         lo, hi = min(lo, profile.interval_deg_s[0]), max(hi, profile.interval_deg_s[1])
-    said = verdict(fit, float(fam.p_right[0]))
+    said = verdict(fit, float(fam.p_right[0]), ridge=on_ridge)
     if said == "no_fit":
         fam = replace(fam, p_right=torch.zeros_like(fam.p_right))
-    return Answer(inversion=inv, families=fam, fit=fit, verdict="ambiguous" if said == "unique" and on_ridge else said,
+    return Answer(inversion=inv, families=fam, fit=fit, verdict=said,
                   widened=widened, first_fit=first, ridge=on_ridge, rate_interval_deg_s=(lo, hi), profile=profile,
                   probe_rows=rows, probe_gain_nats=gains, seconds=seconds)

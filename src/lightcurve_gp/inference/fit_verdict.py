@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 from scipy.stats import chi2 as chi2_distribution
 
-__all__ = ["P_NO_FIT", "UNIQUE_WEIGHT", "INVERSION_PARAMETERS", "VERDICTS", "FitTest", "fit_test", "verdict"]
+__all__ = ["P_NO_FIT", "UNIQUE_WEIGHT", "INVERSION_PARAMETERS", "VERDICTS", "FitTest", "fit_test", "verdict", "judged"]
 
 #: a fit whose χ² has a p-value below this is no answer
 P_NO_FIT = 1e-3
@@ -72,10 +72,15 @@ def fit_test(cost: float, *, samples: int, parameters: int = INVERSION_PARAMETER
     return FitTest(chi2=value, dof=dof, p_value=p)
 
 
-def verdict(test: FitTest, top_weight: float) -> str:
+def verdict(test: FitTest, top_weight: float, *, ridge: bool = False) -> str:
     """``"no_fit"`` when the fit fails its test, else ``"unique"`` when the heaviest family's weight (for the global
-    inversion its probability of being right, ``Families.p_right``) is at least :data:`UNIQUE_WEIGHT`, else
-    ``"ambiguous"`` (module docstring)."""
-    if not test.fits:
+    inversion its probability of being right, ``Families.p_right``) is at least :data:`UNIQUE_WEIGHT` and it is on
+    no ridge (a rate its profile does not fix), else ``"ambiguous"`` (module docstring; :func:`judged`)."""
+    return judged(fits=test.fits, top_weight=top_weight, ridge=ridge)
+
+
+def judged(*, fits: bool, top_weight: float, ridge: bool = False) -> str:
+    """:func:`verdict`'s rule from whether the fit passed its test (e.g. a kept answer's verdict)."""
+    if not fits:
         return "no_fit"
-    return "unique" if top_weight >= UNIQUE_WEIGHT else "ambiguous"
+    return "unique" if top_weight >= UNIQUE_WEIGHT and not ridge else "ambiguous"
