@@ -147,7 +147,7 @@ def test_a_noisy_first_arc_passes_on_every_row_it_cannot_tell_from_the_best(setu
     q0, w0, y = _truth(scene, inertia, T, rate_deg_s=1.2, sigma=0.7, seed=4)
     problem = _problem(scene, inertia, y, 0.7, q0[None])
     group = ambiguity_group(scene, times_s=torch.arange(T + 1.0), inertia=inertia, rate_known=False, probes=2)
-    rows, best = {}, {}
+    rows, best, told = {}, {}, {}
     for tie in (None, 10.0):
         said = []
         settings = InversionSettings(starts=256, attitudes=64, arcs_s=(30.0, 80.0, 0.0), keep=(64, 16),
@@ -155,6 +155,12 @@ def test_a_noisy_first_arc_passes_on_every_row_it_cannot_tell_from_the_best(setu
         inv = invert(problem, group, settings=settings, progress=said.append)
         rows[tie] = [int(m.split()[2]) for m in said if m.startswith("stage")]
         best[tie] = float(inv.cost.min())
+        told[tie] = [m for m in said if "beyond the quotas" in m]
     assert rows[None][0] == rows[10.0][0]  # the same screen
     assert rows[10.0][1] > rows[None][1]
+    # the progress says how many rows the ties added: those the quotas alone would not have kept
+    assert told[None] == []
+    assert told[10.0][0].startswith(f"stage 2/3: {rows[10.0][1]} rows on 81 samples "
+                                    f"({rows[10.0][1] - rows[None][1]} beyond the quotas: the last arc cannot tell "
+                                    "them from the best by 10 nats)")
     assert best[10.0] <= best[None] + 1e-9

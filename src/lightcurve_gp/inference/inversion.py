@@ -321,13 +321,15 @@ def invert(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: Inver
     anchors, x = problem.anchors.new_zeros(0, 4), problem.y.new_zeros(0, 7)
     cost, cohort = problem.y.new_zeros(0), torch.zeros(0, dtype=torch.long, device=x.device)
     for stage, arc_s in enumerate(settings.arcs_s):
+        ties = 0
         if stage and x.shape[0]:
             keep = stage_keep[stage - 1]
+            quotas = cohort_quotas(keep, cohort_starts[:stage])
             rows = prune_rows(group, anchors, x[:, 3:6], cost, keep=keep,
-                              cohort=cohort if settings.cohort_quotas else None,
-                              quotas=cohort_quotas(keep, cohort_starts[:stage]),
+                              cohort=cohort if settings.cohort_quotas else None, quotas=quotas,
                               angle_deg=settings.cluster_angle_deg, rate_deg_s=settings.cluster_rate_deg_s,
                               tie_nats=settings.tie_nats, tie_cap=settings.tie_cap)
+            ties = max(0, rows.numel() - (sum(quotas) if settings.cohort_quotas else keep))
             anchors, x, cohort = anchors[rows], x[rows], cohort[rows]
         if entering[stage] is not None:
             anchors, x = torch.cat([anchors, entering[stage][0]]), torch.cat([x, entering[stage][1]])
@@ -336,7 +338,9 @@ def invert(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: Inver
             continue
         part = problem.arc(_arc_samples(problem, arc_s))
         whole = part.samples == problem.samples
-        say(f"stage {stage + 1}/{len(settings.arcs_s)}: {x.shape[0]} rows on {part.samples} samples")
+        say(f"stage {stage + 1}/{len(settings.arcs_s)}: {x.shape[0]} rows on {part.samples} samples"
+            + (f" ({ties} beyond the quotas: the last arc cannot tell them from the best by {settings.tie_nats:g} "
+               "nats)" if ties else ""))
         res = _stage(part.with_anchors(anchors), x, prior_sd=None if whole else settings.turn_rad / max(arc_s, 1e-9),
                      iterations=settings.final_iterations if whole else settings.iterations)
         anchors, x = _reanchor(part.with_anchors(anchors), res.x)
