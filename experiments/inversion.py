@@ -66,7 +66,7 @@ from lightcurve_gp.photometry.render import Scene
 from lightcurve_gp.simulation.scenario import simulate_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
-FORMAT = 11
+FORMAT = 12
 TRUTH_STREAM = 1 << 42
 CALIBRATION_BINS = (0.0, 0.5, 0.8, 0.95, 0.99, 1.0001)
 

@@ -26,6 +26,7 @@ from lightcurve_gp.inference.families import families, log_prior_volume, prior_p
 from lightcurve_gp.inference.forward import GroupRenderer
 from lightcurve_gp.inference.inversion import InversionSettings, rate_starts
 from lightcurve_gp.inference.probe_starts import (
+    LOCAL_FAMILIES,
     RIDGE_FACTORS,
     RIDGE_TILTS_DEG,
     below_one_turn,
@@ -149,6 +150,7 @@ def test_a_seed_is_right_and_a_starved_search_of_it_a_search_miss():
     ref = inversion_reference(problem, group, full.families, best_cost=float(full.inversion.cost.min()), q0=q0,
                               omega0=w0, rho=0.4)
     assert ref.kind == "right" and ref.truth_rank == 1 and ref.basin_right and full.verdict == "unique"
+    assert 1 <= full.probe_rows["settle"] <= LOCAL_FAMILIES  # the leading families polished once more, last
     assert ref.basin_rank == 1  # the top family is the truth's basin's
     assert ref.best_cost <= ref.basin_cost + 1e-6 <= ref.truth_cost + 1e-6
     # every screened rate a thirtieth of the truth's, all of them from the 30 s arc (there they turn 3°; entering

@@ -70,6 +70,12 @@ probes' starts: :mod:`.probe_starts`):
    their top families reached the basin by a 2° tilt on one, harmonics (×3/2, ×½) on three, a body turn on one and
    the local probe about the found families on one; the whole answer with these probes reaches it on six of the
    seven. Held-out (seeds 1000–1029): 3 misses of 30 become 2.
+7. **Settling.** A probe's restart that lands in a basin along a flat direction can stop short of its minimum after
+   its iterations; the leading families found by then are polished once more from themselves
+   (:data:`~.probe_starts.LOCAL_ITERATIONS` iterations, :data:`~.probe_starts.LOCAL_FAMILIES` rows) and the states
+   join the solutions (measured on held-out seed 1169, 0.1 mag, 1.84 °/s: the local probe gained 2528 nats and
+   stopped 2.2 nats above the truth's basin, 72° from its minimum along a flat attitude valley; 12 more iterations
+   from the reported family end 0.08 nats above it).
 """
 
 from __future__ import annotations
@@ -328,6 +334,9 @@ def answer(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: Inver
         if local and before - float(inv.cost.min()) > FAR_AGAIN_NATS:
             run("local again", local_starts(fam, span_s=span_s), LOCAL_ITERATIONS,
                 "of the new leading families at neighbouring rates and axes")
+    if local:
+        run("settle", local_starts(fam, span_s=span_s, factors=(), tilts_deg=()), LOCAL_ITERATIONS,
+            "of the leading families from themselves")
     profile = None
     if ridge and bool(below_one_turn(float(torch.linalg.vector_norm(fam.omega0[0])), span_s=span_s)):
         tick = time.perf_counter()
