@@ -3,11 +3,21 @@ standard deviation is no family, one at the edge within them is, and the likelih
 mode inside the ball."""
 
 import math
+from pathlib import Path
 
 import torch
 
+from lightcurve_gp.config.load import load_config
+from lightcurve_gp.inference.answer import best_fit
 from lightcurve_gp.inference.families import SUPPORT_SIGMAS, beyond_support, families, prior_precision
+from lightcurve_gp.inference.fit_verdict import fit_test
+from lightcurve_gp.inference.forward import GroupRenderer
+from lightcurve_gp.inference.inversion import Inversion
+from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
+from lightcurve_gp.photometry.render import Scene
+
+ROOT = Path(__file__).resolve().parents[1]
 
 F64 = torch.float64
 R = math.radians(5.0)  # the fastest rate searched, rad/s
@@ -80,3 +90,21 @@ def test_when_every_mode_is_beyond_the_ball_they_are_all_kept():
                    cost=torch.tensor([50.0, 52.0], dtype=F64), covariance=covariance(1e-10).expand(2, 7, 7),
                    sigma=torch.full((50,), 0.1, dtype=F64), rate_max_rad_s=R)
     assert len(fam) == 2 and fam.beyond == 0
+
+
+def test_the_fit_test_judges_the_best_solution_inside_the_ball():
+    cfg = load_config(ROOT / "configs" / "boxwing.yaml")
+    scene = Scene.from_config(cfg, rho=0.5)
+    n = 61
+    problem = TrajectoryProblem(GroupRenderer(scene), torch.arange(float(n), dtype=F64), torch.zeros(n, dtype=F64),
+                                torch.full((n,), 0.1, dtype=F64), torch.tensor(cfg.shape.inertia_kg_m2, dtype=F64),
+                                torch.zeros(0, 4, dtype=F64))
+    q = torch.tensor([[0.0, 0.0, 0.0, 1.0]] * 2, dtype=F64)
+    w = torch.tensor([[0.0, 0.0, 3.0 * R], [0.0, 0.0, 0.5 * R]], dtype=F64)
+    inv = Inversion(q0=q, omega0=w, log_rho=torch.zeros(2, dtype=F64), cost=torch.tensor([20.0, 400.0], dtype=F64),
+                    covariance=covariance(1e-10).expand(2, 7, 7).clone(), periodogram=None,
+                    rate_grid=torch.zeros(0, 3, dtype=F64))
+    # the mode at 3 R fits; the one inside does not, and it is the one the answer can report
+    got = best_fit(inv, problem, rate_max_rad_s=R)
+    assert got == fit_test(400.0, samples=n, parameters=7) and not got.fits
+    assert best_fit(inv, problem, rate_max_rad_s=4.0 * R) == fit_test(20.0, samples=n, parameters=7)

@@ -90,7 +90,7 @@ import torch
 from torch import Tensor
 
 from lightcurve_gp.inference.bridge import carry_across_gaps
-from lightcurve_gp.inference.families import RIGHT_ANGLE_DEG, RIGHT_RATE_REL, Families, families
+from lightcurve_gp.inference.families import RIGHT_ANGLE_DEG, RIGHT_RATE_REL, Families, beyond_support, families
 from lightcurve_gp.inference.fit_verdict import INVERSION_PARAMETERS, UNIQUE_WEIGHT, FitTest, fit_test, verdict
 from lightcurve_gp.inference.inversion import Inversion, InversionSettings, invert, polish, rate_starts
 from lightcurve_gp.inference.periodogram import RATE_FACTORS
@@ -109,8 +109,8 @@ from lightcurve_gp.inference.rate_profile import RateProfile, rate_profile, ridg
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.photometry.ambiguity import AmbiguityGroup
 
-__all__ = ["MAX_LOG_RATIO", "WIDEN_FACTOR", "PROFILE_JOIN_NATS", "FAR_AGAIN_NATS", "Answer", "searched", "sample_times",
-           "widened_settings", "wider_rates", "merge", "answer"]
+__all__ = ["MAX_LOG_RATIO", "WIDEN_FACTOR", "PROFILE_JOIN_NATS", "FAR_AGAIN_NATS", "Answer", "best_fit", "searched",
+           "sample_times", "widened_settings", "wider_rates", "merge", "answer"]
 
 #: families within this many nats of the best are reported
 MAX_LOG_RATIO = 10.0
@@ -242,11 +242,15 @@ def _families(group: AmbiguityGroup, inv: Inversion, problem: TrajectoryProblem,
                     rate_deg_s=settings.cluster_rate_deg_s)
 
 
-def _test(inv: Inversion, problem: TrajectoryProblem) -> FitTest:
-    """The best fit's test: ``ν = N − 7`` less one for each relative light curve's profiled zero point."""
+def best_fit(inv: Inversion, problem: TrajectoryProblem, *, rate_max_rad_s: float) -> FitTest:
+    """The test of the best fit that can be an answer: the least cost of the solutions inside the prior's rate ball
+    (:func:`~.families.beyond_support`; all of them when none is), ``ν = N − 7`` less one for each relative light
+    curve's profiled zero point."""
+    inside = ~beyond_support(inv.omega0, inv.covariance, rate_max_rad_s)
+    cost = inv.cost[inside] if bool(inside.any()) else inv.cost
     samples = int(torch.isfinite(problem.y).sum())
     offsets = 0 if problem.zero_points is None else int(problem.zero_points.shape[-1])
-    return fit_test(float(inv.cost.min()), samples=samples, parameters=INVERSION_PARAMETERS + offsets)
+    return fit_test(float(cost.min()), samples=samples, parameters=INVERSION_PARAMETERS + offsets)
 
 
 def searched(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: InversionSettings, judge: dict,
@@ -254,7 +258,7 @@ def searched(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: Inv
     """One search of ``problem`` and, when its best fit fails its test, one widened search joined to it (what a pass
     searched alone across a gap gets, :func:`~.bridge.carry_across_gaps`); ``judge``: :func:`_families`' options."""
     found = invert(problem, group, settings=settings, progress=progress)
-    if widen and not _test(found, problem).fits:
+    if widen and not best_fit(found, problem, rate_max_rad_s=judge["rate_max_rad_s"]).fits:
         wide = widened_settings(settings)
         rates = wider_rates(found, _families(group, found, problem, **judge), wide,
                             span_s=float(sample_times(problem)[-1]))
@@ -288,7 +292,7 @@ def answer(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: Inver
                             search=partial(searched, group=group, settings=settings, judge=judge, widen=widen,
                                            progress=progress))
     fam = _families(group, inv, problem, **judge)
-    first = _test(inv, problem)
+    first = best_fit(inv, problem, rate_max_rad_s=rate_max)
     seconds["search"], tick = time.perf_counter() - tick, time.perf_counter()
     widened = widen and not first.fits
     if widened:
@@ -352,7 +356,7 @@ def answer(problem: TrajectoryProblem, group: AmbiguityGroup, *, settings: Inver
                 profile = None
                 break
         seconds["rate profile"] = time.perf_counter() - tick
-    fit = _test(inv, problem)
+    fit = best_fit(inv, problem, rate_max_rad_s=rate_max)
     rates = torch.rad2deg(torch.linalg.vector_norm(fam.omega0, dim=-1))
     lo, hi = float(rates.min()), float(rates.max())
     on_ridge = False
