@@ -11,7 +11,8 @@ modulo the scenario's exact ambiguity group (:mod:`lightcurve_gp.photometry.ambi
 truth is within 10° on every Euler axis at the first sample and its rate within 2 % of the true rate; scored: the
 top family right (top-1; also at ≥ 1 °/s), a right family among those reported (top-k; also over the seeds whose
 truth's basin is within the reporting ratio of the best found), the search misses, the top family's rate error,
-its probability of being right ``p_right`` (its basin's weight times the Gaussian mass of the tolerance region,
+its probability of being right ``p_right`` (the posterior mixture's mass within the tolerance of its mode: its
+basin's weight times its Gaussian mass there and the mass of the other families there,
 :mod:`lightcurve_gp.inference.families`) against how often it is right (calibration, binned, and the Brier score;
 the same for the basin weight alone), the search's time; and each seed's kind against the truth's basin
 (:mod:`lightcurve_gp.evaluation.inversion_reference`: right, the truth's family reported but not first, search
@@ -31,6 +32,7 @@ Resumable: one JSON per (config, σ, seed, starts) under ``<runs>/inversion/case
 from __future__ import annotations
 
 import argparse
+import ast
 import csv
 import io
 import json
@@ -38,6 +40,7 @@ import math
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import torch
@@ -53,7 +56,7 @@ from lightcurve_gp.evaluation.reporting import markdown_table, quantiles
 from lightcurve_gp.files import write_json_atomic, write_text_atomic
 from lightcurve_gp.filters.bank import bank_attitudes, run_bank
 from lightcurve_gp.inference.answer import MAX_LOG_RATIO, PROFILE_JOIN_NATS, answer
-from lightcurve_gp.inference.families import RIGHT_RATE_REL, image_distance
+from lightcurve_gp.inference.families import RIGHT_RATE_REL, bounded_covariance, image_distance, mixture_p_right
 from lightcurve_gp.inference.fit_verdict import VERDICTS, judged
 from lightcurve_gp.inference.forward import GroupRenderer
 from lightcurve_gp.inference.inversion import InversionSettings, polish
@@ -67,6 +70,10 @@ from lightcurve_gp.simulation.scenario import simulate_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 FORMAT = 12
+#: the rule of the kept rows' ``p_right``: the posterior mixture's mass (:func:`mixed` brings older rows to it)
+P_RIGHT_RULE = "mixture"
+#: the fastest rate searched, the radius of the prior's rate ball (rad/s)
+RATE_MAX_RAD_S = math.radians(5.0)
 TRUTH_STREAM = 1 << 42
 CALIBRATION_BINS = (0.0, 0.5, 0.8, 0.95, 0.99, 1.0001)
 
@@ -125,7 +132,7 @@ def run_seed(cfg, seed: int, sigma: float, args) -> dict:
     settings = InversionSettings(starts=args.starts, attitudes=args.attitudes,
                                  keep=tuple(args.keep) if args.keep else None,
                                  early_arcs=args.early_arcs, cohort_quotas=not args.shared_pruning)
-    ans = answer(problem, group, settings=settings, rate_max_rad_s=math.radians(5.0), widen=not args.no_widen,
+    ans = answer(problem, group, settings=settings, rate_max_rad_s=RATE_MAX_RAD_S, widen=not args.no_widen,
                  image_turns=near_image_turns(scene))
     seconds = time.perf_counter() - start
     inv, fam = ans.inversion, ans.families
@@ -134,7 +141,7 @@ def run_seed(cfg, seed: int, sigma: float, args) -> dict:
            "rate_deg_s": math.degrees(float(w0.norm())), "rho_true": rho, "families": len(fam),
            "top1": bool(ref.right[0]), "topk": bool(ref.right.any()), "top1_weight": float(fam.weight[0]),
            "top1_mass": float(fam.mass[0]), "top1_p_right": float(fam.p_right[0]),
-           "p_right_sum": float(fam.p_right.sum()), "beyond_rate_range": fam.beyond,
+           "p_right_sum": float(fam.p_right.sum()), "beyond_rate_range": fam.beyond, "p_right_rule": P_RIGHT_RULE,
            "best_below_truth": float(inv.cost.min()) < ref.truth_cost - 1e-6,
            **ref.as_dict(), "verdict": ans.verdict, "chi2_per_dof": ans.fit.chi2_per_dof, "p_value": ans.fit.p_value,
            "widened": ans.widened, "first_chi2_per_dof": ans.first_fit.chi2_per_dof,
@@ -194,6 +201,80 @@ def profiled(cfg, row: dict, args) -> dict:
     return {**row, "top1_p_right": p_right, "p_right_sum": float(sum(p_rights)), "verdict": verdict, "ridge": ridge,
             "rate_profile": profile.as_dict(), "rate_lo_deg_s": min(row["rate_lo_deg_s"], lo),
             "rate_hi_deg_s": max(row["rate_hi_deg_s"], hi), "families_state": {**state, "p_right": p_rights}}
+
+
+def mixed(cfg, row: dict) -> dict:
+    """A kept row made before ``p_right`` counted the other families' mass within the top family's tolerance
+    (:func:`~lightcurve_gp.inference.families.mixture_p_right`), with today's rule applied to its kept families —
+    their states, weights and masses; the Laplace covariances taken again at each state (a polish of no step, as the
+    answer takes them) — then, as the answer does, the kept rate profile's cap on the top family
+    (:func:`~lightcurve_gp.inference.rate_profile.ridge_rule`), every ``p_right`` 0 under ``no_fit`` and the
+    verdict from the kept fit test."""
+    state = row["families_state"]
+    _, problem, group, _ = seed_problem(cfg, row["seed"], row["sigma"], row.get("rate_law", "log-uniform"))
+    q = torch.tensor(state["q0"], dtype=torch.float64)
+    w = torch.deg2rad(torch.tensor(state["omega0_deg_s"], dtype=torch.float64))
+    x = torch.cat([torch.zeros_like(w), w, torch.tensor(state["log_rho"], dtype=torch.float64)[:, None]], -1)
+    fam = polish(problem, q, x, iterations=0)
+    p_rights = mixture_p_right(group, q0=q, omega0=w, covariance=bounded_covariance(fam.covariance, RATE_MAX_RAD_S),
+                               weight=torch.tensor(state["weight"], dtype=torch.float64),
+                               mass=torch.tensor(state["mass"], dtype=torch.float64)).tolist()
+    profile = row.get("rate_profile")
+    if profile:  # the kept profile's share and resolution are all the rule reads
+        p_rights[0], _ = ridge_rule(SimpleNamespace(share=profile["share"], resolved=profile["resolved"]),
+                                    weight=state["weight"][0], p_right=p_rights[0])
+    if row["verdict"] == "no_fit":
+        p_rights = [0.0] * len(p_rights)
+    verdict = judged(fits=row["verdict"] != "no_fit", top_weight=p_rights[0], ridge=row["ridge"])
+    return {**row, "top1_p_right": p_rights[0], "p_right_sum": float(sum(p_rights)), "verdict": verdict,
+            "p_right_rule": P_RIGHT_RULE, "families_state": {**state, "p_right": p_rights}}
+
+
+def brought_up(cfg, row: dict, args) -> dict:
+    """A kept row with every rule the answer has gained since it was made applied to its kept families: the NEES
+    (:func:`cached_nees`), no ``p_right`` under ``no_fit`` (:func:`without_p_right`), the slow top family's rate
+    profile (:func:`profiled`) and the mixture's ``p_right`` (:func:`mixed`); the row itself when none applies."""
+    if "top1_nees" not in row:
+        row = {**row, **cached_nees(cfg, row)}
+    if row["verdict"] == "no_fit" and row["p_right_sum"] > 0.0:
+        row = without_p_right(row)
+    if "rate_profile" not in row:
+        row = profiled(cfg, row, args)
+    if row.get("p_right_rule") != P_RIGHT_RULE:
+        row = mixed(cfg, row)
+    return row
+
+
+def read_per_seed_csv(text: str) -> list[dict]:
+    """The rows of :func:`per_seed_csv`'s text: each value as Python wrote it (numbers, booleans, nested values), an
+    empty cell as ``None`` (a key the row lacked), anything else as its text."""
+    def value(cell: str):
+        if cell == "":
+            return None
+        try:
+            return ast.literal_eval(cell)
+        except (ValueError, SyntaxError):
+            return cell
+    csv.field_size_limit(max(csv.field_size_limit(), len(text)))
+    return [{k: value(v) for k, v in r.items()} for r in csv.DictReader(io.StringIO(text))]
+
+
+def kept_rows(cfg, args) -> list[dict]:
+    """``--kept``: the rows of an earlier run's per-seed CSV brought up to today's rules (:func:`brought_up`).
+
+    Raises:
+        SystemExit: the file cannot be read, or a row is of another config than ``--config``.
+    """
+    try:
+        rows = read_per_seed_csv(args.kept.read_text())
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise SystemExit(f"--kept {args.kept}: cannot read it ({exc})") from None
+    for line, row in enumerate(rows, start=2):
+        if row.get("config") != cfg.name:
+            raise SystemExit(f"--kept {args.kept}, line {line}: a row of config {row.get('config')!r}, "
+                             f"not --config's {cfg.name!r}")
+    return [brought_up(cfg, {k: v for k, v in row.items() if v is not None}, args)
+            for row in tqdm(rows, desc=f"{args.kept.name}: kept rows")]
 
 
 def without_p_right(row: dict) -> dict:
@@ -313,8 +394,9 @@ def report(rows: list[dict], command: str, span_s: float = 600.0) -> str:
             "but not first, search miss (best found worse than the truth's basin by > 1 nat), data-limited (another "
             "basin at least as good). Wrong & unique: the top family wrong and the verdict unique (p_right >= 0.9, "
             "fit passed), beside the count honest probabilities expect (the sum of 1 - p_right over the unique "
-            "seeds). p_right: the top family's basin weight times the Gaussian mass of the region of right "
-            "states about it (inference/families.py); calibration and Brier of p_right, and of the basin weight "
+            "seeds). p_right: the posterior mixture's mass of the region of right states about the top family's "
+            "mode, its basin weight times its Gaussian mass there and the other families' mass there "
+            "(inference/families.py); calibration and Brier of p_right, and of the basin weight "
             "alone. The truth's basin family: a reported family within 10° and 2 % of the truth's basin (the "
             "polish from the truth), counted over the seeds whose basin is within the reporting ratio of the best.\n"]
     for name, law in sorted({(r["config"], r.get("rate_law", "log-uniform")) for r in rows}):
@@ -384,13 +466,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--runs", type=Path, default=ROOT / "runs")
     parser.add_argument("--out", type=Path, default=ROOT / "experiments" / "results" / "inversion")
+    parser.add_argument("--kept", type=Path, default=None,
+                        help="a per_seed.csv of an earlier run: its rows with today's rules applied to their kept "
+                             "families, no search (--config as the run's)")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     cfg = load_config(args.config, [f"scenario.duration_s={args.duration_s}",
                                     f"evaluation.rmse_window_s=[0, {args.duration_s}]"])
     cases = args.runs / "inversion" / "cases"
     rows = []
-    for sigma in args.sigma:
+    if args.kept is not None:
+        rows = kept_rows(cfg, args)
+    for sigma in args.sigma if args.kept is None else ():
         for seed in tqdm(args.seeds, desc=f"{cfg.name} σ {sigma:g}"):
             grid = "" if args.attitudes == InversionSettings.attitudes else f"_a{args.attitudes}"
             keep = InversionSettings(starts=args.starts, keep=tuple(args.keep) if args.keep else None).stage_keep()
@@ -402,15 +489,9 @@ def main(argv: list[str] | None = None) -> int:
             grid += "_uniform" if args.rate_law == "uniform" else ""
             path = cases / f"{cfg.name}_s{sigma:g}_n{args.starts}{grid}_b{args.bank_size}_v{FORMAT}_{seed}.json"
             if path.exists():
-                row = json.loads(path.read_text())
-                if "top1_nees" not in row:
-                    row.update(cached_nees(cfg, row))
-                    write_json_atomic(row, path)
-                if row["verdict"] == "no_fit" and row["p_right_sum"] > 0.0:
-                    row = without_p_right(row)
-                    write_json_atomic(row, path)
-                if "rate_profile" not in row:
-                    row = profiled(cfg, row, args)
+                kept = json.loads(path.read_text())
+                row = brought_up(cfg, kept, args)
+                if row != kept:
                     write_json_atomic(row, path)
                 rows.append(row)
                 continue

@@ -1,18 +1,31 @@
 """The inversion experiment's tables: the calibration bins' chance spread, the NEES of the right top families and
-the per-seed CSV, on hand-made rows."""
+the per-seed CSV, on hand-made rows; a kept row brought to today's ``p_right`` rule."""
 
 import csv
 import io
 import math
+from pathlib import Path
+
+import pytest
+import torch
 
 from experiments.inversion import (
+    P_RIGHT_RULE,
     calibration,
+    main,
+    mixed,
     nees_right,
     on_reported_ridge,
     per_seed_csv,
+    read_per_seed_csv,
     reported_within_ratio,
+    seed_problem,
     without_p_right,
 )
+from lightcurve_gp.attitude.rotations import quat_mul, rotvec_to_quat
+from lightcurve_gp.config.load import load_config
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_calibration_states_the_spread_an_honest_probability_allows():
@@ -34,6 +47,21 @@ def test_per_seed_csv_keeps_nested_values_in_one_column():
     assert table == [["seed", "probe_rows"], ["1", "{'local': 21, 'image': 0}"]]
 
 
+def test_the_per_seed_csv_reads_back_as_its_rows():
+    row = {"seed": 1, "top1": True, "verdict": "unique", "rate_profile": None, "seconds": 2.5,
+           "probe_rows": {"local": 21}, "families_state": {"q0": [[0.1, -0.2, 0.3, 0.9]], "weight": [1.0]}}
+    assert read_per_seed_csv(per_seed_csv([{**row, "stage_seconds": {"search": 1.0}}])) == [row]
+
+
+def test_kept_rows_of_another_config_are_refused_naming_the_file_and_line(tmp_path):
+    kept = tmp_path / "per_seed.csv"
+    kept.write_text(per_seed_csv([{"seed": 1, "config": "boxwing"}, {"seed": 2, "config": "geo_pass"}]))
+    with pytest.raises(SystemExit) as exc:
+        main(["--kept", str(kept), "--out", str(tmp_path / "out")])
+    assert str(exc.value) == f"--kept {kept}, line 3: a row of config 'geo_pass', not --config's 'boxwing'"
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_kept_no_fit_row_gets_the_answers_rule():
     row = {"verdict": "no_fit", "top1_p_right": 0.98, "p_right_sum": 0.99, "seed": 7,
            "families_state": {"p_right": [0.98, 0.01], "weight": [0.99, 0.01]}}
@@ -52,3 +80,25 @@ def test_the_truths_family_reported_counts_a_slow_tumblers_reported_ridge():
     assert on_reported_ridge(rows[1]) and not on_reported_ridge(rows[2])
     assert not on_reported_ridge({**rows[1], "rate_deg_s": 0.7, "rate_hi_deg_s": 1.0})  # more than one turn
     assert reported_within_ratio(rows) == "1/3 (33 %; with the ridges 67 %)"
+
+
+def test_a_kept_row_gets_the_mixture_rule_two_near_neighbours_share_their_tolerance():
+    cfg = load_config(ROOT / "configs" / "boxwing.yaml",
+                      ["scenario.duration_s=120", "evaluation.rmse_window_s=[0, 120]"])
+    _, _, _, (q0, w0, rho) = seed_problem(cfg, 5, 0.05, "uniform")
+    near = quat_mul(rotvec_to_quat(torch.tensor([0.0, 0.0, math.radians(3.0)], dtype=torch.float64)), q0)
+    row = {"seed": 5, "sigma": 0.05, "rate_law": "uniform", "verdict": "ambiguous", "ridge": False,
+           "rate_profile": None, "top1_p_right": 0.6, "p_right_sum": 1.0,
+           "families_state": {"q0": [q0.tolist(), near.tolist()], "omega0_deg_s": [torch.rad2deg(w0).tolist()] * 2,
+                              "log_rho": [math.log(rho)] * 2, "weight": [0.6, 0.4], "mass": [1.0, 1.0],
+                              "p_right": [0.6, 0.4]}}
+    new = mixed(cfg, row)
+    # 3° apart, 1-4° wide (0.05 mag, 120 s, 3.2 °/s): most of each family's draws are right about the other's mode,
+    # which adds most of the other's weight to the kept weight · mass
+    p_right = new["families_state"]["p_right"]
+    assert 0.6 + 0.3 < p_right[0] <= 1.0 and 0.4 + 0.5 < p_right[1] <= 1.0 and new["top1_p_right"] == p_right[0]
+    assert new["verdict"] == "unique" and new["p_right_rule"] == P_RIGHT_RULE and row["verdict"] == "ambiguous"
+    capped = mixed(cfg, {**row, "ridge": True, "rate_profile": {"share": 0.5, "resolved": False}})
+    assert capped["top1_p_right"] == pytest.approx(0.3) and capped["verdict"] == "ambiguous"
+    refused = mixed(cfg, {**row, "verdict": "no_fit"})
+    assert refused["families_state"]["p_right"] == [0.0, 0.0] and refused["verdict"] == "no_fit"

@@ -45,12 +45,15 @@ def test_invert_writes_solutions_that_round_trip_and_hold_the_truth(observed):
     assert list(table["rank"]) == list(range(1, len(table) + 1))
     assert abs(float(np.sum(table["weight"])) - 1.0) < 1e-9 and len(table.meta["images"]) == 16
     summary = json.loads((run / "summary.json").read_text())
-    # p_right is the weight times the tolerance mass, the top family's capped by its rate profile's share
+    # p_right is at least the weight times the tolerance mass (other families can only add), the top family's capped
+    # by its rate profile's share
     gaussian = np.asarray(table["weight"]) * np.asarray(table["mass"])
-    np.testing.assert_allclose(np.asarray(table["p_right"])[1:], gaussian[1:])
+    p_right = np.asarray(table["p_right"])
+    assert np.all(p_right[1:] >= gaussian[1:] - 1e-12) and np.all(p_right <= 1.0)
     profile = summary["rate_profile"]
     assert 0.0 < profile["share"] <= 1.0 and profile["interval_deg_s"][0] < profile["rate_deg_s"]
-    assert float(table[0]["p_right"]) == pytest.approx(min(gaussian[0], float(table[0]["weight"]) * profile["share"]))
+    cap = float(table[0]["weight"]) * profile["share"]
+    assert min(gaussian[0], cap) - 1e-12 <= p_right[0] <= cap + 1e-12
     assert float(table[0]["p_right"]) == pytest.approx(summary["top_p_right"], rel=1e-12)
     assert summary["ambiguity_images"]["labels"] == table.meta["images"] and summary["periodogram_detection"]
     assert summary["ambiguity_images"]["source"].startswith("derived by") and not summary["ambiguity_images"][

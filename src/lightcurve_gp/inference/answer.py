@@ -15,7 +15,8 @@ probes' starts: :mod:`.probe_starts`):
    before this rule: 20 ``no_fit`` answers (seeds 1000–1199, five cases), none right, their mean ``p_right`` 0.98.
 2. **Verdict** (:func:`~.fit_verdict.verdict`): ``"no_fit"`` when the best fit still fails its test; ``"unique"`` when
    it fits and the heaviest family is right (within 10° and 2 % of the truth) with probability ``p_right``
-   (:mod:`.families`: its basin's weight times the Gaussian mass of that region) of at least
+   (:mod:`.families`: the posterior's mass of that region about its mode, its own basin's and any other family's
+   there) of at least
    :data:`~.fit_verdict.UNIQUE_WEIGHT`; ``"ambiguous"`` otherwise.
 3. **Ridge probe.** Below one turn over the arc (``|ω| · span < 2π``, the periodogram's resolution) the light curve
    need not fix the rate: the posterior can be a ridge along it that the continuation, which keeps one row per

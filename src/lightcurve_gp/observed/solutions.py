@@ -6,11 +6,12 @@ Columns: ``rank`` (1 = the heaviest), ``weight`` (Laplace-evidence weight, the r
 the family), and the 1σ of the Laplace covariance: ``sigma_att_x, sigma_att_y, sigma_att_z`` (deg, body-side rotation
 of the first attitude), ``sigma_omega_x, …`` (deg/s), ``sigma_rho``; then ``mass`` (the Gaussian mass of the region
 of "right" states about the family's mode: every Euler axis within 10° and the rate within 2 %,
-:func:`~lightcurve_gp.inference.families.tolerance_mass`) and ``p_right = weight · mass``, the probability that the
-family is the right answer (these two are optional on reading: files written before them lack them). Metadata:
-``images`` (the exact ambiguity images the families were taken modulo; every row stands for all of them),
-``light_curve``, ``config`` and, from ``invert``, ``verdict`` (``unique``, ``ambiguous`` or ``no_fit``: then no row
-is an answer), ``chi2_per_dof`` and ``p_value`` of the best fit.
+:func:`~lightcurve_gp.inference.families.tolerance_mass`) and ``p_right``, the probability that the family's state is
+the right answer: ``weight · mass`` and the mass the other families put within its tolerance
+(:func:`~lightcurve_gp.inference.families.mixture_p_right`) (these two are optional on reading: files written before
+them lack them). Metadata: ``images`` (the exact ambiguity images the families were taken modulo; every row stands
+for all of them), ``light_curve``, ``config`` and, from ``invert``, ``verdict`` (``unique``, ``ambiguous`` or
+``no_fit``: then no row is an answer), ``chi2_per_dof`` and ``p_value`` of the best fit.
 """
 
 from __future__ import annotations
