@@ -214,9 +214,9 @@ def mixture_p_right(group: AmbiguityGroup, *, q0: Tensor, omega0: Tensor, covari
     families by systematic sampling of ``weight``, each counting ``1 / draws``; a family's own draws are left out of
     its cross term. Modes are compared in chunks of ``chunk``."""
     n_fam = q0.shape[0]
-    if n_fam < 2:
-        return weight * mass
     cum = torch.cumsum(weight.double().clamp_min(0.0), 0).cpu()
+    if n_fam < 2 or not float(cum[-1]) > 0.0:
+        return weight * mass
     positions = (torch.arange(draws, dtype=torch.float64) + 0.5) / draws * float(cum[-1])
     owner = torch.searchsorted(cum, positions, right=True).clamp_max(n_fam - 1).to(q0.device)  # (n,)
     gen = torch.Generator(device="cpu").manual_seed(seed)
