@@ -12,6 +12,7 @@ import torch
 from experiments.inversion import (
     P_RIGHT_RULE,
     calibration,
+    fast_right,
     main,
     mixed,
     nees_right,
@@ -33,6 +34,15 @@ def test_calibration_states_the_spread_an_honest_probability_allows():
     text = calibration(rows)
     spread = 2.0 * math.sqrt(0.9 * 0.1 / 10)
     assert text == f"[0.8, 0.95]: w̄ 0.90 vs 0.80 (n 10, ±{spread:.2f})"
+
+
+def test_fast_right_counts_apart_the_seeds_whose_truths_basin_is_right_and_the_best_found():
+    rows = [{"rate_deg_s": 2.0, "top1": True, "basin_right": True, "best_minus_basin": 0.0},
+            {"rate_deg_s": 2.0, "top1": False, "basin_right": False, "best_minus_basin": 0.0},   # the basin is off
+            {"rate_deg_s": 2.0, "top1": False, "basin_right": True, "best_minus_basin": -0.5},   # a better basin
+            {"rate_deg_s": 2.0, "top1": False, "basin_right": True, "best_minus_basin": 3.0},    # a search miss
+            {"rate_deg_s": 0.5, "top1": False, "basin_right": True, "best_minus_basin": 0.0}]    # slow: not counted
+    assert fast_right(rows) == "1/4 (1/2)"
 
 
 def test_nees_of_the_right_top_families_only():
