@@ -302,10 +302,22 @@ def bank_scores(args, seed: int, sigma: float, truth, group) -> dict:
             "bank_top1_weight": float(bank.weights[bank.order[0]]), "bank_seconds": bank.seconds}
 
 
+def count_p_value(p: np.ndarray, k: int) -> float:
+    """Two-sided chance that ``n`` seeds right with their own probabilities ``p (n,)`` (independent; the count is
+    Poisson-binomial, its distribution by convolution) give a count at least as far from its mean ``Σ p`` as ``k``."""
+    pmf = np.array([1.0])
+    for q in np.clip(np.asarray(p, dtype=float), 0.0, 1.0):
+        pmf = np.convolve(pmf, [1.0 - q, q])
+    mean = float(np.sum(p))
+    far = np.abs(np.arange(len(pmf)) - mean) >= abs(k - mean) - 1e-9
+    return float(min(1.0, pmf[far].sum()))
+
+
 def calibration(rows: list[dict], key: str = "top1_p_right") -> str:
     """Mean top-family probability (``key``: its p_right, or its basin weight) against the share right, per bin,
     with twice the standard deviation of that share were every seed right with its own probability
-    (``2 √(mean p(1 − p) / n)``): how far an honest probability's bin may stray by chance."""
+    (``2 √(mean p(1 − p) / n)``): how far an honest probability's bin may stray by chance; and the chance of a
+    count right at least that far off under those probabilities (:func:`count_p_value`)."""
     w = np.array([r[key] for r in rows])
     ok = np.array([r["top1"] for r in rows], dtype=float)
     parts = []
@@ -314,7 +326,9 @@ def calibration(rows: list[dict], key: str = "top1_p_right") -> str:
         if inside.any():
             mean, n = float(w[inside].mean()), int(inside.sum())
             spread = 2.0 * math.sqrt(max(float((w[inside] * (1.0 - w[inside])).mean()), 0.0) / n)
-            parts.append(f"[{lo:g}, {min(hi, 1):g}]: w̄ {mean:.2f} vs {ok[inside].mean():.2f} (n {n}, ±{spread:.2f})")
+            chance = count_p_value(w[inside], int(ok[inside].sum()))
+            parts.append(f"[{lo:g}, {min(hi, 1):g}]: w̄ {mean:.2f} vs {ok[inside].mean():.2f} (n {n}, ±{spread:.2f}, "
+                         f"p {chance:.2g})")
     return "; ".join(parts)
 
 

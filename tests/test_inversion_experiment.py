@@ -6,12 +6,15 @@ import io
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
+from scipy.stats import binom
 
 from experiments.inversion import (
     P_RIGHT_RULE,
     calibration,
+    count_p_value,
     fast_right,
     main,
     mixed,
@@ -33,7 +36,16 @@ def test_calibration_states_the_spread_an_honest_probability_allows():
     rows = [{"top1_p_right": 0.9, "top1": k < 8} for k in range(10)]
     text = calibration(rows)
     spread = 2.0 * math.sqrt(0.9 * 0.1 / 10)
-    assert text == f"[0.8, 0.95]: w̄ 0.90 vs 0.80 (n 10, ±{spread:.2f})"
+    chance = 1.0 - binom.pmf(9, 10, 0.9)  # every count but the mean, 9, is at least 1 from it
+    assert text == f"[0.8, 0.95]: w̄ 0.90 vs 0.80 (n 10, ±{spread:.2f}, p {chance:.2g})"
+
+
+def test_the_count_p_value_is_the_binomials_for_equal_probabilities_and_exact_for_unequal_ones():
+    assert count_p_value(np.full(20, 0.3), 10) == pytest.approx(
+        sum(binom.pmf(j, 20, 0.3) for j in range(21) if abs(j - 6) >= 4), rel=1e-12)
+    # two seeds at 0.5 and 1.0: counts 1 and 2 each 1/2; the mean is 1.5, both are 0.5 from it
+    assert count_p_value(np.array([0.5, 1.0]), 2) == pytest.approx(1.0)
+    assert count_p_value(np.array([0.1, 0.1, 0.1]), 3) == pytest.approx(0.001)
 
 
 def test_fast_right_counts_apart_the_seeds_whose_truths_basin_is_right_and_the_best_found():
