@@ -16,7 +16,8 @@ from lightcurve_gp.attitude.dynamics import propagate
 from lightcurve_gp.attitude.sampling import random_attitudes
 from lightcurve_gp.commands.invert import main as invert_main
 from lightcurve_gp.config.load import load_config
-from lightcurve_gp.inference.answer import answer, widened_settings
+from lightcurve_gp.inference.answer import Answer, answer, widened_settings
+from lightcurve_gp.inference.families import Families
 from lightcurve_gp.inference.fit_verdict import P_NO_FIT, fit_test, judged, verdict
 from lightcurve_gp.inference.forward import GroupRenderer
 from lightcurve_gp.inference.inversion import InversionSettings, rate_starts
@@ -155,3 +156,21 @@ def test_invert_says_no_fit_on_a_cylinders_light_curve(setup, tmp_path, capsys):
     assert table.meta["verdict"] == "no_fit"
     assert np.all(np.asarray(table["p_right"]) == 0.0) and summary["top_p_right"] == 0.0
     assert np.isclose(table.meta["chi2_per_dof"], summary["fit"]["chi2_per_dof"])
+
+
+def test_the_verdict_says_when_the_probability_counts_neighbouring_families():
+    f64 = lambda v: torch.tensor(v, dtype=F64)  # noqa: E731
+    fam = Families(q0=f64([[0.0, 0.0, 0.0, 1.0]] * 2), omega0=f64([[0.0, 0.0, 0.02]] * 2), log_rho=f64([0.0, 0.0]),
+                   log_likelihood=f64([-300.0, -300.4]), log_evidence=f64([-310.0, -310.4]), weight=f64([0.6, 0.4]),
+                   mass=f64([0.98, 0.98]), p_right=f64([0.95, 0.94]),
+                   covariance=torch.eye(7, dtype=F64).expand(2, 7, 7), members=torch.tensor([3, 2]),
+                   images=("identity",))
+    test = fit_test(300.0, samples=601)
+    said = Answer(inversion=None, families=fam, fit=test, verdict=verdict(test, 0.95), widened=False, first_fit=test,
+                  ridge=False, rate_interval_deg_s=(1.1459, 1.1459))
+    assert said.verdict == "unique"
+    assert said.words().startswith("unique: one family carries weight 0.600 and is within 10 deg and 2 % of the truth "
+                                   "with probability 0.950 (rates 1.146-1.146 deg/s; the probability counts the "
+                                   "other families' mass within that tolerance of it)")
+    alone = replace(said, families=replace(fam, p_right=f64([0.588, 0.392])), verdict="ambiguous")
+    assert "other families' mass" not in alone.words()

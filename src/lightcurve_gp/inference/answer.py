@@ -175,6 +175,8 @@ class Answer:
             rates = (f"rate {self.profile.rate_deg_s:.4g} deg/s, 95 % interval {ends[0]}-{ends[1]} deg/s"
                      + ("" if len(fam) == 1 else f"; the families' rates {lo:.4g}-{hi:.4g} deg/s"))
         tolerance = f"{RIGHT_ANGLE_DEG:g} deg and {100 * RIGHT_RATE_REL:g} %"
+        if float(fam.p_right[0]) > float(fam.weight[0]) + 5e-4:  # neighbours within its tolerance (:mod:`.families`)
+            rates += "; the probability counts the other families' mass within that tolerance of it"
         if self.verdict == "unique":
             return (f"unique: one family carries weight {float(fam.weight[0]):.3f} and is within {tolerance} of "
                     f"the truth with probability {float(fam.p_right[0]):.3f} ({rates}); the fit is what the noise "
