@@ -40,7 +40,6 @@ import math
 import sys
 import time
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import torch
@@ -61,7 +60,7 @@ from lightcurve_gp.inference.fit_verdict import VERDICTS, judged
 from lightcurve_gp.inference.forward import GroupRenderer
 from lightcurve_gp.inference.inversion import InversionSettings, polish
 from lightcurve_gp.inference.probe_starts import below_one_turn
-from lightcurve_gp.inference.rate_profile import rate_profile, ridge_rule
+from lightcurve_gp.inference.rate_profile import capped_p_right, rate_profile, ridge_rule
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 from lightcurve_gp.passes.geometry import pass_geometry
 from lightcurve_gp.photometry.ambiguity import ambiguity_group, near_image_turns
@@ -222,9 +221,8 @@ def mixed(cfg, row: dict) -> dict:
                                weight=torch.tensor(state["weight"], dtype=torch.float64),
                                mass=torch.tensor(state["mass"], dtype=torch.float64)).tolist()
     profile = row.get("rate_profile")
-    if profile:  # the kept profile's share and resolution are all the rule reads
-        p_rights[0], _ = ridge_rule(SimpleNamespace(share=profile["share"], resolved=profile["resolved"]),
-                                    weight=state["weight"][0], p_right=p_rights[0])
+    if profile:
+        p_rights[0] = capped_p_right(profile["share"], weight=state["weight"][0], p_right=p_rights[0])
     if row["verdict"] == "no_fit":
         p_rights = [0.0] * len(p_rights)
     verdict = judged(fits=row["verdict"] != "no_fit", top_weight=p_rights[0], ridge=row["ridge"])

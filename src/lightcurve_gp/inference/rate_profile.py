@@ -44,7 +44,7 @@ from lightcurve_gp.inference.solver import LeastSquaresOptions, batch_least_squa
 from lightcurve_gp.inference.trajectory import TrajectoryProblem
 
 __all__ = ["PROFILE_FACTORS", "PROFILE_CUT_NATS", "PROFILE_ITERATIONS", "PIN_REL", "RateProfile", "rate_profile",
-           "profile_interval", "profile_share", "ridge_rule"]
+           "profile_interval", "profile_share", "capped_p_right", "ridge_rule"]
 
 #: the profile's rate factors: 0.5–2 in steps of 2^(1/8) (9 %), and 0.5–7 % about the family's own rate
 PROFILE_FACTORS = tuple(sorted({round(2.0 ** (k / 8), 12) for k in range(-8, 9)}
@@ -206,7 +206,13 @@ def rate_profile(problem: TrajectoryProblem, *, q0: Tensor, omega0: Tensor, log_
                        share=profile_share(log_rate, delta, rate=own))
 
 
+def capped_p_right(share: float, *, weight: float, p_right: float) -> float:
+    """A family's probability of being right capped by its profile's share within the tolerance:
+    ``min(p_right, weight · share)`` (a kept profile's ``share`` is enough)."""
+    return min(p_right, weight * share)
+
+
 def ridge_rule(profile: RateProfile, *, weight: float, p_right: float) -> tuple[float, bool]:
-    """The family's probability of being right capped by its profile (``min(p_right, weight · share)``) and
-    whether it is on a ridge (its rate not resolved)."""
-    return min(p_right, weight * profile.share), not profile.resolved
+    """The family's probability of being right capped by its profile (:func:`capped_p_right`) and whether it is on
+    a ridge (its rate not resolved)."""
+    return capped_p_right(profile.share, weight=weight, p_right=p_right), not profile.resolved
